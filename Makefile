@@ -1,0 +1,48 @@
+# bodyhealth — the two commands: `make run` and `make test`.
+PY      ?= python3.11
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+PORT    ?= 8000
+
+.PHONY: setup setup-browser run test test-fast lint bench clean
+
+## setup: create .venv/ and install the project with its dev tools (quick when nothing changed)
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV) || python3 -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+## setup-browser: Debian's Chromium + ChromeDriver for the dashboard tests (root, apt)
+setup-browser:
+	@if ! command -v chromium >/dev/null 2>&1; then \
+	  echo "installing chromium (Debian package) for the browser tests"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null) \
+	  || echo "warning: could not install chromium; browser tests will be skipped"; \
+	fi
+
+## run: the service with an embedded SQLite store and a simulated robot farm; dashboard on localhost
+run: setup
+	$(BIN)/bodyhealth serve --demo --port $(PORT)
+
+## test: set up and run every test (slow ones included)
+test: setup setup-browser
+	$(BIN)/python -m pytest -q
+
+## test-fast: skip the slow and end-to-end tests while developing
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not slow and not e2e"
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+## bench: every benchmark; results go to docs/bench/
+bench: setup
+	$(BIN)/bodyhealth bench all
+
+clean:
+	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis

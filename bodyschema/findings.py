@@ -1,0 +1,94 @@
+"""Typed differences between a baseline body and the current one: the DESIGN §2 diff JSON.
+
+Example
+-------
+>>> f = Finding(kind="imu_moved", imu="imu3", from_="j2", to="j4", confidence=0.97)
+>>> Diff(findings=(f,)).to_json()["findings"][0]["from"]
+'j2'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["DAMAGE_KINDS", "FINDING_KINDS", "Diff", "Finding"]
+
+#: Kinds that are damage. ``insufficient_excitation`` is a finding but not a damage.
+DAMAGE_KINDS: tuple[str, ...] = (
+    "imu_moved",
+    "imu_detached",
+    "imu_dead",
+    "joint_locked",
+    "encoder_fault",
+    "joint_reparented",
+    "link_lost",
+)
+FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation")
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One typed difference. ``imu`` or ``joint`` names the part; ``from_``/``to`` the old/new value."""
+
+    kind: str
+    imu: str | None = None
+    joint: str | None = None
+    from_: str | None = None
+    to: str | None = None
+    confidence: float = 1.0
+    detail: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in FINDING_KINDS:
+            raise ValueError(f"unknown finding kind {self.kind!r}; expected one of {FINDING_KINDS}")
+
+    @property
+    def part(self) -> str:
+        """``imu:<name>`` or ``joint:<name>``: the key alerts are tracked under."""
+        return f"imu:{self.imu}" if self.imu is not None else f"joint:{self.joint}"
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"kind": self.kind}
+        if self.imu is not None:
+            out["imu"] = self.imu
+        if self.joint is not None:
+            out["joint"] = self.joint
+        if self.from_ is not None or self.kind in ("imu_moved", "joint_reparented"):
+            out["from"] = self.from_
+        if self.to is not None or self.kind in ("imu_moved", "joint_reparented"):
+            out["to"] = self.to
+        out["confidence"] = round(float(self.confidence), 4)
+        if self.detail:
+            out["detail"] = self.detail
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> Finding:
+        return cls(
+            kind=d["kind"],
+            imu=d.get("imu"),
+            joint=d.get("joint"),
+            from_=d.get("from"),
+            to=d.get("to"),
+            confidence=float(d.get("confidence", 1.0)),
+            detail=d.get("detail", ""),
+        )
+
+
+@dataclass(frozen=True)
+class Diff:
+    """All findings of one comparison; ``changed`` is true when any finding is a damage."""
+
+    findings: tuple[Finding, ...] = ()
+
+    @property
+    def changed(self) -> bool:
+        return any(f.kind in DAMAGE_KINDS for f in self.findings)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"changed": self.changed, "findings": [f.to_json() for f in self.findings]}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> Diff:
+        return cls(findings=tuple(Finding.from_json(f) for f in d.get("findings", [])))

@@ -1,0 +1,189 @@
+"""The in-memory recording: encoder and IMU time series of one robot.
+
+This is the exchange format of DESIGN §2 held as arrays. Reading and writing ``.npz`` files lives in
+:mod:`simulators.recording_io`; this module only validates and derives (pure).
+
+Example
+-------
+>>> import numpy as np
+>>> t = np.arange(5) * 0.01
+>>> rec = Recording(t=t, joint_names=("j1",), q=np.zeros((5, 1)), imu_names=("imu0",),
+...                 acc=np.zeros((5, 1, 3)), gyro=np.zeros((5, 1, 3)))
+>>> rec.n_samples, rec.n_joints, rec.n_imus
+(5, 1, 1)
+>>> rec.derived().qd.shape
+(5, 1)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GRAVITY", "Recording", "RecordingError"]
+
+#: Standard world gravity (z up), m/s².
+GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+class RecordingError(ValueError):
+    """A recording whose arrays do not fit the DESIGN §2 contract (shape, order, finiteness)."""
+
+
+def _as_names(names: Any) -> tuple[str, ...]:
+    return tuple(str(n) for n in np.asarray(names, dtype=object).reshape(-1))
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Encoder and IMU time series of one robot (DESIGN §2).
+
+    Shapes: ``t`` (T,), ``q``/``qd``/``qdd`` (T,N) rad, ``acc``/``gyro`` (T,K,3) in the sensor frame,
+    ``acc`` as specific force (reads about +9.81 up at rest). ``truth_*`` are ground truth for tests and
+    benchmarks; estimators never read them. ``extra`` carries optional arrays (e.g. ``excitation``)
+    through a round trip untouched.
+    """
+
+    t: np.ndarray
+    joint_names: tuple[str, ...]
+    q: np.ndarray | None
+    imu_names: tuple[str, ...]
+    acc: np.ndarray
+    gyro: np.ndarray
+    gravity: np.ndarray = field(default_factory=lambda: GRAVITY.copy())
+    qd: np.ndarray | None = None
+    qdd: np.ndarray | None = None
+    ref_quat: np.ndarray | None = None
+    ref_pos: np.ndarray | None = None
+    truth_joint_parent: tuple[str, ...] | None = None
+    truth_imu_joint: tuple[str, ...] | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "joint_names", _as_names(self.joint_names))
+        object.__setattr__(self, "imu_names", _as_names(self.imu_names))
+        for name in ("truth_joint_parent", "truth_imu_joint"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _as_names(v))
+        self.validate()
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def n_imus(self) -> int:
+        return len(self.imu_names)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if self.n_samples > 1 else 0.0
+
+    @property
+    def sample_rate(self) -> float:
+        """Median sample rate, Hz."""
+        if self.n_samples < 2:
+            return 0.0
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    # ------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Raise :class:`RecordingError` naming the first field that breaks the contract."""
+        t = np.asarray(self.t)
+        if t.ndim != 1 or t.shape[0] < 1:
+            raise RecordingError(f"t must have shape (T,), got {t.shape}")
+        if not np.all(np.isfinite(t)):
+            raise RecordingError("t contains NaN or Inf")
+        if t.shape[0] > 1 and not np.all(np.diff(t) > 0):
+            raise RecordingError("t must be strictly increasing")
+        T, N, K = t.shape[0], self.n_joints, self.n_imus
+        if len(set(self.joint_names)) != N:
+            raise RecordingError("joint_names must be unique")
+        if len(set(self.imu_names)) != K:
+            raise RecordingError("imu_names must be unique")
+        for name in ("q", "qd", "qdd"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if v.shape != (T, N):
+                raise RecordingError(f"{name} must have shape {(T, N)}, got {v.shape}")
+            if not np.all(np.isfinite(v)):
+                raise RecordingError(f"{name} contains NaN or Inf")
+        for name in ("acc", "gyro"):
+            v = getattr(self, name)
+            if v.shape != (T, K, 3):
+                raise RecordingError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
+        if np.asarray(self.gravity).shape != (3,):
+            raise RecordingError("gravity must have shape (3,)")
+        if self.q is None and self.ref_quat is None:
+            raise RecordingError("a recording needs joint positions q or a reference motion ref_quat")
+        if self.ref_quat is not None and self.ref_quat.shape != (T, 4):
+            raise RecordingError(f"ref_quat must have shape {(T, 4)}, got {self.ref_quat.shape}")
+        if self.ref_pos is not None and self.ref_pos.shape != (T, 3):
+            raise RecordingError(f"ref_pos must have shape {(T, 3)}, got {self.ref_pos.shape}")
+        if self.truth_joint_parent is not None and len(self.truth_joint_parent) != N:
+            raise RecordingError("truth_joint_parent must have one entry per joint")
+        if self.truth_imu_joint is not None and len(self.truth_imu_joint) != K:
+            raise RecordingError("truth_imu_joint must have one entry per IMU")
+
+    # -------------------------------------------------------------- derived
+    def derived(self) -> Recording:
+        """This recording with ``qd`` and ``qdd`` filled by central differences where absent."""
+        if self.q is None or (self.qd is not None and self.qdd is not None):
+            return self
+        qd = self.qd if self.qd is not None else _gradient(self.q, self.t)
+        qdd = self.qdd if self.qdd is not None else _gradient(qd, self.t)
+        return replace(self, qd=qd, qdd=qdd)
+
+    def window(self, start: float, stop: float) -> Recording:
+        """The samples with ``start <= t < stop`` (all array fields sliced alike)."""
+        m = (self.t >= start) & (self.t < stop)
+        return self.select(m)
+
+    def select(self, index: np.ndarray | slice) -> Recording:
+        """Samples picked by a boolean mask, index array or slice along time."""
+
+        def pick(v: np.ndarray | None) -> np.ndarray | None:
+            return None if v is None else v[index]
+
+        extra = {k: (v[index] if v.shape[:1] == self.t.shape else v) for k, v in self.extra.items()}
+        return replace(
+            self,
+            t=self.t[index],
+            q=pick(self.q),
+            qd=pick(self.qd),
+            qdd=pick(self.qdd),
+            acc=self.acc[index],
+            gyro=self.gyro[index],
+            ref_quat=pick(self.ref_quat),
+            ref_pos=pick(self.ref_pos),
+            extra=extra,
+        )
+
+    @property
+    def truth_parent_map(self) -> dict[str, str | None] | None:
+        """Ground-truth joint parents as a dict (None = mounted on the base)."""
+        if self.truth_joint_parent is None:
+            return None
+        return {j: (p or None) for j, p in zip(self.joint_names, self.truth_joint_parent, strict=True)}
+
+    @property
+    def truth_imu_map(self) -> dict[str, str | None] | None:
+        """Ground-truth IMU -> joint map (None = on the base link)."""
+        if self.truth_imu_joint is None:
+            return None
+        return {i: (j or None) for i, j in zip(self.imu_names, self.truth_imu_joint, strict=True)}
+
+
+def _gradient(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+    if x.shape[0] < 2:
+        return np.zeros_like(x)
+    return np.gradient(x, t, axis=0)

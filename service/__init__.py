@@ -1,0 +1,1 @@
+"""I/O around the science: settings, store, ingestors, worker, REST API, dashboard, CLI, metrics."""

@@ -1,0 +1,1 @@
+"""One module per ``bodyhealth`` subcommand; each exposes ``register(subparsers)``."""
