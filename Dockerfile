@@ -1,0 +1,14 @@
+# The service image. torch is pinned to 2.13.0; pass a CPU wheel index as the build argument
+# PIP_EXTRA_INDEX_URL to avoid pulling the multi-GB CUDA build.
+FROM python:3.11-slim
+ARG PIP_EXTRA_INDEX_URL=""
+ENV PIP_EXTRA_INDEX_URL=${PIP_EXTRA_INDEX_URL}
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY bodyschema bodyschema
+COPY simulators simulators
+COPY service service
+COPY migrations migrations
+RUN pip install --no-cache-dir .
+EXPOSE 8000
+CMD ["bodyhealth", "serve", "--demo", "--host", "0.0.0.0", "--port", "8000"]
