@@ -1,0 +1,192 @@
+"""Baseline body vs current body: typed damage findings (DESIGN §2 diff JSON).
+
+A bare comparison of two learned trees over-reports: one frozen encoder makes its joint's IMUs "move"
+to the parent joint and its child joints "re-parent"; one dead IMU "moves" to the base. So the diff
+works from the most specific cause to the least, and every part a cause explains is *claimed* and not
+reported again:
+
+1. ``imu_dead`` — the IMU is silent, reports zeros or repeats one sample (signal health).
+2. ``encoder_fault`` — the joint's child link turns against its parent but the encoder is flat or does
+   not agree (signal health).
+3. ``joint_locked`` — the joint no longer moves (encoder flat, child link rigid with its parent) while
+   other joints do, and it did move in the baseline.
+4. ``link_lost`` — every live IMU of a subtree (at least two, or the encoder still turns while its link
+   does not follow) no longer depends on the subtree's top joint.
+5. ``imu_detached`` / ``imu_moved`` — one IMU follows no joint any more / follows another joint.
+6. ``joint_reparented`` — a joint hangs under another joint than in the baseline.
+7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
+   that depend on it are not judged.
+
+Identical inputs give no finding. Everything here is pure.
+
+Example
+-------
+>>> from bodyschema.topology import Topology
+>>> base = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2", "imu2": "j2"})
+>>> diff_bodies(base, base).to_json()
+{'changed': False, 'findings': []}
+>>> cur = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j1", "imu2": "j2"},
+...                confidence={"imu:imu1": 0.9})
+>>> diff_bodies(base, cur).to_json()["findings"]
+[{'kind': 'imu_moved', 'imu': 'imu1', 'from': 'j2', 'to': 'j1', 'confidence': 0.9}]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bodyschema.findings import Diff, Finding
+from bodyschema.health import SignalHealth
+from bodyschema.topology import Topology
+
+__all__ = ["DiffThresholds", "diff_bodies"]
+
+
+@dataclass(frozen=True)
+class DiffThresholds:
+    """``excitation_rad_s``: a baseline joint slower than this never "moved", so it cannot lock.
+    ``min_link_imus``: live IMUs a subtree needs before losing all of them reads as ``link_lost``
+    (fewer and it reads as ``imu_detached``) unless the encoder shows the joint still turning.
+    ``min_confidence``: IMU/joint changes the estimator is less sure of are not reported."""
+
+    excitation_rad_s: float = 0.05
+    min_link_imus: int = 2
+    min_confidence: float = 0.0
+
+
+def _order(topo: Topology) -> list[str]:
+    """Joints root first (breadth-first), so a cause high in the tree is found before its effects."""
+    out: list[str] = []
+    frontier = topo.children(None)
+    while frontier:
+        out.extend(frontier)
+        frontier = [c for j in frontier for c in topo.children(j)]
+    return out
+
+
+def _depends(topo: Topology, imu: str, joint: str) -> bool:
+    """Whether ``imu`` (per ``topo``) moves with ``joint``: the joint is on its path to the base."""
+    j = topo.imu_joint.get(imu)
+    if j is None or j not in topo.joint_parent:
+        return False
+    return joint in topo.ancestors(j)
+
+
+def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | None = None,
+                thresholds: DiffThresholds | None = None) -> Diff:
+    """Typed findings that turn ``baseline`` into ``current`` (see the module doc for the order).
+
+    ``health`` (from :func:`bodyschema.health.signal_health` on the current window, with the baseline
+    as layout) adds the signal-level findings; without it only structure is compared and a missing IMU
+    counts as dead.
+    """
+    th = thresholds or DiffThresholds()
+    findings: list[Finding] = []
+    claimed_imus: set[str] = set()
+    claimed_joints: set[str] = set()
+    order = _order(baseline)
+
+    def conf(key: str) -> float:
+        return float(current.confidence.get(key, 1.0))
+
+    # 1. dead IMUs -------------------------------------------------------------------------------
+    for imu, joint in baseline.imu_joint.items():
+        h = health.imus.get(imu) if health is not None else None
+        if h is not None and h.dead:
+            findings.append(Finding("imu_dead", imu=imu, from_=joint, detail=h.state))
+            claimed_imus.add(imu)
+        elif imu not in current.imu_joint:
+            findings.append(Finding("imu_dead", imu=imu, from_=joint, detail="silent"))
+            claimed_imus.add(imu)
+
+    def claim_joint(j: str) -> None:
+        """A joint-level cause explains its own changes, its child link's IMUs and its children."""
+        claimed_joints.add(j)
+        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
+        claimed_joints.update(baseline.children(j))
+
+    # 2./3. encoder faults and locked joints -------------------------------------------------------
+    if health is not None:
+        moving = set(health.moving_joints)
+        for j in order:
+            jh = health.joints.get(j)
+            if jh is None or j in claimed_joints:
+                continue
+            if jh.state in ("frozen_encoder", "wrong_encoder"):
+                detail = ("encoder flat while its link turns" if jh.state == "frozen_encoder"
+                          else "encoder disagrees with its link's motion")
+                c = 1.0 if jh.explained is None else max(0.5, 1.0 - jh.explained)
+                findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
+                claim_joint(j)
+            elif jh.state in ("still", "flat"):
+                base_exc = baseline.excitation.get(j)
+                was_moving = base_exc is None or base_exc > th.excitation_rad_s
+                if was_moving and moving - {j}:
+                    findings.append(Finding("joint_locked", joint=j,
+                                            detail=f"encoder {jh.excitation:.3f} rad/s while others move"))
+                    claim_joint(j)
+    elif current.excitation:
+        # Structure only: a joint whose encoder went flat while others move, and which the current
+        # estimate cannot place, is locked (without IMU health an encoder fault reads the same).
+        moving = {j for j, e in current.excitation.items() if e > th.excitation_rad_s}
+        for j in order:
+            e = current.excitation.get(j)
+            base_exc = baseline.excitation.get(j)
+            if (e is not None and e <= th.excitation_rad_s and moving - {j}
+                    and (base_exc is None or base_exc > th.excitation_rad_s)):
+                findings.append(Finding("joint_locked", joint=j, detail=f"encoder {e:.3f} rad/s"))
+                claim_joint(j)
+
+    # 7 (first half). undecidable joints: nothing that hangs on them is judged ----------------------
+    undecided = [j for j in current.undetermined if j in baseline.joint_parent and j not in claimed_joints]
+
+    # 4. lost links --------------------------------------------------------------------------------
+    for j in order:
+        if j in claimed_joints or j in undecided:
+            continue
+        sub = set(baseline.subtree(j))
+        live = [i for i, jj in baseline.imu_joint.items() if jj in sub and i not in claimed_imus]
+        if not live:
+            continue
+        lost = [i for i in live if not _depends(current, i, j)]
+        unfollowed = health is not None and j in health.joints and health.joints[j].state == "unfollowed"
+        if len(lost) == len(live) and (len(live) >= th.min_link_imus or unfollowed):
+            findings.append(Finding("link_lost", joint=j, from_=baseline.joint_parent[j],
+                                    detail=f"{len(live)} IMUs no longer follow {j}"))
+            claimed_joints.update(sub)
+            claimed_imus.update(live)
+
+    for j in undecided:
+        if j in claimed_joints:
+            continue
+        findings.append(Finding("insufficient_excitation", joint=j,
+                                confidence=conf(f"joint:{j}"),
+                                detail="the window does not move this joint enough to place it"))
+        claim_joint(j)
+
+    # 5. single IMUs -------------------------------------------------------------------------------
+    for imu, b in baseline.imu_joint.items():
+        if imu in claimed_imus or imu not in current.imu_joint:
+            continue
+        c = current.imu_joint[imu]
+        if c == b or conf(f"imu:{imu}") < th.min_confidence:
+            continue
+        if c in undecided or c in claimed_joints:
+            continue
+        if c is None and b is not None:
+            findings.append(Finding("imu_detached", imu=imu, from_=b, confidence=conf(f"imu:{imu}")))
+        else:
+            findings.append(Finding("imu_moved", imu=imu, from_=b, to=c, confidence=conf(f"imu:{imu}")))
+
+    # 6. re-parented joints ------------------------------------------------------------------------
+    for j in order:
+        if j in claimed_joints or j not in current.joint_parent:
+            continue
+        b, c = baseline.joint_parent[j], current.joint_parent[j]
+        if b == c or conf(f"joint:{j}") < th.min_confidence:
+            continue
+        if c in claimed_joints or c in undecided:
+            continue
+        findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf(f"joint:{j}")))
+
+    return Diff(findings=tuple(findings))

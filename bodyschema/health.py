@@ -1,0 +1,303 @@
+"""Signal health of one recording window: which sensors still report, and which joints really move.
+
+The topology estimators answer "which joint does this IMU depend on"; they cannot tell a dead sensor
+from a moved one, nor a locked joint from a frozen encoder, because all of these look like "no
+dependency". This module looks at the raw signals to make those calls:
+
+* **IMUs** — ``silent`` (expected but absent from the window), ``zero`` (reports exact zeros; a real
+  accelerometer reads about 9.81 m/s² at rest), ``frozen`` (repeats the same sample), else ``ok``.
+* **Joints** — the encoder's excitation (RMS joint velocity) and, when the layout puts IMUs on the
+  joint's child link, the *relative motion* of that link against its parent link, measured from the
+  gyros alone. For a rigid connection (joint not turning) the child gyro is a constant linear map of
+  the parent gyro plus a bias; for a revolute joint it is exactly linear in ``[ω_p, ω_p·cos q,
+  ω_p·sin q, q̇]`` (Rodrigues' formula in the link frames). The first fit's residual is the motion of
+  the link relative to its parent; how much of it the encoder explains tells a frozen or wrong encoder
+  (link turns, encoder does not agree) from a locked joint (neither turns).
+
+Everything here is pure numpy; thresholds are plain arguments so callers can tune them.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.recording import Recording
+>>> from bodyschema.topology import Topology
+>>> t = np.arange(500) * 0.01
+>>> q = np.c_[np.sin(t), 0.3 * np.sin(2 * t)]
+>>> gyro = np.zeros((500, 2, 3))
+>>> gyro[:, 0, 2] = np.cos(t)                                  # imu0 turns with j1 (z axis)
+>>> gyro[:, 1, 2] = np.cos(t)                                  # imu1 rides j2 but j2 never turns it
+>>> acc = np.random.default_rng(0).normal(0, 0.01, (500, 2, 3)) + [0, 0, 9.81]
+>>> rec = Recording(t=t, joint_names=("j1", "j2"), q=q, imu_names=("imu0", "imu1"), acc=acc, gyro=gyro)
+>>> layout = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"})
+>>> h = signal_health(rec, layout)
+>>> h.joints["j1"].state, h.joints["j2"].state
+('ok', 'unfollowed')
+>>> h.imus["imu0"].state
+'ok'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+
+__all__ = [
+    "IMU_STATES",
+    "JOINT_STATES",
+    "HealthThresholds",
+    "ImuHealth",
+    "JointHealth",
+    "SignalHealth",
+    "imu_health",
+    "relative_motion",
+    "signal_health",
+]
+
+#: ``ok`` reports a live signal; the others mean the sensor is dead.
+IMU_STATES: tuple[str, ...] = ("ok", "silent", "zero", "frozen")
+
+#: ``ok``: encoder and link agree and move; ``still``: neither moves; ``frozen_encoder``: the link turns
+#: but the encoder is flat; ``wrong_encoder``: both move but the encoder does not explain the link;
+#: ``unfollowed``: the encoder moves but the link does not turn with it; ``moving``/``flat``: only the
+#: encoder could be judged (no healthy IMU on the child link).
+JOINT_STATES: tuple[str, ...] = (
+    "ok", "still", "frozen_encoder", "wrong_encoder", "unfollowed", "moving", "flat",
+)
+
+
+@dataclass(frozen=True)
+class HealthThresholds:
+    """Decision thresholds (units in the names).
+
+    ``excitation_rad_s``: RMS joint velocity above which an encoder counts as moving.
+    ``motion_rad_s``: RMS relative angular rate above which a link counts as turning against its parent.
+    ``explained``: fraction of that relative motion the encoder must explain to count as consistent.
+    ``frozen_fraction``: share of repeated consecutive samples that makes an IMU frozen.
+    ``zero_abs``: readings below this magnitude (both acc and gyro) count as zero.
+    ``min_samples``: fewer samples than this and nothing is judged.
+    """
+
+    excitation_rad_s: float = 0.05
+    motion_rad_s: float = 0.05
+    explained: float = 0.5
+    frozen_fraction: float = 0.9
+    zero_abs: float = 1e-6
+    min_samples: int = 20
+
+
+@dataclass(frozen=True)
+class ImuHealth:
+    """One IMU in one window: ``state`` in :data:`IMU_STATES`, ``gyro_rms`` (rad/s, mean removed)."""
+
+    name: str
+    state: str
+    gyro_rms: float = 0.0
+
+    @property
+    def dead(self) -> bool:
+        return self.state != "ok"
+
+
+@dataclass(frozen=True)
+class JointHealth:
+    """One joint in one window.
+
+    ``excitation``: RMS encoder velocity (rad/s). ``relative_motion``: RMS angular rate of the child link
+    against its parent link (rad/s; None when no healthy IMU rides the child link). ``explained``:
+    fraction of that motion the encoder accounts for (None when not judged). ``state`` in
+    :data:`JOINT_STATES`.
+    """
+
+    name: str
+    state: str
+    excitation: float
+    relative_motion: float | None = None
+    explained: float | None = None
+
+    @property
+    def encoder_moving(self) -> bool:
+        return self.state in ("ok", "wrong_encoder", "unfollowed", "moving")
+
+    @property
+    def link_moving(self) -> bool | None:
+        if self.relative_motion is None:
+            return None
+        return self.state in ("ok", "frozen_encoder", "wrong_encoder")
+
+
+@dataclass(frozen=True)
+class SignalHealth:
+    """Health of every expected IMU and every joint of one window."""
+
+    imus: dict[str, ImuHealth] = field(default_factory=dict)
+    joints: dict[str, JointHealth] = field(default_factory=dict)
+
+    @property
+    def dead_imus(self) -> list[str]:
+        return sorted(n for n, h in self.imus.items() if h.dead)
+
+    @property
+    def moving_joints(self) -> list[str]:
+        """Joints whose encoder or child link moves."""
+        return sorted(n for n, h in self.joints.items() if h.encoder_moving or h.link_moving)
+
+    @property
+    def body_moving(self) -> bool:
+        return bool(self.moving_joints)
+
+    def to_json(self) -> dict[str, Any]:
+        def r(x: float | None) -> float | None:
+            return None if x is None else round(float(x), 6)
+
+        return {
+            "imus": {n: {"state": h.state, "gyro_rms": r(h.gyro_rms)} for n, h in self.imus.items()},
+            "joints": {
+                n: {"state": h.state, "excitation": r(h.excitation),
+                    "relative_motion": r(h.relative_motion), "explained": r(h.explained)}
+                for n, h in self.joints.items()
+            },
+        }
+
+
+# ---------------------------------------------------------------------------------------------- IMUs
+def imu_health(acc: np.ndarray, gyro: np.ndarray, name: str = "",
+               thresholds: HealthThresholds | None = None) -> ImuHealth:
+    """Judge one IMU from its ``(T,3)`` accelerometer and gyro series.
+
+    >>> import numpy as np
+    >>> imu_health(np.zeros((50, 3)), np.zeros((50, 3)), "a").state
+    'zero'
+    >>> imu_health(np.tile([0, 0, 9.8], (50, 1)), np.tile([0.1, 0, 0], (50, 1)), "b").state
+    'frozen'
+    """
+    th = thresholds or HealthThresholds()
+    if acc.shape[0] == 0:
+        return ImuHealth(name, "silent")
+    both = np.concatenate([acc, gyro], axis=1)
+    gyro_rms = float(np.sqrt(np.mean(np.sum((gyro - gyro.mean(axis=0)) ** 2, axis=1))))
+    if np.all(np.abs(both) < th.zero_abs):
+        return ImuHealth(name, "zero", gyro_rms)
+    if both.shape[0] >= 2:
+        repeated = np.all(np.diff(both, axis=0) == 0.0, axis=1)
+        if float(np.mean(repeated)) >= th.frozen_fraction:
+            return ImuHealth(name, "frozen", gyro_rms)
+    return ImuHealth(name, "ok", gyro_rms)
+
+
+# -------------------------------------------------------------------------------------------- joints
+def _lstsq_residual(X: np.ndarray, Y: np.ndarray) -> float:
+    """Sum of squared residuals of the least-squares fit Y ≈ X B (columns scaled for conditioning)."""
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    scale[scale < 1e-12] = 1.0
+    Xs = X / scale
+    coef, *_ = np.linalg.lstsq(Xs, Y, rcond=1e-8)
+    res = Y - Xs @ coef
+    return float(np.sum(res**2))
+
+
+def relative_motion(child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: np.ndarray,
+                    qd: np.ndarray) -> tuple[float, float]:
+    """RMS rate of the child link against its parent, and the fraction of it the encoder explains.
+
+    ``child_gyro``/``parent_gyro`` are ``(T,3)`` gyro series of IMUs on the joint's child and parent
+    links (``parent_gyro`` None = the parent link is fixed: the world base); ``q``/``qd`` the joint's
+    ``(T,)`` encoder position and velocity. Returns ``(rms, explained)``; ``explained`` is 1 when the
+    encoder accounts for all relative motion and 0 when it accounts for none.
+
+    >>> import numpy as np
+    >>> t = np.linspace(0, 10, 1000); q = np.sin(t); qd = np.cos(t)
+    >>> child = np.c_[np.zeros(1000), np.zeros(1000), qd]
+    >>> rms, explained = relative_motion(child, None, q, qd)
+    >>> round(rms, 2), round(explained, 3)
+    (0.72, 1.0)
+    >>> relative_motion(child, None, np.zeros(1000), np.zeros(1000))[1] < 0.01
+    True
+    """
+    T = child_gyro.shape[0]
+    ones = np.ones((T, 1))
+    if parent_gyro is None:
+        rigid = ones
+        full = np.c_[qd, ones]
+    else:
+        rigid = np.c_[parent_gyro, ones]
+        full = np.c_[parent_gyro, parent_gyro * np.cos(q)[:, None], parent_gyro * np.sin(q)[:, None],
+                     qd, ones]
+    ss_rigid = _lstsq_residual(rigid, child_gyro)
+    ss_full = _lstsq_residual(full, child_gyro)
+    rms = float(np.sqrt(ss_rigid / T))
+    explained = 0.0 if ss_rigid <= 1e-18 else float(np.clip(1.0 - ss_full / ss_rigid, 0.0, 1.0))
+    return rms, explained
+
+
+def _joint_state(excitation: float, motion: float | None, explained: float | None,
+                 th: HealthThresholds) -> str:
+    enc = excitation > th.excitation_rad_s
+    if motion is None:
+        return "moving" if enc else "flat"
+    link = motion > th.motion_rad_s
+    if enc and link:
+        return "ok" if (explained or 0.0) >= th.explained else "wrong_encoder"
+    if enc:
+        return "unfollowed"
+    if link:
+        return "frozen_encoder"
+    return "still"
+
+
+# --------------------------------------------------------------------------------------------- whole
+def signal_health(rec: Recording, layout: Topology | None = None,
+                  expected_imus: Iterable[str] | None = None,
+                  thresholds: HealthThresholds | None = None) -> SignalHealth:
+    """Health of every IMU and joint in ``rec``.
+
+    ``layout`` (usually the baseline topology) says which IMUs ride which link; without it joints are
+    judged from their encoders alone. ``expected_imus`` (default: the layout's IMUs plus the
+    recording's) names IMUs that should report; those absent from ``rec`` are ``silent``.
+    """
+    th = thresholds or HealthThresholds()
+    present = {n: k for k, n in enumerate(rec.imu_names)}
+    expected = list(dict.fromkeys([*(expected_imus or ()), *((layout.imu_joint) if layout else ()),
+                                   *rec.imu_names]))
+    enough = rec.n_samples >= th.min_samples
+    imus: dict[str, ImuHealth] = {}
+    for name in expected:
+        if name not in present or not enough:
+            imus[name] = ImuHealth(name, "silent" if name not in present else "ok")
+            continue
+        k = present[name]
+        imus[name] = imu_health(rec.acc[:, k, :], rec.gyro[:, k, :], name, th)
+
+    joints: dict[str, JointHealth] = {}
+    if rec.q is None or rec.n_joints == 0 or not enough:
+        return SignalHealth(imus, joints)
+    d = rec.derived()
+    assert d.qd is not None and d.q is not None
+    healthy = {n for n, h in imus.items() if not h.dead and n in present}
+    for j_idx, j in enumerate(rec.joint_names):
+        qd = d.qd[:, j_idx]
+        excitation = float(np.sqrt(np.mean(qd**2)))
+        motion: float | None = None
+        explained: float | None = None
+        if layout is not None and j in layout.joint_parent:
+            child = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in healthy)
+            parent_joint = layout.joint_parent[j]
+            parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in healthy)
+            if child and (parent or parent_joint is None):
+                pg = rec.gyro[:, present[parent[0]], :] if parent else None
+                fits = [relative_motion(rec.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for c in child]
+                states = [_joint_state(excitation, m, e, th) for m, e in fits]
+                # One IMU that agrees with the encoder clears the joint: a single moved or detached
+                # IMU on the link must not read as an encoder fault.
+                pick = states.index("ok") if "ok" in states else max(
+                    range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
+                motion, explained = fits[pick]
+                joints[j] = JointHealth(j, states[pick], excitation, motion, explained)
+                continue
+        joints[j] = JointHealth(j, _joint_state(excitation, motion, explained, th), excitation)
+    return SignalHealth(imus, joints)

@@ -1,0 +1,169 @@
+"""Signal health on synthetic gyro/encoder data of a small branching robot.
+
+The robot: j1 (z axis) on the base, j2 (y axis) and j3 (x axis) both under j1. Link gyros follow the
+rigid-body relation ω_child = R(q)ᵀ ω_parent + axis·q̇ exactly, plus MPU-6050-like noise and bias, so
+a wrong judgement here is the code's fault, not the data's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bodyschema.health import HealthThresholds, imu_health, relative_motion, signal_health
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+
+LAYOUT = Topology(
+    {"j1": None, "j2": "j1", "j3": "j1"},
+    {"a1": "j1", "a2": "j1", "b1": "j2", "b2": "j2", "c1": "j3"},
+    excitation={"j1": 0.5, "j2": 0.5, "j3": 0.5},
+)
+AXES = {"j1": np.array([0, 0, 1.0]), "j2": np.array([0, 1.0, 0]), "j3": np.array([1.0, 0, 0])}
+
+
+def _rot(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(T,3,3) rotation matrices about a unit axis (Rodrigues)."""
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def synth(rng: np.random.Generator, seconds: float = 20.0, rate: float = 100.0, *,
+          locked: str | None = None, frozen_encoder: str | None = None,
+          lost: str | None = None) -> Recording:
+    t = np.arange(int(seconds * rate)) / rate
+    names = ("j1", "j2", "j3")
+    q = np.zeros((t.size, 3))
+    for k in range(3):
+        f = rng.uniform(0.1, 0.25, 3)
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        q[:, k] = sum(0.8 * np.sin(2 * np.pi * f[m] * t + ph[m]) for m in range(3))
+    if locked is not None:
+        q[:, names.index(locked)] = q[0, names.index(locked)]
+    qd = np.gradient(q, t, axis=0)
+    w1 = qd[:, [0]] * AXES["j1"]
+    links = {"j1": w1}
+    for j, k in (("j2", 1), ("j3", 2)):
+        R = _rot(AXES[j], q[:, k])
+        links[j] = np.einsum("tji,tj->ti", R, w1) + qd[:, [k]] * AXES[j]
+    if lost is not None:
+        links[lost] = np.zeros_like(w1)  # the link lies still on the floor
+    imus = ("a1", "a2", "b1", "b2", "c1")
+    gyro = np.zeros((t.size, 5, 3))
+    for n, name in enumerate(imus):
+        mount = _rot(rng.normal(size=3) / np.sqrt(3), np.array([rng.uniform(0, np.pi)]))[0]
+        gyro[:, n] = links[LAYOUT.imu_joint[name]] @ mount.T + rng.normal(0, 0.3, 3)  # bias
+        gyro[:, n] += rng.normal(0, 0.005, (t.size, 3))
+    acc = np.tile([0.0, 0.0, 9.81], (t.size, 5, 1)) + rng.normal(0, 0.04, (t.size, 5, 3))
+    q_enc = q.copy()
+    if frozen_encoder is not None:
+        q_enc[:, names.index(frozen_encoder)] = q_enc[0, names.index(frozen_encoder)]
+    return Recording(t=t, joint_names=names, q=q_enc, imu_names=imus, acc=acc, gyro=gyro)
+
+
+def test_healthy_robot_is_all_ok(rng: np.random.Generator) -> None:
+    h = signal_health(synth(rng), LAYOUT)
+    assert {n: j.state for n, j in h.joints.items()} == {"j1": "ok", "j2": "ok", "j3": "ok"}
+    assert h.dead_imus == []
+    assert all(j.explained is not None and j.explained > 0.95 for j in h.joints.values())
+    assert all(j.excitation > 0.3 for j in h.joints.values())
+
+
+def test_locked_joint_is_still(rng: np.random.Generator) -> None:
+    h = signal_health(synth(rng, locked="j2"), LAYOUT)
+    assert h.joints["j2"].state == "still"
+    assert h.joints["j2"].relative_motion < 0.05
+    assert h.joints["j1"].state == h.joints["j3"].state == "ok"
+
+
+def test_frozen_encoder_while_link_turns(rng: np.random.Generator) -> None:
+    h = signal_health(synth(rng, frozen_encoder="j3"), LAYOUT)
+    assert h.joints["j3"].state == "frozen_encoder"
+    assert h.joints["j3"].relative_motion > 0.3
+    assert h.joints["j1"].state == h.joints["j2"].state == "ok"
+
+
+def test_wrong_encoder_is_caught(rng: np.random.Generator) -> None:
+    rec = synth(rng)
+    q = rec.q.copy()
+    q[:, 1] = np.roll(q[:, 2], 700)  # the encoder reports some other motion
+    h = signal_health(Recording(t=rec.t, joint_names=rec.joint_names, q=q, imu_names=rec.imu_names,
+                                acc=rec.acc, gyro=rec.gyro), LAYOUT)
+    assert h.joints["j2"].state == "wrong_encoder"
+    assert h.joints["j2"].explained < 0.5
+
+
+def test_lost_link_is_unfollowed(rng: np.random.Generator) -> None:
+    h = signal_health(synth(rng, lost="j2"), LAYOUT)
+    assert h.joints["j2"].state == "unfollowed"
+    assert h.joints["j1"].state == "ok"
+
+
+def test_one_detached_imu_does_not_fault_the_encoder(rng: np.random.Generator) -> None:
+    rec = synth(rng)
+    gyro = rec.gyro.copy()
+    gyro[:, 2] = rng.normal(0, 0.005, gyro[:, 2].shape) + 0.1  # b1 came off and lies still
+    h = signal_health(Recording(t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=rec.imu_names,
+                                acc=rec.acc, gyro=gyro), LAYOUT)
+    assert h.joints["j2"].state == "ok"
+
+
+@pytest.mark.parametrize("kind", ["zero", "frozen", "silent"])
+def test_dead_imus(rng: np.random.Generator, kind: str) -> None:
+    rec = synth(rng)
+    acc, gyro, names = rec.acc.copy(), rec.gyro.copy(), rec.imu_names
+    if kind == "zero":
+        acc[:, 3] = 0.0
+        gyro[:, 3] = 0.0
+    elif kind == "frozen":
+        acc[:, 3] = acc[0, 3]
+        gyro[:, 3] = gyro[0, 3]
+    else:
+        keep = [0, 1, 2, 4]
+        acc, gyro, names = acc[:, keep], gyro[:, keep], tuple(names[k] for k in keep)
+    rec2 = Recording(t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=names, acc=acc, gyro=gyro)
+    h = signal_health(rec2, LAYOUT)
+    assert h.dead_imus == ["b2"]
+    assert h.imus["b2"].state == kind
+    # the other IMU on the same link keeps the joint judged
+    assert h.joints["j2"].state == "ok"
+
+
+def test_zero_and_frozen_single_imu() -> None:
+    assert imu_health(np.zeros((30, 3)), np.zeros((30, 3))).state == "zero"
+    assert imu_health(np.zeros((0, 3)), np.zeros((0, 3))).state == "silent"
+    noisy = np.random.default_rng(1).normal(0, 0.01, (30, 3))
+    assert imu_health(noisy + 9.8, noisy).state == "ok"
+
+
+def test_without_layout_joints_judged_by_encoder(rng: np.random.Generator) -> None:
+    h = signal_health(synth(rng, locked="j2"), None)
+    assert {n: j.state for n, j in h.joints.items()} == {"j1": "moving", "j2": "flat", "j3": "moving"}
+    assert h.joints["j2"].relative_motion is None
+
+
+def test_short_window_judges_nothing(rng: np.random.Generator) -> None:
+    rec = synth(rng).select(slice(0, 5))
+    h = signal_health(rec, LAYOUT, thresholds=HealthThresholds(min_samples=20))
+    assert h.joints == {}
+    assert h.dead_imus == []
+
+
+def test_relative_motion_with_moving_parent(rng: np.random.Generator) -> None:
+    t = np.linspace(0, 20, 2000)
+    q = np.sin(0.7 * t)
+    qd = 0.7 * np.cos(0.7 * t)
+    parent = np.c_[np.sin(t), np.cos(1.3 * t), 0.5 * np.sin(0.4 * t)]
+    child = np.einsum("tji,tj->ti", _rot(AXES["j2"], q), parent) + qd[:, None] * AXES["j2"]
+    rms, explained = relative_motion(child, parent, q, qd)
+    assert rms > 0.3 and explained > 0.999
+    rigid = parent @ _rot(AXES["j1"], np.array([0.4]))[0].T + 0.2
+    rms_r, _ = relative_motion(rigid, parent, np.zeros_like(q), np.zeros_like(q))
+    assert rms_r < 1e-9
+
+
+def test_to_json_round_numbers(rng: np.random.Generator) -> None:
+    js = signal_health(synth(rng), LAYOUT).to_json()
+    assert set(js["joints"]) == {"j1", "j2", "j3"}
+    assert js["imus"]["a1"]["state"] == "ok"
