@@ -1,0 +1,78 @@
+"""Prometheus metrics of one service instance.
+
+Each :class:`Metrics` owns its own ``CollectorRegistry`` (not the process-global one), so several apps
+in one test process do not collide. Frame counters are not incremented here: a collector reads them
+from the ingest pipeline's :class:`~service.ingest.base.Counters` at scrape time, so the numbers on
+``/metrics`` are exactly those the pipeline keeps.
+
+Example
+-------
+>>> from service.ingest.base import Counters
+>>> c = Counters(); c.add("received", 7)
+>>> m = Metrics(counters=lambda: c.as_dict())
+>>> m.retrain_seconds.labels(method="fast").observe(0.4)
+>>> text = m.render().decode()
+>>> "bodyhealth_frames_received_total 7.0" in text, "bodyhealth_retrain_seconds_count" in text
+(True, True)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    generate_latest,
+)
+from prometheus_client.core import CounterMetricFamily
+from prometheus_client.registry import Collector
+
+__all__ = ["CONTENT_TYPE_LATEST", "Metrics"]
+
+_FRAME_COUNTERS = ("received", "stored", "dropped", "malformed")
+
+
+class _FrameCollector(Collector):
+    def __init__(self, read: Callable[[], dict[str, int]]) -> None:
+        self._read = read
+
+    def collect(self) -> Iterator[CounterMetricFamily]:
+        try:
+            values = self._read() or {}
+        except Exception:  # a scrape must never fail because the pipeline is shutting down
+            values = {}
+        for name in _FRAME_COUNTERS:
+            yield CounterMetricFamily(f"bodyhealth_frames_{name}", f"frame samples {name} by the ingest "
+                                      "pipeline", value=float(values.get(name, 0)))
+
+
+class Metrics:
+    """The service's metrics; ``counters`` returns the pipeline counters (received/stored/dropped)."""
+
+    def __init__(self, counters: Callable[[], dict[str, int]] | None = None) -> None:
+        self.registry = CollectorRegistry()
+        self._counters = counters or dict
+        self.registry.register(_FrameCollector(lambda: self._counters()))
+        self.retrain_seconds = Histogram(
+            "bodyhealth_retrain_seconds", "seconds one topology estimate took", ["method"],
+            buckets=(0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 60, 120, 300), registry=self.registry)
+        self.cycle_seconds = Histogram(
+            "bodyhealth_worker_cycle_seconds", "seconds one worker cycle over all robots took",
+            buckets=(0.1, 0.5, 1, 2, 5, 10, 30, 60), registry=self.registry)
+        self.cycles = Counter("bodyhealth_worker_cycles", "worker cycles run", registry=self.registry)
+        self.cycle_errors = Counter("bodyhealth_worker_errors", "robot cycles that failed",
+                                    registry=self.registry)
+        self.alerts_active = Gauge("bodyhealth_alerts_active", "active (unresolved) alerts", ["robot"],
+                                   registry=self.registry)
+        self.robots = Gauge("bodyhealth_robots", "robots known to the store", registry=self.registry)
+
+    def bind_counters(self, counters: Callable[[], dict[str, int]]) -> None:
+        """Point the frame counters at a (new) pipeline."""
+        self._counters = counters
+
+    def render(self) -> bytes:
+        return generate_latest(self.registry)

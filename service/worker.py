@@ -1,0 +1,259 @@
+"""The monitoring worker: per robot, learn the body from the latest window, compare it with the
+baseline, and turn lasting differences into alerts.
+
+One cycle, for every robot the store knows:
+
+1. read the latest ``window_seconds`` of device time (skipped when too short);
+2. judge signal health (:func:`bodyschema.health.signal_health`, the baseline as layout);
+3. learn the topology with the fast estimator (and with the sensor networks every
+   ``network_interval_cycles`` cycles or when asked), store each result with time and method;
+4. without a baseline: adopt the fast topology once it has come out the same ``baseline_repeat_k``
+   cycles in a row (an operator may also approve one, :meth:`Worker.approve_baseline`);
+5. with a baseline: :func:`bodyschema.diff.diff_bodies` → :class:`service.alerts.AlertTracker`
+   (hysteresis) → alerts in the store;
+6. a heartbeat to the store, which ``/readyz`` checks.
+
+The worker runs in its own thread so the API and the ingest pipeline never wait for it; a failing robot
+is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one cycle synchronously
+(tests, the offline tools).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from bodyschema.diff import diff_bodies
+from bodyschema.findings import Diff, Finding
+from bodyschema.health import SignalHealth, signal_health
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+from service.alerts import AlertTracker, Transition
+from service.metrics import Metrics
+from service.settings import Settings, get_settings
+from service.store import Store, TopologyRecord, UnknownRobot
+
+__all__ = ["HEARTBEAT_COMPONENT", "CycleResult", "Estimator", "Worker", "default_estimator"]
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_COMPONENT = "worker"
+
+#: ``(recording, method) -> Topology``; the default is :func:`bodyschema.estimate.estimate_topology`.
+Estimator = Callable[[Recording, str], Topology]
+
+
+def default_estimator(rec: Recording, method: str) -> Topology:
+    from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
+
+    return estimate_topology(rec, method=method)
+
+
+@dataclass
+class CycleResult:
+    """What one cycle did for one robot (returned by :meth:`Worker.run_cycle`, also logged)."""
+
+    robot: str
+    skipped: str = ""
+    topology: Topology | None = None
+    methods: list[str] = field(default_factory=list)
+    health: SignalHealth | None = None
+    diff: Diff | None = None
+    baseline_set: bool = False
+    transitions: list[Transition] = field(default_factory=list)
+
+
+class Worker:
+    """Learns, compares and alerts for every robot in ``store`` (see the module doc).
+
+    ``estimator`` is injected so tests and benchmarks can swap the method; ``clock`` is the wall clock
+    (alert and heartbeat times). Settings give the interval, window, K, M and the network schedule.
+    """
+
+    def __init__(self, store: Store, settings: Settings | None = None, *,
+                 estimator: Estimator | None = None, metrics: Metrics | None = None,
+                 clock: Callable[[], float] = time.time, min_samples: int = 50) -> None:
+        self.store = store
+        self.settings = settings or get_settings()
+        self.estimator = estimator or default_estimator
+        self.metrics = metrics or Metrics()
+        self.clock = clock
+        self.min_samples = min_samples
+        self.tracker = AlertTracker(m=self.settings.alert_hysteresis_m)
+        self.cycles = 0
+        self._recent: dict[str, deque[Topology]] = {}
+        self._requests: dict[str, set[str]] = {}
+        self._lock = threading.Lock()
+        self._cycle_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._restore()
+
+    # ------------------------------------------------------------------------------- control
+    def start(self) -> None:
+        """Run cycles every ``worker_interval_seconds`` in a daemon thread."""
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._loop, name="bodyhealth-worker", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Ask the thread to stop after the current robot and wait for it."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def request(self, robot: str, method: str) -> None:
+        """Run ``method`` for ``robot`` in the next cycle (on demand retrain), and wake the thread."""
+        with self._lock:
+            self._requests.setdefault(robot, set()).add(method)
+        self._wake.set()
+
+    def _loop(self) -> None:
+        interval = self.settings.worker_interval_seconds
+        while not self._stop.is_set():
+            started = time.monotonic()
+            try:
+                self.run_cycle()
+            except Exception:  # never let one bad cycle end monitoring
+                log.exception("worker cycle failed")
+            self._wake.wait(max(0.0, interval - (time.monotonic() - started)))
+            self._wake.clear()
+
+    # ---------------------------------------------------------------------------- baselines
+    def approve_baseline(self, robot: str, topo: Topology | None = None) -> TopologyRecord:
+        """Make ``topo`` (default: the newest fast topology) the robot's baseline, by operator decision.
+
+        Open alerts of the robot are resolved: they were differences to the old baseline.
+        Raises :class:`~service.store.UnknownRobot`, or ``LookupError`` when nothing was learned yet.
+        """
+        if topo is None:
+            rec = self.store.latest_topology(robot, method="fast") or self.store.latest_topology(robot)
+            if rec is None:
+                raise LookupError(f"no topology learned for {robot!r} yet")
+            topo = rec.topology
+        with self._cycle_lock:
+            self.store.set_baseline(robot, topo, "operator", wall_time=self.clock())
+            now = self.clock()
+            for a in self.store.alerts(robot):
+                if a.state != "resolved":
+                    self.store.update_alert(a.id, state="resolved", updated_at=now)
+            self.tracker.forget(robot)
+        base = self.store.baseline(robot)
+        assert base is not None
+        log.info("baseline approved", extra={"robot": robot, "source": "operator"})
+        return base
+
+    def _restore(self) -> None:
+        """Pick up open alerts after a restart so they are neither raised twice nor left dangling."""
+        try:
+            for a in self.store.alerts(active=True):
+                self.tracker.restore(a.robot, [Finding.from_json(a.finding)])
+        except Exception:
+            log.exception("could not restore open alerts")
+
+    # -------------------------------------------------------------------------------- cycle
+    def run_cycle(self) -> dict[str, CycleResult]:
+        """One pass over every robot; returns what happened per robot."""
+        t0 = time.perf_counter()
+        out: dict[str, CycleResult] = {}
+        with self._cycle_lock:
+            self.cycles += 1
+            robots = self.store.robots()
+            self.metrics.robots.set(len(robots))
+            for info in robots:
+                if self._stop.is_set():
+                    break
+                try:
+                    out[info.name] = self._robot_cycle(info.name, info.imus)
+                except UnknownRobot:
+                    continue
+                except Exception:
+                    self.metrics.cycle_errors.inc()
+                    log.exception("worker cycle failed for robot", extra={"robot": info.name})
+            for info in robots:
+                try:
+                    n = len(self.store.alerts(info.name, active=True))
+                except UnknownRobot:
+                    continue
+                self.metrics.alerts_active.labels(robot=info.name).set(n)
+            self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
+        self.metrics.cycles.inc()
+        self.metrics.cycle_seconds.observe(time.perf_counter() - t0)
+        return out
+
+    def _methods(self, robot: str) -> list[str]:
+        methods = ["fast"]
+        n = self.settings.network_interval_cycles
+        if n and self.cycles % n == 0:
+            methods.append("network")
+        with self._lock:
+            for m in sorted(self._requests.pop(robot, set())):
+                if m not in methods:
+                    methods.append(m)
+        return methods
+
+    def _robot_cycle(self, robot: str, expected_imus: list[str]) -> CycleResult:
+        res = CycleResult(robot)
+        rec = self.store.read_window(robot, self.settings.window_seconds)
+        if rec is None or rec.n_samples < self.min_samples or rec.q is None:
+            res.skipped = "not enough data in the window"
+            return res
+        base = self.store.baseline(robot)
+        layout = base.topology if base is not None else None
+        res.health = signal_health(rec, layout, expected_imus)
+        window_end = float(rec.t[-1])
+        fast: Topology | None = None
+        for method in self._methods(robot):
+            t0 = time.perf_counter()
+            topo = self.estimator(rec, method)
+            self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)
+            self.store.save_topology(robot, topo, self.clock(), window_end)
+            res.methods.append(method)
+            if method == "fast":
+                fast = topo
+        if fast is None:
+            return res
+        res.topology = fast
+        if fast.excitation:
+            self.store.set_excitation(robot, fast.excitation)
+        if base is None:
+            res.baseline_set = self._maybe_baseline(robot, fast, res.health, window_end)
+            return res
+        res.diff = diff_bodies(base.topology, fast, res.health)
+        res.transitions = self.tracker.update(robot, res.diff.findings)
+        now = self.clock()
+        for tr in res.transitions:
+            rec_ = self.store.upsert_alert(robot, tr.kind, tr.part, tr.finding.to_json(), tr.state, now)
+            log.warning("alert %s", tr.state, extra={"robot": robot, "kind": tr.kind, "part": tr.part,
+                                                     "alert_id": rec_.id, "finding": tr.finding.to_json()})
+        return res
+
+    def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:
+        """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""
+        k = self.settings.baseline_repeat_k
+        recent = self._recent.setdefault(robot, deque(maxlen=k))
+        if health.dead_imus:
+            recent.clear()
+            return False
+        if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):
+            recent.clear()
+        recent.append(topo)
+        if len(recent) < k:
+            return False
+        self.store.set_baseline(robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end)
+        recent.clear()
+        log.info("baseline learned", extra={"robot": robot, "source": "auto", "repeats": k})
+        return True

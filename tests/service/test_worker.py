@@ -1,0 +1,224 @@
+"""The worker on a real store: baseline after K repeats, alerts after M cycles, heartbeats, requests.
+
+The estimator is injected: a scripted one (the topology each cycle is what the test says) isolates the
+worker's own logic; signal health and the diff run for real on the frames in the store.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+from service.ingest.base import FrameBatch
+from service.settings import Settings
+from service.store import Store
+from service.worker import Worker
+from tests.bodyschema.test_health import LAYOUT, synth
+
+MOVED = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "c1": "j2"}, method="fast",
+                 excitation=dict(LAYOUT.excitation))
+GOOD = Topology(dict(LAYOUT.joint_parent), dict(LAYOUT.imu_joint), method="fast",
+                excitation=dict(LAYOUT.excitation))
+
+
+class Scripted:
+    """Returns ``self.next`` for "fast" and records every call."""
+
+    def __init__(self, topo: Topology) -> None:
+        self.next = topo
+        self.calls: list[tuple[str, int]] = []
+
+    def __call__(self, rec: Recording, method: str) -> Topology:
+        self.calls.append((method, rec.n_samples))
+        t = self.next
+        return Topology(t.joint_parent, {k: v for k, v in t.imu_joint.items() if k in rec.imu_names},
+                        method=method, excitation=t.excitation)
+
+
+def feed(store: Store, rec: Recording, robot: str = "arm", offset: float = 0.0,
+         dead: str | None = None) -> float:
+    acc, gyro = rec.acc.copy(), rec.gyro.copy()
+    if dead is not None:
+        k = rec.imu_names.index(dead)
+        acc[:, k] = 0.0
+        gyro[:, k] = 0.0
+    for s in range(0, rec.n_samples, 500):
+        sl = slice(s, s + 500)
+        store.write(FrameBatch(robot, rec.t[sl] + offset, rec.joint_names, rec.q[sl], rec.imu_names,
+                               acc[sl], gyro[sl]))
+    return float(rec.t[-1] + offset + 0.01)
+
+
+@pytest.fixture
+def settings() -> Settings:
+    return Settings(database_url="sqlite://", window_seconds=10.0, baseline_repeat_k=3, alert_hysteresis_m=2,
+                    worker_interval_seconds=0.05)
+
+
+@pytest.fixture
+def sqlite_store(tmp_path: Path) -> Iterator[Store]:
+    s = Store(f"sqlite:///{tmp_path / 'w.db'}")
+    yield s
+    s.close()
+
+
+def test_baseline_after_k_identical_cycles_then_alert_after_m(store: Store, settings: Settings,
+                                                              rng: np.random.Generator) -> None:
+    feed(store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(store, settings, estimator=est, clock=lambda: 1000.0)
+    for cycle in range(1, 3):
+        assert not w.run_cycle()["arm"].baseline_set
+        assert store.baseline("arm") is None, cycle
+    assert w.run_cycle()["arm"].baseline_set
+    base = store.baseline("arm")
+    assert base is not None and base.source == "auto" and base.topology.same_structure(GOOD)
+    assert len(store.topology_history("arm")) == 3
+    # same body: no finding, no alert
+    assert w.run_cycle()["arm"].diff.findings == ()
+    est.next = MOVED
+    r = w.run_cycle()["arm"]
+    assert [f.kind for f in r.diff.findings] == ["imu_moved"] and r.transitions == []
+    assert store.alerts("arm") == []
+    r = w.run_cycle()["arm"]
+    assert [(t.state, t.part) for t in r.transitions] == [("active", "imu:c1")]
+    (a,) = store.alerts("arm", active=True)
+    assert (a.kind, a.imu, a.finding["from"], a.finding["to"]) == ("imu_moved", "c1", "j3", "j2")
+    est.next = GOOD
+    w.run_cycle()
+    assert len(store.alerts("arm", active=True)) == 1
+    w.run_cycle()
+    assert store.alerts("arm", active=True) == []
+    assert store.alerts("arm")[0].state == "resolved"
+    assert store.last_heartbeat("worker") == 1000.0
+
+
+def test_baseline_waits_for_a_stable_structure(sqlite_store: Store, settings: Settings,
+                                               rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est)
+    for topo in (GOOD, MOVED, GOOD, GOOD):
+        est.next = topo
+        w.run_cycle()
+        assert sqlite_store.baseline("arm") is None
+    w.run_cycle()
+    assert sqlite_store.baseline("arm") is not None
+
+
+def test_dead_imu_raises_imu_dead_from_real_signals(sqlite_store: Store, settings: Settings,
+                                                    rng: np.random.Generator) -> None:
+    rec = synth(rng, seconds=12)
+    end = feed(sqlite_store, rec)
+    w = Worker(sqlite_store, settings, estimator=Scripted(GOOD))
+    for _ in range(3):
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is not None
+    feed(sqlite_store, synth(rng, seconds=12), offset=end, dead="b2")
+    assert w.run_cycle()["arm"].transitions == []
+    (tr,) = w.run_cycle()["arm"].transitions
+    assert (tr.kind, tr.part) == ("imu_dead", "imu:b2")
+    assert w.metrics.alerts_active.labels(robot="arm")._value.get() == 1.0
+
+
+def test_locked_joint_from_real_signals(sqlite_store: Store, settings: Settings,
+                                        rng: np.random.Generator) -> None:
+    end = feed(sqlite_store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est)
+    for _ in range(3):
+        w.run_cycle()
+    feed(sqlite_store, synth(rng, seconds=12, locked="j2"), offset=end)
+    est.next = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "b1": "j1", "b2": "j1"},
+                        undetermined=("j2",), excitation={**LAYOUT.excitation, "j2": 0.0})
+    w.run_cycle()
+    (tr,) = w.run_cycle()["arm"].transitions
+    assert (tr.kind, tr.part) == ("joint_locked", "joint:j2")
+
+
+def test_network_schedule_and_requests(sqlite_store: Store, rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=6))
+    s = Settings(database_url="sqlite://", window_seconds=5.0, network_interval_cycles=2)
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, s, estimator=est)
+    w.run_cycle()
+    w.run_cycle()
+    assert [m for m, _ in est.calls] == ["fast", "fast", "network"]
+    w.request("arm", "mlp")
+    w.run_cycle()
+    assert [m for m, _ in est.calls][3:] == ["fast", "mlp"]
+    assert sqlite_store.latest_topology("arm", method="network") is not None
+    assert sqlite_store.latest_topology("arm", method="mlp") is not None
+    assert est.calls[0][1] == 500  # 5 s window at 100 Hz
+
+
+def test_restart_keeps_active_alerts_without_raising_twice(sqlite_store: Store, settings: Settings,
+                                                           rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est)
+    for _ in range(3):
+        w.run_cycle()
+    est.next = MOVED
+    w.run_cycle()
+    w.run_cycle()
+    assert len(sqlite_store.alerts("arm", active=True)) == 1
+    w2 = Worker(sqlite_store, settings, estimator=est)
+    assert w2.run_cycle()["arm"].transitions == []
+    assert len(sqlite_store.alerts("arm")) == 1
+    est.next = GOOD
+    w2.run_cycle()
+    assert [t.state for t in w2.run_cycle()["arm"].transitions] == ["resolved"]
+
+
+def test_operator_baseline_resolves_open_alerts(sqlite_store: Store, settings: Settings,
+                                                rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est)
+    for _ in range(3):
+        w.run_cycle()
+    est.next = MOVED
+    w.run_cycle()
+    w.run_cycle()
+    base = w.approve_baseline("arm")
+    assert base.source == "operator" and base.topology.imu_joint["c1"] == "j2"
+    assert sqlite_store.alerts("arm", active=True) == []
+    assert w.run_cycle()["arm"].diff.findings == ()
+
+
+def test_short_window_is_skipped_but_heartbeat_written(sqlite_store: Store, settings: Settings,
+                                                       rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=0.3))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est, clock=lambda: 42.0)
+    assert w.run_cycle()["arm"].skipped
+    assert est.calls == []
+    assert sqlite_store.last_heartbeat("worker") == 42.0
+
+
+def test_failing_estimator_does_not_stop_the_thread(sqlite_store: Store, settings: Settings,
+                                                    rng: np.random.Generator) -> None:
+    feed(sqlite_store, synth(rng, seconds=6))
+
+    def broken(rec: Recording, method: str) -> Topology:
+        raise RuntimeError("estimator blew up")
+
+    w = Worker(sqlite_store, settings, estimator=broken)
+    w.start()
+    try:
+        deadline = time.monotonic() + 10
+        while w.metrics.cycles._value.get() < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        w.stop()
+    assert w.metrics.cycles._value.get() >= 3
+    assert w.metrics.cycle_errors._value.get() >= 3
+    assert not w.running
+    assert sqlite_store.last_heartbeat("worker") is not None
