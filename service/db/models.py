@@ -1,0 +1,171 @@
+"""The relational schema of the store (SQLAlchemy 2.0 declarative models).
+
+The schema itself is created only by the Alembic migrations under ``migrations/``; Alembic's ``env.py``
+reads :data:`Base.metadata` so autogenerate can compare the two (a test keeps them in step).
+
+Frames are not stored one row per number: a :class:`Chunk` holds ``n`` consecutive samples of one robot
+as raw little-endian float64 blobs (``t`` (n,), ``q`` (n,N), ``acc``/``gyro`` (n,K,3)) together with the
+joint and IMU names it carries, indexed by ``(robot_id, t_start, t_end)`` so a window is one range scan.
+All ``*_t`` columns are device time; ``wall_time``/``*_at``/``first_seen`` are wall-clock seconds since
+the epoch.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+__all__ = ["Alert", "Base", "Baseline", "Chunk", "Heartbeat", "Imu", "Joint", "Robot", "TopologyRow"]
+
+#: Constraint names are spelled out so migrations can refer to them on every backend.
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+#: 64-bit ids on PostgreSQL; SQLite only auto-increments a plain INTEGER PRIMARY KEY (itself 64-bit).
+BigId = BigInteger().with_variant(Integer(), "sqlite")
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map: ClassVar[dict[Any, Any]] = {dict[str, Any]: JSON, list[str]: JSON, float: Double}
+
+
+def _robot_fk() -> Any:
+    return mapped_column(ForeignKey("robots.id", ondelete="CASCADE"), nullable=False)
+
+
+class Robot(Base):
+    """A robot, registered the first time a frame of it arrives."""
+
+    __tablename__ = "robots"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    first_seen: Mapped[float]
+    last_frame_t: Mapped[float | None]
+    simulated: Mapped[bool] = mapped_column(Boolean, default=False)
+    catalog: Mapped[str | None] = mapped_column(String(200))
+    excitation: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
+class Joint(Base):
+    """A joint encoder of a robot; ``position`` keeps first-seen order."""
+
+    __tablename__ = "joints"
+    __table_args__ = (UniqueConstraint("robot_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    name: Mapped[str] = mapped_column(String(200))
+    position: Mapped[int]
+
+
+class Imu(Base):
+    """An IMU of a robot; ``last_t`` (device time) tells when it was last heard."""
+
+    __tablename__ = "imus"
+    __table_args__ = (UniqueConstraint("robot_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    name: Mapped[str] = mapped_column(String(200))
+    position: Mapped[int]
+    first_t: Mapped[float]
+    last_t: Mapped[float]
+
+
+class Chunk(Base):
+    """``n`` consecutive samples of one robot as float64 blobs (see the module docstring)."""
+
+    __tablename__ = "chunks"
+    __table_args__ = (Index("ix_chunks_robot_time", "robot_id", "t_start", "t_end"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    t_start: Mapped[float]
+    t_end: Mapped[float]
+    n: Mapped[int]
+    joint_names: Mapped[list[str]]
+    imu_names: Mapped[list[str]]
+    t: Mapped[bytes] = mapped_column(LargeBinary)
+    q: Mapped[bytes] = mapped_column(LargeBinary)
+    acc: Mapped[bytes] = mapped_column(LargeBinary)
+    gyro: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class TopologyRow(Base):
+    """One learned topology (DESIGN §2 topology JSON) with when and from which window it came."""
+
+    __tablename__ = "topologies"
+    __table_args__ = (Index("ix_topologies_robot_wall", "robot_id", "wall_time"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    wall_time: Mapped[float]
+    window_end_t: Mapped[float | None]
+    method: Mapped[str] = mapped_column(String(64))
+    topology: Mapped[dict[str, Any]]
+
+
+class Baseline(Base):
+    """A topology a robot is compared against; the newest row per robot is the current baseline, older
+    rows are its history. ``source`` is "auto" (learned and repeated) or "operator" (set by hand)."""
+
+    __tablename__ = "baselines"
+    __table_args__ = (Index("ix_baselines_robot_id", "robot_id", "id"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    wall_time: Mapped[float]
+    window_end_t: Mapped[float | None]
+    method: Mapped[str] = mapped_column(String(64))
+    source: Mapped[str] = mapped_column(String(16))
+    topology: Mapped[dict[str, Any]]
+
+
+class Alert(Base):
+    """A damage alert on one part (``imu:<name>`` or ``joint:<name>``) with its life cycle."""
+
+    __tablename__ = "alerts"
+    __table_args__ = (Index("ix_alerts_robot_kind_part", "robot_id", "kind", "part"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    kind: Mapped[str] = mapped_column(String(64))
+    part: Mapped[str] = mapped_column(String(210))
+    imu: Mapped[str | None] = mapped_column(String(200))
+    joint: Mapped[str | None] = mapped_column(String(200))
+    state: Mapped[str] = mapped_column(String(16), index=True)
+    acked: Mapped[bool] = mapped_column(Boolean, default=False)
+    raised_at: Mapped[float]
+    resolved_at: Mapped[float | None]
+    updated_at: Mapped[float]
+    finding: Mapped[dict[str, Any]]
+
+
+class Heartbeat(Base):
+    """Last sign of life of a service component (worker, ingest, API)."""
+
+    __tablename__ = "heartbeats"
+
+    component: Mapped[str] = mapped_column(String(200), primary_key=True)
+    wall_time: Mapped[float]
