@@ -72,8 +72,12 @@ def _depends(topo: Topology, imu: str, joint: str) -> bool:
     return joint in topo.ancestors(j)
 
 
-def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | None = None,
-                thresholds: DiffThresholds | None = None) -> Diff:
+def diff_bodies(
+    baseline: Topology,
+    current: Topology,
+    health: SignalHealth | None = None,
+    thresholds: DiffThresholds | None = None,
+) -> Diff:
     """Typed findings that turn ``baseline`` into ``current`` (see the module doc for the order).
 
     ``health`` (from :func:`bodyschema.health.signal_health` on the current window, with the baseline
@@ -113,8 +117,11 @@ def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | No
             if jh is None or j in claimed_joints:
                 continue
             if jh.state in ("frozen_encoder", "wrong_encoder"):
-                detail = ("encoder flat while its link turns" if jh.state == "frozen_encoder"
-                          else "encoder disagrees with its link's motion")
+                detail = (
+                    "encoder flat while its link turns"
+                    if jh.state == "frozen_encoder"
+                    else "encoder disagrees with its link's motion"
+                )
                 c = 1.0 if jh.explained is None else max(0.5, 1.0 - jh.explained)
                 findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
                 claim_joint(j)
@@ -122,8 +129,13 @@ def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | No
                 base_exc = baseline.excitation.get(j)
                 was_moving = base_exc is None or base_exc > th.excitation_rad_s
                 if was_moving and moving - {j}:
-                    findings.append(Finding("joint_locked", joint=j,
-                                            detail=f"encoder {jh.excitation:.3f} rad/s while others move"))
+                    findings.append(
+                        Finding(
+                            "joint_locked",
+                            joint=j,
+                            detail=f"encoder {jh.excitation:.3f} rad/s while others move",
+                        )
+                    )
                     claim_joint(j)
     elif current.excitation:
         # Structure only: a joint whose encoder went flat while others move, and which the current
@@ -132,8 +144,12 @@ def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | No
         for j in order:
             e = current.excitation.get(j)
             base_exc = baseline.excitation.get(j)
-            if (e is not None and e <= th.excitation_rad_s and moving - {j}
-                    and (base_exc is None or base_exc > th.excitation_rad_s)):
+            if (
+                e is not None
+                and e <= th.excitation_rad_s
+                and moving - {j}
+                and (base_exc is None or base_exc > th.excitation_rad_s)
+            ):
                 findings.append(Finding("joint_locked", joint=j, detail=f"encoder {e:.3f} rad/s"))
                 claim_joint(j)
 
@@ -151,17 +167,28 @@ def diff_bodies(baseline: Topology, current: Topology, health: SignalHealth | No
         lost = [i for i in live if not _depends(current, i, j)]
         unfollowed = health is not None and j in health.joints and health.joints[j].state == "unfollowed"
         if len(lost) == len(live) and (len(live) >= th.min_link_imus or unfollowed):
-            findings.append(Finding("link_lost", joint=j, from_=baseline.joint_parent[j],
-                                    detail=f"{len(live)} IMUs no longer follow {j}"))
+            findings.append(
+                Finding(
+                    "link_lost",
+                    joint=j,
+                    from_=baseline.joint_parent[j],
+                    detail=f"{len(live)} IMUs no longer follow {j}",
+                )
+            )
             claimed_joints.update(sub)
             claimed_imus.update(live)
 
     for j in undecided:
         if j in claimed_joints:
             continue
-        findings.append(Finding("insufficient_excitation", joint=j,
-                                confidence=conf(f"joint:{j}"),
-                                detail="the window does not move this joint enough to place it"))
+        findings.append(
+            Finding(
+                "insufficient_excitation",
+                joint=j,
+                confidence=conf(f"joint:{j}"),
+                detail="the window does not move this joint enough to place it",
+            )
+        )
         claim_joint(j)
 
     # 5. single IMUs -------------------------------------------------------------------------------

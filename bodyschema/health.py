@@ -67,7 +67,13 @@ IMU_STATES: tuple[str, ...] = ("ok", "silent", "zero", "frozen")
 #: ``unfollowed``: the encoder moves but the link does not turn with it; ``moving``/``flat``: only the
 #: encoder could be judged (no healthy IMU on the child link).
 JOINT_STATES: tuple[str, ...] = (
-    "ok", "still", "frozen_encoder", "wrong_encoder", "unfollowed", "moving", "flat",
+    "ok",
+    "still",
+    "frozen_encoder",
+    "wrong_encoder",
+    "unfollowed",
+    "moving",
+    "flat",
 )
 
 
@@ -158,16 +164,21 @@ class SignalHealth:
         return {
             "imus": {n: {"state": h.state, "gyro_rms": r(h.gyro_rms)} for n, h in self.imus.items()},
             "joints": {
-                n: {"state": h.state, "excitation": r(h.excitation),
-                    "relative_motion": r(h.relative_motion), "explained": r(h.explained)}
+                n: {
+                    "state": h.state,
+                    "excitation": r(h.excitation),
+                    "relative_motion": r(h.relative_motion),
+                    "explained": r(h.explained),
+                }
                 for n, h in self.joints.items()
             },
         }
 
 
 # ---------------------------------------------------------------------------------------------- IMUs
-def imu_health(acc: np.ndarray, gyro: np.ndarray, name: str = "",
-               thresholds: HealthThresholds | None = None) -> ImuHealth:
+def imu_health(
+    acc: np.ndarray, gyro: np.ndarray, name: str = "", thresholds: HealthThresholds | None = None
+) -> ImuHealth:
     """Judge one IMU from its ``(T,3)`` accelerometer and gyro series.
 
     >>> import numpy as np
@@ -201,8 +212,9 @@ def _lstsq_residual(X: np.ndarray, Y: np.ndarray) -> float:
     return float(np.sum(res**2))
 
 
-def relative_motion(child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: np.ndarray,
-                    qd: np.ndarray) -> tuple[float, float]:
+def relative_motion(
+    child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: np.ndarray, qd: np.ndarray
+) -> tuple[float, float]:
     """RMS rate of the child link against its parent, and the fraction of it the encoder explains.
 
     ``child_gyro``/``parent_gyro`` are ``(T,3)`` gyro series of IMUs on the joint's child and parent
@@ -226,8 +238,9 @@ def relative_motion(child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: n
         full = np.c_[qd, ones]
     else:
         rigid = np.c_[parent_gyro, ones]
-        full = np.c_[parent_gyro, parent_gyro * np.cos(q)[:, None], parent_gyro * np.sin(q)[:, None],
-                     qd, ones]
+        full = np.c_[
+            parent_gyro, parent_gyro * np.cos(q)[:, None], parent_gyro * np.sin(q)[:, None], qd, ones
+        ]
     ss_rigid = _lstsq_residual(rigid, child_gyro)
     ss_full = _lstsq_residual(full, child_gyro)
     rms = float(np.sqrt(ss_rigid / T))
@@ -235,8 +248,9 @@ def relative_motion(child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: n
     return rms, explained
 
 
-def _joint_state(excitation: float, motion: float | None, explained: float | None,
-                 th: HealthThresholds) -> str:
+def _joint_state(
+    excitation: float, motion: float | None, explained: float | None, th: HealthThresholds
+) -> str:
     enc = excitation > th.excitation_rad_s
     if motion is None:
         return "moving" if enc else "flat"
@@ -251,9 +265,12 @@ def _joint_state(excitation: float, motion: float | None, explained: float | Non
 
 
 # --------------------------------------------------------------------------------------------- whole
-def signal_health(rec: Recording, layout: Topology | None = None,
-                  expected_imus: Iterable[str] | None = None,
-                  thresholds: HealthThresholds | None = None) -> SignalHealth:
+def signal_health(
+    rec: Recording,
+    layout: Topology | None = None,
+    expected_imus: Iterable[str] | None = None,
+    thresholds: HealthThresholds | None = None,
+) -> SignalHealth:
     """Health of every IMU and joint in ``rec``.
 
     ``layout`` (usually the baseline topology) says which IMUs ride which link; without it joints are
@@ -262,8 +279,9 @@ def signal_health(rec: Recording, layout: Topology | None = None,
     """
     th = thresholds or HealthThresholds()
     present = {n: k for k, n in enumerate(rec.imu_names)}
-    expected = list(dict.fromkeys([*(expected_imus or ()), *((layout.imu_joint) if layout else ()),
-                                   *rec.imu_names]))
+    expected = list(
+        dict.fromkeys([*(expected_imus or ()), *((layout.imu_joint) if layout else ()), *rec.imu_names])
+    )
     enough = rec.n_samples >= th.min_samples
     imus: dict[str, ImuHealth] = {}
     for name in expected:
@@ -294,8 +312,11 @@ def signal_health(rec: Recording, layout: Topology | None = None,
                 states = [_joint_state(excitation, m, e, th) for m, e in fits]
                 # One IMU that agrees with the encoder clears the joint: a single moved or detached
                 # IMU on the link must not read as an encoder fault.
-                pick = states.index("ok") if "ok" in states else max(
-                    range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
+                pick = (
+                    states.index("ok")
+                    if "ok" in states
+                    else max(range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
+                )
                 motion, explained = fits[pick]
                 joints[j] = JointHealth(j, states[pick], excitation, motion, explained)
                 continue

@@ -113,5 +113,6 @@ class AlertTracker:
 
     def pending(self, robot: str | None = None) -> list[AlertKey]:
         with self._lock:
-            return sorted(k for k, t in self._tracks.items()
-                          if not t.active and (robot is None or k[0] == robot))
+            return sorted(
+                k for k, t in self._tracks.items() if not t.active and (robot is None or k[0] == robot)
+            )

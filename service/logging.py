@@ -51,8 +51,9 @@ class JsonFormatter(logging.Formatter):
 def configure_logging(level: int = logging.INFO, json_lines: bool = True) -> None:
     """Route the root logger (and uvicorn's) to stderr in the chosen format; replaces earlier handlers."""
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JsonFormatter() if json_lines else
-                         logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s"))
+    handler.setFormatter(
+        JsonFormatter() if json_lines else logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s")
+    )
     root = logging.getLogger()
     for h in list(root.handlers):
         root.removeHandler(h)

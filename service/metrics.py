@@ -46,8 +46,11 @@ class _FrameCollector(Collector):
         except Exception:  # a scrape must never fail because the pipeline is shutting down
             values = {}
         for name in _FRAME_COUNTERS:
-            yield CounterMetricFamily(f"bodyhealth_frames_{name}", f"frame samples {name} by the ingest "
-                                      "pipeline", value=float(values.get(name, 0)))
+            yield CounterMetricFamily(
+                f"bodyhealth_frames_{name}",
+                f"frame samples {name} by the ingest pipeline",
+                value=float(values.get(name, 0)),
+            )
 
 
 class Metrics:
@@ -58,16 +61,25 @@ class Metrics:
         self._counters = counters or dict
         self.registry.register(_FrameCollector(lambda: self._counters()))
         self.retrain_seconds = Histogram(
-            "bodyhealth_retrain_seconds", "seconds one topology estimate took", ["method"],
-            buckets=(0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 60, 120, 300), registry=self.registry)
+            "bodyhealth_retrain_seconds",
+            "seconds one topology estimate took",
+            ["method"],
+            buckets=(0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 60, 120, 300),
+            registry=self.registry,
+        )
         self.cycle_seconds = Histogram(
-            "bodyhealth_worker_cycle_seconds", "seconds one worker cycle over all robots took",
-            buckets=(0.1, 0.5, 1, 2, 5, 10, 30, 60), registry=self.registry)
+            "bodyhealth_worker_cycle_seconds",
+            "seconds one worker cycle over all robots took",
+            buckets=(0.1, 0.5, 1, 2, 5, 10, 30, 60),
+            registry=self.registry,
+        )
         self.cycles = Counter("bodyhealth_worker_cycles", "worker cycles run", registry=self.registry)
-        self.cycle_errors = Counter("bodyhealth_worker_errors", "robot cycles that failed",
-                                    registry=self.registry)
-        self.alerts_active = Gauge("bodyhealth_alerts_active", "active (unresolved) alerts", ["robot"],
-                                   registry=self.registry)
+        self.cycle_errors = Counter(
+            "bodyhealth_worker_errors", "robot cycles that failed", registry=self.registry
+        )
+        self.alerts_active = Gauge(
+            "bodyhealth_alerts_active", "active (unresolved) alerts", ["robot"], registry=self.registry
+        )
         self.robots = Gauge("bodyhealth_robots", "robots known to the store", registry=self.registry)
 
     def bind_counters(self, counters: Callable[[], dict[str, int]]) -> None:

@@ -74,9 +74,16 @@ class Worker:
     (alert and heartbeat times). Settings give the interval, window, K, M and the network schedule.
     """
 
-    def __init__(self, store: Store, settings: Settings | None = None, *,
-                 estimator: Estimator | None = None, metrics: Metrics | None = None,
-                 clock: Callable[[], float] = time.time, min_samples: int = 50) -> None:
+    def __init__(
+        self,
+        store: Store,
+        settings: Settings | None = None,
+        *,
+        estimator: Estimator | None = None,
+        metrics: Metrics | None = None,
+        clock: Callable[[], float] = time.time,
+        min_samples: int = 50,
+    ) -> None:
         self.store = store
         self.settings = settings or get_settings()
         self.estimator = estimator or default_estimator
@@ -237,8 +244,17 @@ class Worker:
         now = self.clock()
         for tr in res.transitions:
             rec_ = self.store.upsert_alert(robot, tr.kind, tr.part, tr.finding.to_json(), tr.state, now)
-            log.warning("alert %s", tr.state, extra={"robot": robot, "kind": tr.kind, "part": tr.part,
-                                                     "alert_id": rec_.id, "finding": tr.finding.to_json()})
+            log.warning(
+                "alert %s",
+                tr.state,
+                extra={
+                    "robot": robot,
+                    "kind": tr.kind,
+                    "part": tr.part,
+                    "alert_id": rec_.id,
+                    "finding": tr.finding.to_json(),
+                },
+            )
         return res
 
     def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:

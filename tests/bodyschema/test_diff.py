@@ -19,8 +19,17 @@ from bodyschema.topology import Topology
 #     |      j5 (e1)
 #    j3 (c1, c2)
 JOINTS = {"j1": None, "j2": "j1", "j3": "j2", "j4": "j1", "j5": "j4"}
-IMUS = {"a1": "j1", "a2": "j1", "b1": "j2", "b2": "j2", "c1": "j3", "c2": "j3", "d1": "j4", "d2": "j4",
-        "e1": "j5"}
+IMUS = {
+    "a1": "j1",
+    "a2": "j1",
+    "b1": "j2",
+    "b2": "j2",
+    "c1": "j3",
+    "c2": "j3",
+    "d1": "j4",
+    "d2": "j4",
+    "e1": "j5",
+}
 EXC = {j: 0.4 for j in JOINTS}
 BASE = Topology(dict(JOINTS), dict(IMUS), excitation=dict(EXC))
 
@@ -34,8 +43,11 @@ def topo(joints: dict | None = None, imus: dict | None = None, **kw) -> Topology
     return Topology(j, {k: v for k, v in i.items() if v != "GONE"}, **kw)
 
 
-def health(imus: dict[str, str] | None = None, joints: dict[str, str] | None = None,
-           excitation: dict[str, float] | None = None) -> SignalHealth:
+def health(
+    imus: dict[str, str] | None = None,
+    joints: dict[str, str] | None = None,
+    excitation: dict[str, float] | None = None,
+) -> SignalHealth:
     exc = dict(EXC)
     exc.update(excitation or {})
     ih = {n: ImuHealth(n, (imus or {}).get(n, "ok"), 0.3) for n in IMUS}
@@ -57,8 +69,10 @@ def test_random_identical_trees_give_nothing(rng: np.random.Generator) -> None:
     for _ in range(20):
         n = int(rng.integers(1, 8))
         names = [f"j{k}" for k in range(n)]
-        parents = {names[k]: (None if k == 0 or rng.random() < 0.2 else names[int(rng.integers(0, k))])
-                   for k in range(n)}
+        parents = {
+            names[k]: (None if k == 0 or rng.random() < 0.2 else names[int(rng.integers(0, k))])
+            for k in range(n)
+        }
         imus = {f"i{k}": names[int(rng.integers(0, n))] for k in range(int(rng.integers(1, 12)))}
         t = Topology(parents, imus)
         assert diff_bodies(t, Topology(dict(parents), dict(imus))).findings == ()
@@ -69,8 +83,13 @@ def test_imu_moved() -> None:
     assert kinds(d) == [("imu_moved", "imu:c1")]
     f = d.findings[0]
     assert (f.from_, f.to, f.confidence) == ("j3", "j5", 0.8)
-    assert d.to_json()["findings"][0] == {"kind": "imu_moved", "imu": "c1", "from": "j3", "to": "j5",
-                                          "confidence": 0.8}
+    assert d.to_json()["findings"][0] == {
+        "kind": "imu_moved",
+        "imu": "c1",
+        "from": "j3",
+        "to": "j5",
+        "confidence": 0.8,
+    }
 
 
 def test_imu_detached() -> None:
@@ -95,8 +114,12 @@ def test_missing_imu_without_health_is_dead() -> None:
 
 def test_joint_locked() -> None:
     # j2 stops: its IMUs now read as j1's, j3 hangs under j1 in the new estimate
-    cur = topo(joints={"j3": "j1"}, imus={"b1": "j1", "b2": "j1"}, undetermined=("j2",),
-               excitation={**EXC, "j2": 0.001})
+    cur = topo(
+        joints={"j3": "j1"},
+        imus={"b1": "j1", "b2": "j1"},
+        undetermined=("j2",),
+        excitation={**EXC, "j2": 0.001},
+    )
     d = diff_bodies(BASE, cur, health(joints={"j2": "still"}, excitation={"j2": 0.001}))
     assert kinds(d) == [("joint_locked", "joint:j2")]
 
@@ -174,6 +197,10 @@ def test_two_independent_damages_both_found() -> None:
 
 
 def test_locked_without_health_uses_excitation() -> None:
-    cur = topo(imus={"b1": "j1", "b2": "j1"}, joints={"j3": "j1"}, undetermined=("j2",),
-               excitation={**EXC, "j2": 0.0})
+    cur = topo(
+        imus={"b1": "j1", "b2": "j1"},
+        joints={"j3": "j1"},
+        undetermined=("j2",),
+        excitation={**EXC, "j2": 0.0},
+    )
     assert kinds(diff_bodies(BASE, cur)) == [("joint_locked", "joint:j2")]

@@ -29,9 +29,15 @@ def _rot(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
-def synth(rng: np.random.Generator, seconds: float = 20.0, rate: float = 100.0, *,
-          locked: str | None = None, frozen_encoder: str | None = None,
-          lost: str | None = None) -> Recording:
+def synth(
+    rng: np.random.Generator,
+    seconds: float = 20.0,
+    rate: float = 100.0,
+    *,
+    locked: str | None = None,
+    frozen_encoder: str | None = None,
+    lost: str | None = None,
+) -> Recording:
     t = np.arange(int(seconds * rate)) / rate
     names = ("j1", "j2", "j3")
     q = np.zeros((t.size, 3))
@@ -88,8 +94,12 @@ def test_wrong_encoder_is_caught(rng: np.random.Generator) -> None:
     rec = synth(rng)
     q = rec.q.copy()
     q[:, 1] = np.roll(q[:, 2], 700)  # the encoder reports some other motion
-    h = signal_health(Recording(t=rec.t, joint_names=rec.joint_names, q=q, imu_names=rec.imu_names,
-                                acc=rec.acc, gyro=rec.gyro), LAYOUT)
+    h = signal_health(
+        Recording(
+            t=rec.t, joint_names=rec.joint_names, q=q, imu_names=rec.imu_names, acc=rec.acc, gyro=rec.gyro
+        ),
+        LAYOUT,
+    )
     assert h.joints["j2"].state == "wrong_encoder"
     assert h.joints["j2"].explained < 0.5
 
@@ -104,8 +114,12 @@ def test_one_detached_imu_does_not_fault_the_encoder(rng: np.random.Generator) -
     rec = synth(rng)
     gyro = rec.gyro.copy()
     gyro[:, 2] = rng.normal(0, 0.005, gyro[:, 2].shape) + 0.1  # b1 came off and lies still
-    h = signal_health(Recording(t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=rec.imu_names,
-                                acc=rec.acc, gyro=gyro), LAYOUT)
+    h = signal_health(
+        Recording(
+            t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=rec.imu_names, acc=rec.acc, gyro=gyro
+        ),
+        LAYOUT,
+    )
     assert h.joints["j2"].state == "ok"
 
 

@@ -21,10 +21,15 @@ from service.store import Store
 from service.worker import Worker
 from tests.bodyschema.test_health import LAYOUT, synth
 
-MOVED = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "c1": "j2"}, method="fast",
-                 excitation=dict(LAYOUT.excitation))
-GOOD = Topology(dict(LAYOUT.joint_parent), dict(LAYOUT.imu_joint), method="fast",
-                excitation=dict(LAYOUT.excitation))
+MOVED = Topology(
+    dict(LAYOUT.joint_parent),
+    {**LAYOUT.imu_joint, "c1": "j2"},
+    method="fast",
+    excitation=dict(LAYOUT.excitation),
+)
+GOOD = Topology(
+    dict(LAYOUT.joint_parent), dict(LAYOUT.imu_joint), method="fast", excitation=dict(LAYOUT.excitation)
+)
 
 
 class Scripted:
@@ -37,12 +42,17 @@ class Scripted:
     def __call__(self, rec: Recording, method: str) -> Topology:
         self.calls.append((method, rec.n_samples))
         t = self.next
-        return Topology(t.joint_parent, {k: v for k, v in t.imu_joint.items() if k in rec.imu_names},
-                        method=method, excitation=t.excitation)
+        return Topology(
+            t.joint_parent,
+            {k: v for k, v in t.imu_joint.items() if k in rec.imu_names},
+            method=method,
+            excitation=t.excitation,
+        )
 
 
-def feed(store: Store, rec: Recording, robot: str = "arm", offset: float = 0.0,
-         dead: str | None = None) -> float:
+def feed(
+    store: Store, rec: Recording, robot: str = "arm", offset: float = 0.0, dead: str | None = None
+) -> float:
     acc, gyro = rec.acc.copy(), rec.gyro.copy()
     if dead is not None:
         k = rec.imu_names.index(dead)
@@ -50,15 +60,23 @@ def feed(store: Store, rec: Recording, robot: str = "arm", offset: float = 0.0,
         gyro[:, k] = 0.0
     for s in range(0, rec.n_samples, 500):
         sl = slice(s, s + 500)
-        store.write(FrameBatch(robot, rec.t[sl] + offset, rec.joint_names, rec.q[sl], rec.imu_names,
-                               acc[sl], gyro[sl]))
+        store.write(
+            FrameBatch(
+                robot, rec.t[sl] + offset, rec.joint_names, rec.q[sl], rec.imu_names, acc[sl], gyro[sl]
+            )
+        )
     return float(rec.t[-1] + offset + 0.01)
 
 
 @pytest.fixture
 def settings() -> Settings:
-    return Settings(database_url="sqlite://", window_seconds=10.0, baseline_repeat_k=3, alert_hysteresis_m=2,
-                    worker_interval_seconds=0.05)
+    return Settings(
+        database_url="sqlite://",
+        window_seconds=10.0,
+        baseline_repeat_k=3,
+        alert_hysteresis_m=2,
+        worker_interval_seconds=0.05,
+    )
 
 
 @pytest.fixture
@@ -68,8 +86,9 @@ def sqlite_store(tmp_path: Path) -> Iterator[Store]:
     s.close()
 
 
-def test_baseline_after_k_identical_cycles_then_alert_after_m(store: Store, settings: Settings,
-                                                              rng: np.random.Generator) -> None:
+def test_baseline_after_k_identical_cycles_then_alert_after_m(
+    store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(store, synth(rng, seconds=12))
     est = Scripted(GOOD)
     w = Worker(store, settings, estimator=est, clock=lambda: 1000.0)
@@ -99,8 +118,9 @@ def test_baseline_after_k_identical_cycles_then_alert_after_m(store: Store, sett
     assert store.last_heartbeat("worker") == 1000.0
 
 
-def test_baseline_waits_for_a_stable_structure(sqlite_store: Store, settings: Settings,
-                                               rng: np.random.Generator) -> None:
+def test_baseline_waits_for_a_stable_structure(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(sqlite_store, synth(rng, seconds=12))
     est = Scripted(GOOD)
     w = Worker(sqlite_store, settings, estimator=est)
@@ -112,8 +132,9 @@ def test_baseline_waits_for_a_stable_structure(sqlite_store: Store, settings: Se
     assert sqlite_store.baseline("arm") is not None
 
 
-def test_dead_imu_raises_imu_dead_from_real_signals(sqlite_store: Store, settings: Settings,
-                                                    rng: np.random.Generator) -> None:
+def test_dead_imu_raises_imu_dead_from_real_signals(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     rec = synth(rng, seconds=12)
     end = feed(sqlite_store, rec)
     w = Worker(sqlite_store, settings, estimator=Scripted(GOOD))
@@ -127,16 +148,21 @@ def test_dead_imu_raises_imu_dead_from_real_signals(sqlite_store: Store, setting
     assert w.metrics.alerts_active.labels(robot="arm")._value.get() == 1.0
 
 
-def test_locked_joint_from_real_signals(sqlite_store: Store, settings: Settings,
-                                        rng: np.random.Generator) -> None:
+def test_locked_joint_from_real_signals(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     end = feed(sqlite_store, synth(rng, seconds=12))
     est = Scripted(GOOD)
     w = Worker(sqlite_store, settings, estimator=est)
     for _ in range(3):
         w.run_cycle()
     feed(sqlite_store, synth(rng, seconds=12, locked="j2"), offset=end)
-    est.next = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "b1": "j1", "b2": "j1"},
-                        undetermined=("j2",), excitation={**LAYOUT.excitation, "j2": 0.0})
+    est.next = Topology(
+        dict(LAYOUT.joint_parent),
+        {**LAYOUT.imu_joint, "b1": "j1", "b2": "j1"},
+        undetermined=("j2",),
+        excitation={**LAYOUT.excitation, "j2": 0.0},
+    )
     w.run_cycle()
     (tr,) = w.run_cycle()["arm"].transitions
     assert (tr.kind, tr.part) == ("joint_locked", "joint:j2")
@@ -158,8 +184,9 @@ def test_network_schedule_and_requests(sqlite_store: Store, rng: np.random.Gener
     assert est.calls[0][1] == 500  # 5 s window at 100 Hz
 
 
-def test_restart_keeps_active_alerts_without_raising_twice(sqlite_store: Store, settings: Settings,
-                                                           rng: np.random.Generator) -> None:
+def test_restart_keeps_active_alerts_without_raising_twice(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(sqlite_store, synth(rng, seconds=12))
     est = Scripted(GOOD)
     w = Worker(sqlite_store, settings, estimator=est)
@@ -177,8 +204,9 @@ def test_restart_keeps_active_alerts_without_raising_twice(sqlite_store: Store, 
     assert [t.state for t in w2.run_cycle()["arm"].transitions] == ["resolved"]
 
 
-def test_operator_baseline_resolves_open_alerts(sqlite_store: Store, settings: Settings,
-                                                rng: np.random.Generator) -> None:
+def test_operator_baseline_resolves_open_alerts(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(sqlite_store, synth(rng, seconds=12))
     est = Scripted(GOOD)
     w = Worker(sqlite_store, settings, estimator=est)
@@ -193,8 +221,9 @@ def test_operator_baseline_resolves_open_alerts(sqlite_store: Store, settings: S
     assert w.run_cycle()["arm"].diff.findings == ()
 
 
-def test_short_window_is_skipped_but_heartbeat_written(sqlite_store: Store, settings: Settings,
-                                                       rng: np.random.Generator) -> None:
+def test_short_window_is_skipped_but_heartbeat_written(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(sqlite_store, synth(rng, seconds=0.3))
     est = Scripted(GOOD)
     w = Worker(sqlite_store, settings, estimator=est, clock=lambda: 42.0)
@@ -203,8 +232,9 @@ def test_short_window_is_skipped_but_heartbeat_written(sqlite_store: Store, sett
     assert sqlite_store.last_heartbeat("worker") == 42.0
 
 
-def test_failing_estimator_does_not_stop_the_thread(sqlite_store: Store, settings: Settings,
-                                                    rng: np.random.Generator) -> None:
+def test_failing_estimator_does_not_stop_the_thread(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
     feed(sqlite_store, synth(rng, seconds=6))
 
     def broken(rec: Recording, method: str) -> Topology:

@@ -1,0 +1,159 @@
+"""The REST API (FastAPI; OpenAPI document at ``/docs``) and the dashboard at ``/``.
+
+:func:`create_app` builds one app around a store (and, in the daemon, the worker, the metrics and a
+damage injector for simulated robots). One router per resource: robots, topology, alerts, simulate,
+health. Bad input never reaches a 500: unknown robots and alerts are 404, malformed bodies 422,
+bodies over ``max_request_bytes`` 413, damage on a real robot 409.
+
+Example
+-------
+>>> from fastapi.testclient import TestClient
+>>> from service.store import Store
+>>> client = TestClient(create_app(Store("sqlite://")))
+>>> client.get("/api/v1/robots").json(), client.get("/api/v1/robots/nope").status_code
+([], 404)
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from service.api import alerts, health, robots, simulate, topology
+from service.api.deps import DamageInjector
+from service.metrics import Metrics
+from service.settings import Settings, get_settings
+from service.store import Store, UnknownAlert, UnknownRobot
+from service.worker import Worker
+
+__all__ = ["DASHBOARD_DIR", "BodySizeLimit", "create_app"]
+
+log = logging.getLogger(__name__)
+
+DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
+
+
+class BodySizeLimit:
+    """Pure ASGI middleware: answer 413 to a request body over ``max_bytes``.
+
+    Checks ``Content-Length`` first and then counts the streamed body, so a chunked upload without a
+    length cannot get past it either; nothing of an oversized request reaches a route.
+    """
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = int(max_bytes)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        length = headers.get(b"content-length")
+        if length is not None:
+            try:
+                too_big = int(length) > self.max_bytes
+            except ValueError:
+                too_big = False
+            if too_big:
+                await self._reject(send)
+                return
+        # Read the whole body (bounded) before the app sees it, so an oversized chunked body is refused
+        # before any route runs.
+        body = bytearray()
+        more = True
+        while more:
+            msg = await receive()
+            if msg["type"] != "http.request":
+                break
+            body.extend(msg.get("body", b""))
+            if len(body) > self.max_bytes:
+                await self._reject(send)
+                return
+            more = bool(msg.get("more_body"))
+        done = False
+
+        async def replay() -> Message:
+            nonlocal done
+            if not done:
+                done = True
+                return {"type": "http.request", "body": bytes(body), "more_body": False}
+            return await receive()
+
+        await self.app(scope, replay, send)
+
+    async def _reject(self, send: Send) -> None:
+        detail = f'{{"detail":"request body larger than {self.max_bytes} bytes"}}'.encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": 413,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(detail)).encode()),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": detail})
+
+
+def create_app(
+    store: Store,
+    *,
+    settings: Settings | None = None,
+    worker: Worker | None = None,
+    metrics: Metrics | None = None,
+    injector: DamageInjector | None = None,
+    extra_state: dict[str, Any] | None = None,
+) -> FastAPI:
+    """The API + dashboard app over ``store``; everything else is optional."""
+    settings = settings or get_settings()
+    app = FastAPI(
+        title="bodyhealth",
+        version="0.1.0",
+        description="Robot body-health monitoring: learned body schemas, baselines and damage alerts.",
+    )
+    app.state.store = store
+    app.state.settings = settings
+    app.state.worker = worker
+    app.state.metrics = metrics or (worker.metrics if worker is not None else Metrics())
+    app.state.injector = injector
+    for k, v in (extra_state or {}).items():
+        setattr(app.state, k, v)
+
+    for module in (robots, topology, alerts, simulate, health):
+        app.include_router(module.router)
+
+    @app.exception_handler(UnknownRobot)
+    async def _unknown_robot(request: Request, exc: UnknownRobot) -> JSONResponse:
+        return JSONResponse({"detail": f"unknown robot {exc.args[0]!r}"}, status_code=404)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # The offending input is left out: it may hold NaN/Inf, which JSON cannot carry back.
+        errors = [
+            {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+            for e in exc.errors()
+        ]
+        return JSONResponse({"detail": errors}, status_code=422)
+
+    @app.exception_handler(UnknownAlert)
+    async def _unknown_alert(request: Request, exc: UnknownAlert) -> JSONResponse:
+        return JSONResponse({"detail": f"unknown alert {exc.args[0]!r}"}, status_code=404)
+
+    if DASHBOARD_DIR.is_dir():
+        app.mount("/static", StaticFiles(directory=DASHBOARD_DIR), name="static")
+
+        @app.get("/", include_in_schema=False)
+        def dashboard() -> FileResponse:
+            return FileResponse(DASHBOARD_DIR / "index.html")
+
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_request_bytes)
+    return app

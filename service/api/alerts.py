@@ -1,0 +1,57 @@
+"""Alerts: per robot and across robots, and acknowledging them."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, HTTPException, Query
+
+from service.api.deps import get_robot, get_store
+from service.api.schemas import AlertOut
+from service.store import RobotInfo, Store
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1", tags=["alerts"])
+
+ACTIVE = Query(None, description="true: active only; false: pending and resolved only; absent: all")
+
+
+@router.get("/alerts", response_model=list[AlertOut], summary="alerts of every robot, newest first")
+def all_alerts(
+    store: Store = Depends(get_store), active: bool | None = ACTIVE, limit: int = Query(500, ge=1, le=10000)
+) -> list[AlertOut]:
+    return [AlertOut.of(a) for a in store.alerts(active=active, limit=limit)]
+
+
+@router.get("/robots/{robot}/alerts", response_model=list[AlertOut], summary="one robot's alerts")
+def robot_alerts(
+    info: RobotInfo = Depends(get_robot),
+    store: Store = Depends(get_store),
+    active: bool | None = ACTIVE,
+    limit: int = Query(500, ge=1, le=10000),
+) -> list[AlertOut]:
+    return [AlertOut.of(a) for a in store.alerts(info.name, active=active, limit=limit)]
+
+
+def _ack(store: Store, alert_id: int, robot: str | None) -> AlertOut:
+    if robot is not None and not any(a.id == alert_id for a in store.alerts(robot)):
+        raise HTTPException(status_code=404, detail=f"robot {robot!r} has no alert {alert_id}")
+    a = store.ack_alert(alert_id)
+    if a is None:
+        raise HTTPException(status_code=404, detail=f"unknown alert {alert_id}")
+    return AlertOut.of(a)
+
+
+@router.post("/alerts/{alert_id}/ack", response_model=AlertOut, summary="acknowledge an alert")
+def ack(alert_id: int, store: Store = Depends(get_store)) -> AlertOut:
+    return _ack(store, alert_id, None)
+
+
+@router.post(
+    "/robots/{robot}/alerts/{alert_id}/ack",
+    response_model=AlertOut,
+    summary="acknowledge one of this robot's alerts",
+)
+def ack_robot(
+    alert_id: int, info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)
+) -> AlertOut:
+    return _ack(store, alert_id, info.name)

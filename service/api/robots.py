@@ -1,0 +1,50 @@
+"""``/api/v1/robots``: the robots the store knows, and frames pushed over HTTP."""
+
+from __future__ import annotations
+
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException
+
+from service.api.deps import get_robot, get_store
+from service.api.schemas import FramesIn, RobotOut
+from service.ingest.base import FrameBatch, FrameError
+from service.store import RobotInfo, Store
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1/robots", tags=["robots"])
+
+
+def _out(store: Store, info: RobotInfo) -> RobotOut:
+    return RobotOut.of(
+        info,
+        has_baseline=store.baseline(info.name) is not None,
+        active_alerts=len(store.alerts(info.name, active=True)),
+    )
+
+
+@router.get("", response_model=list[RobotOut], summary="every robot with its parts and alert count")
+def list_robots(store: Store = Depends(get_store)) -> list[RobotOut]:
+    return [_out(store, r) for r in store.robots()]
+
+
+@router.get("/{robot}", response_model=RobotOut, summary="one robot: joints, IMUs, excitation, last frame")
+def robot_detail(info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)) -> RobotOut:
+    return _out(store, info)
+
+
+@router.post("/{robot}/frames", status_code=201, summary="push frames of one robot (registers it when new)")
+def push_frames(robot: str, body: FramesIn, store: Store = Depends(get_store)) -> dict[str, int]:
+    try:
+        batch = FrameBatch(
+            robot,
+            np.asarray(body.t, float),
+            tuple(body.joint_names),
+            np.asarray(body.q, float).reshape(len(body.t), len(body.joint_names)),
+            tuple(body.imu_names),
+            np.asarray(body.acc, float),
+            np.asarray(body.gyro, float),
+        )
+        return {"stored": store.write(batch)}
+    except (FrameError, ValueError) as err:
+        raise HTTPException(status_code=422, detail=str(err)) from None

@@ -1,0 +1,47 @@
+"""``POST /api/v1/robots/{robot}/simulate/damage``: break a simulated robot on purpose."""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import APIRouter, Depends, HTTPException
+
+from service.api.deps import DamageInjector, get_injector, get_robot
+from service.api.schemas import DamageIn, DamageOut
+from service.store import RobotInfo
+
+__all__ = ["router"]
+
+log = logging.getLogger(__name__)
+
+router = APIRouter(prefix="/api/v1/robots/{robot}/simulate", tags=["simulate"])
+
+
+@router.post(
+    "/damage",
+    response_model=DamageOut,
+    status_code=201,
+    summary="inject a damage into a simulated robot (409 for a real one)",
+)
+def damage(
+    body: DamageIn,
+    info: RobotInfo = Depends(get_robot),
+    injector: DamageInjector | None = Depends(get_injector),
+) -> DamageOut:
+    if not info.simulated or injector is None:
+        raise HTTPException(
+            status_code=409,
+            detail=f"robot {info.name!r} is not simulated in this process; "
+            "damage can only be injected into simulated robots",
+        )
+    params = body.model_dump(exclude={"kind"}, exclude_none=True)
+    try:
+        truth = injector(info.name, body.kind, params)
+    except KeyError as err:
+        raise HTTPException(
+            status_code=409, detail=f"robot {info.name!r} is not simulated here: {err}"
+        ) from None
+    except (ValueError, TypeError) as err:
+        raise HTTPException(status_code=422, detail=str(err)) from None
+    log.warning("damage injected", extra={"robot": info.name, "kind": body.kind, "truth": truth})
+    return DamageOut(robot=info.name, kind=body.kind, truth=truth)

@@ -1,0 +1,90 @@
+"""``/api/v1/robots/{robot}/topology`` and ``/baseline``: learned bodies and the baseline."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter, Depends, HTTPException, Query
+
+from bodyschema.diff import diff_bodies
+from service.api.deps import get_robot, get_store, get_worker
+from service.api.schemas import TopologyOut, TopologyPair
+from service.store import RobotInfo, Store
+from service.worker import Worker
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["topology"])
+
+Method = Literal["fast", "network", "network-paper", "mlp"]
+
+
+@router.get(
+    "/topology",
+    response_model=TopologyPair,
+    summary="the newest learned topology and the baseline (DESIGN §2 JSON)",
+)
+def topology(
+    info: RobotInfo = Depends(get_robot),
+    store: Store = Depends(get_store),
+    method: Method | None = Query(None, description="newest of this method (default: fast)"),
+) -> TopologyPair:
+    cur = store.latest_topology(info.name, method=method or "fast")
+    if cur is None and method is None:
+        cur = store.latest_topology(info.name)
+    base = store.baseline(info.name)
+    diff = None
+    if cur is not None and base is not None:
+        diff = diff_bodies(base.topology, cur.topology).to_json()
+    return TopologyPair(
+        current=cur.topology.to_json() if cur else None,
+        baseline=base.topology.to_json() if base else None,
+        current_meta=TopologyOut.of(cur) if cur else None,
+        baseline_meta=TopologyOut.of(base) if base else None,
+        diff=diff,
+    )
+
+
+@router.get("/topology/history", response_model=list[TopologyOut], summary="learned topologies, newest first")
+def history(
+    info: RobotInfo = Depends(get_robot),
+    store: Store = Depends(get_store),
+    limit: int = Query(50, ge=1, le=1000),
+) -> list[TopologyOut]:
+    return [TopologyOut.of(r) for r in store.topology_history(info.name, limit=limit)]
+
+
+@router.post("/topology/retrain", status_code=202, summary="learn with a method in the next worker cycle")
+def retrain(
+    info: RobotInfo = Depends(get_robot),
+    worker: Worker | None = Depends(get_worker),
+    method: Method = Query("network"),
+) -> dict[str, str]:
+    if worker is None:
+        raise HTTPException(status_code=409, detail="no worker runs in this process")
+    worker.request(info.name, method)
+    return {"robot": info.name, "method": method, "status": "queued"}
+
+
+@router.post(
+    "/baseline",
+    response_model=TopologyOut,
+    summary="approve the newest learned topology as the baseline (operator decision)",
+)
+def approve_baseline(
+    info: RobotInfo = Depends(get_robot),
+    store: Store = Depends(get_store),
+    worker: Worker | None = Depends(get_worker),
+) -> TopologyOut:
+    try:
+        if worker is not None:
+            return TopologyOut.of(worker.approve_baseline(info.name))
+        cur = store.latest_topology(info.name, method="fast") or store.latest_topology(info.name)
+        if cur is None:
+            raise LookupError(f"no topology learned for {info.name!r} yet")
+        store.set_baseline(info.name, cur.topology, "operator")
+    except LookupError as err:
+        raise HTTPException(status_code=409, detail=str(err)) from None
+    base = store.baseline(info.name)
+    assert base is not None
+    return TopologyOut.of(base)

@@ -1,0 +1,331 @@
+"""The REST API on a real store: resources, error codes (404/409/413/422), OpenAPI, readiness, metrics."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from bodyschema.topology import Topology
+from service.api import create_app
+from service.ingest.base import Counters, FrameBatch
+from service.metrics import Metrics
+from service.settings import Settings
+from service.store import Store
+from service.worker import Worker
+
+TOPO = Topology(
+    {"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"}, method="fast", excitation={"j1": 0.4, "j2": 0.3}
+)
+MOVED = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j1"}, method="fast")
+
+
+def batch(robot: str = "arm", n: int = 20, t0: float = 0.0) -> FrameBatch:
+    t = t0 + np.arange(n) * 0.01
+    return FrameBatch(
+        robot,
+        t,
+        ("j1", "j2"),
+        np.zeros((n, 2)),
+        ("imu0", "imu1"),
+        np.full((n, 2, 3), 9.81),
+        np.zeros((n, 2, 3)),
+    )
+
+
+class Injector:
+    """Stands in for the simulated farm's damage call: records what the API passed through."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, str, dict[str, Any]]] = []
+
+    def __call__(self, robot: str, kind: str, params: dict[str, Any]) -> dict[str, Any]:
+        if params.get("imu") == "nope":
+            raise ValueError("no IMU named 'nope' on this robot")
+        self.calls.append((robot, kind, params))
+        return {"changed": True, "findings": [{"kind": kind, **params, "confidence": 1.0}]}
+
+
+SETTINGS = Settings(database_url="sqlite://", max_request_bytes=20_000, worker_interval_seconds=1.0)
+
+
+@pytest.fixture
+def sstore(tmp_path: Path) -> Iterator[Store]:
+    s = Store(f"sqlite:///{tmp_path / 'api.db'}")
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def injector() -> Injector:
+    return Injector()
+
+
+@pytest.fixture
+def client(sstore: Store, injector: Injector) -> Iterator[TestClient]:
+    sstore.write(batch("arm"))
+    sstore.write(batch("sim"))
+    sstore.mark_simulated("sim", "ur5e")
+    with TestClient(create_app(sstore, settings=SETTINGS, injector=injector)) as c:
+        yield c
+
+
+def test_robots_topology_alerts_on_each_database(store: Store) -> None:
+    store.write(batch("arm"))
+    c = TestClient(create_app(store, settings=SETTINGS))
+    (r,) = c.get("/api/v1/robots").json()
+    assert (r["name"], r["joints"], r["imus"], r["last_frame_t"]) == (
+        "arm",
+        ["j1", "j2"],
+        ["imu0", "imu1"],
+        pytest.approx(0.19),
+    )
+    assert r["has_baseline"] is False and r["simulated"] is False
+    assert c.get("/api/v1/robots/arm/topology").json()["current"] is None
+    store.save_topology("arm", TOPO, 100.0, 0.19)
+    store.set_baseline("arm", TOPO, "auto")
+    store.save_topology("arm", MOVED, 101.0, 0.19)
+    body = c.get("/api/v1/robots/arm/topology").json()
+    assert body["baseline"]["imus"] == {"imu0": "j1", "imu1": "j2"}
+    assert body["current"]["imus"] == {"imu0": "j1", "imu1": "j1"}
+    assert body["diff"]["findings"][0]["kind"] == "imu_moved"
+    hist = c.get("/api/v1/robots/arm/topology/history").json()
+    assert [h["wall_time"] for h in hist] == [101.0, 100.0]
+    a = store.upsert_alert(
+        "arm", "imu_moved", "imu:imu1", {"kind": "imu_moved", "imu": "imu1"}, "active", 5.0
+    )
+    (got,) = c.get("/api/v1/alerts", params={"active": "true"}).json()
+    assert (got["id"], got["kind"], got["imu"], got["joint"], got["state"], got["raised_at"]) == (
+        a.id,
+        "imu_moved",
+        "imu1",
+        None,
+        "active",
+        5.0,
+    )
+
+
+def test_robot_detail_and_unknown_robot(client: TestClient) -> None:
+    r = client.get("/api/v1/robots/sim").json()
+    assert r["simulated"] is True and r["catalog"] == "ur5e"
+    for path in (
+        "/api/v1/robots/nope",
+        "/api/v1/robots/nope/topology",
+        "/api/v1/robots/nope/alerts",
+        "/api/v1/robots/nope/topology/history",
+    ):
+        resp = client.get(path)
+        assert resp.status_code == 404, path
+        assert "nope" in resp.json()["detail"]
+    assert client.post("/api/v1/robots/nope/baseline").status_code == 404
+
+
+def test_operator_baseline(client: TestClient, sstore: Store) -> None:
+    resp = client.post("/api/v1/robots/arm/baseline")
+    assert resp.status_code == 409 and "no topology" in resp.json()["detail"]
+    sstore.save_topology("arm", MOVED, 100.0, 0.19)
+    resp = client.post("/api/v1/robots/arm/baseline")
+    assert resp.status_code == 200 and resp.json()["source"] == "operator"
+    assert sstore.baseline("arm").topology.same_structure(MOVED)
+
+
+def test_operator_baseline_through_worker_resolves_alerts(sstore: Store) -> None:
+    sstore.write(batch("arm"))
+    sstore.save_topology("arm", MOVED, 100.0, 0.19)
+    a = sstore.upsert_alert("arm", "imu_moved", "imu:imu1", {"kind": "imu_moved", "imu": "imu1"}, "active", 1)
+    w = Worker(sstore, SETTINGS, estimator=lambda rec, m: TOPO)
+    c = TestClient(create_app(sstore, settings=SETTINGS, worker=w))
+    assert c.post("/api/v1/robots/arm/baseline").status_code == 200
+    assert c.get("/api/v1/robots/arm/alerts?active=true").json() == []
+    assert [x["state"] for x in c.get("/api/v1/robots/arm/alerts").json()] == ["resolved"]
+    assert c.post("/api/v1/robots/arm/topology/retrain", params={"method": "mlp"}).status_code == 202
+    assert w._requests == {"arm": {"mlp"}}
+    assert c.post("/api/v1/robots/arm/topology/retrain", params={"method": "magic"}).status_code == 422
+    assert a.id > 0
+
+
+def test_alert_filters_and_ack(client: TestClient, sstore: Store) -> None:
+    a1 = sstore.upsert_alert(
+        "arm", "imu_dead", "imu:imu0", {"kind": "imu_dead", "imu": "imu0"}, "active", 1.0
+    )
+    a2 = sstore.upsert_alert("sim", "joint_locked", "joint:j2", {"kind": "joint_locked"}, "active", 2.0)
+    sstore.upsert_alert("sim", "joint_locked", "joint:j2", {"kind": "joint_locked"}, "resolved", 3.0)
+    assert [a["id"] for a in client.get("/api/v1/alerts?active=true").json()] == [a1.id]
+    assert [a["state"] for a in client.get("/api/v1/robots/sim/alerts").json()] == ["resolved"]
+    assert client.get("/api/v1/robots/sim/alerts?active=true").json() == []
+    resp = client.post(f"/api/v1/alerts/{a1.id}/ack")
+    assert resp.status_code == 200 and resp.json()["acked"] is True
+    assert client.post("/api/v1/alerts/99999/ack").status_code == 404
+    # an alert id of another robot is not this robot's
+    assert client.post(f"/api/v1/robots/arm/alerts/{a2.id}/ack").status_code == 404
+    assert client.post(f"/api/v1/robots/sim/alerts/{a2.id}/ack").json()["acked"] is True
+    assert client.get("/api/v1/alerts?active=maybe").status_code == 422
+    assert client.post("/api/v1/alerts/abc/ack").status_code == 422
+
+
+def test_damage_injection(client: TestClient, injector: Injector) -> None:
+    resp = client.post(
+        "/api/v1/robots/sim/simulate/damage", json={"kind": "imu_moved", "imu": "imu1", "to": "j1"}
+    )
+    assert resp.status_code == 201, resp.text
+    assert resp.json()["truth"]["findings"][0]["kind"] == "imu_moved"
+    assert injector.calls == [("sim", "imu_moved", {"imu": "imu1", "to": "j1"})]
+    # a real robot: 409; unknown robot: 404; unknown kind, NaN, extra field, bad part: 422
+    assert client.post("/api/v1/robots/arm/simulate/damage", json={"kind": "imu_dead"}).status_code == 409
+    assert client.post("/api/v1/robots/nope/simulate/damage", json={"kind": "imu_dead"}).status_code == 404
+    bad = client.post("/api/v1/robots/sim/simulate/damage", json={"kind": "melted"})
+    assert bad.status_code == 422 and "imu_moved" in bad.text
+    nan = client.post(
+        "/api/v1/robots/sim/simulate/damage",
+        content=b'{"kind": "encoder_fault", "value": NaN}',
+        headers={"content-type": "application/json"},
+    )
+    assert nan.status_code == 422
+    inf = client.post(
+        "/api/v1/robots/sim/simulate/damage",
+        content=b'{"kind": "encoder_fault", "value": Infinity}',
+        headers={"content-type": "application/json"},
+    )
+    assert inf.status_code == 422
+    assert (
+        client.post(
+            "/api/v1/robots/sim/simulate/damage", json={"kind": "imu_dead", "colour": "red"}
+        ).status_code
+        == 422
+    )
+    part = client.post("/api/v1/robots/sim/simulate/damage", json={"kind": "imu_dead", "imu": "nope"})
+    assert part.status_code == 422 and "nope" in part.json()["detail"]
+    assert (
+        client.post(
+            "/api/v1/robots/sim/simulate/damage",
+            content=b"{not json",
+            headers={"content-type": "application/json"},
+        ).status_code
+        == 422
+    )
+    assert len(injector.calls) == 1
+
+
+def test_damage_without_injector_is_409(sstore: Store) -> None:
+    sstore.write(batch("sim"))
+    sstore.mark_simulated("sim", "ur5e")
+    c = TestClient(create_app(sstore, settings=SETTINGS))
+    assert c.post("/api/v1/robots/sim/simulate/damage", json={"kind": "imu_dead"}).status_code == 409
+
+
+def _frames_body(n: int, robot_value: float = 0.0) -> dict[str, Any]:
+    return {
+        "t": [10 + k * 0.01 for k in range(n)],
+        "joint_names": ["j1", "j2"],
+        "q": [[robot_value, 0.0]] * n,
+        "imu_names": ["imu0", "imu1"],
+        "acc": [[[0, 0, 9.81]] * 2] * n,
+        "gyro": [[[0, 0, 0]] * 2] * n,
+    }
+
+
+def test_frames_push_and_bad_frames(client: TestClient, sstore: Store) -> None:
+    before = sstore.sample_count("arm")
+    resp = client.post("/api/v1/robots/arm/frames", json=_frames_body(10))
+    assert resp.status_code == 201 and resp.json() == {"stored": 10}
+    assert sstore.sample_count("arm") == before + 10
+    # NaN in a value, a wrong shape, time going backwards: 422, and nothing stored
+    nan = json.dumps(_frames_body(3)).replace("9.81", "NaN", 1)
+    assert (
+        client.post(
+            "/api/v1/robots/arm/frames", content=nan, headers={"content-type": "application/json"}
+        ).status_code
+        == 422
+    )
+    bad = _frames_body(3)
+    bad["acc"] = [[[0, 0]] * 2] * 3
+    r = client.post("/api/v1/robots/arm/frames", json=bad)
+    assert r.status_code == 422
+    back = _frames_body(3)
+    back["t"] = [3.0, 2.0, 1.0]
+    r = client.post("/api/v1/robots/arm/frames", json=back)
+    assert r.status_code == 422 and "increasing" in r.json()["detail"]
+    assert sstore.sample_count("arm") == before + 10
+
+
+def test_oversized_body_is_413(client: TestClient, sstore: Store) -> None:
+    before = sstore.sample_count()
+    big = _frames_body(400)  # ~30 kB > 20 kB limit
+    resp = client.post("/api/v1/robots/arm/frames", json=big)
+    assert resp.status_code == 413 and "20000" in resp.json()["detail"]
+
+    def chunks() -> Iterator[bytes]:  # no Content-Length: the streamed size is counted
+        data = json.dumps(big).encode()
+        for k in range(0, len(data), 4096):
+            yield data[k : k + 4096]
+
+    resp = client.post(
+        "/api/v1/robots/arm/frames", content=chunks(), headers={"content-type": "application/json"}
+    )
+    assert resp.status_code == 413
+    assert sstore.sample_count() == before
+    assert client.post("/api/v1/robots/arm/frames", json=_frames_body(5)).status_code == 201
+
+
+def test_openapi_and_docs(client: TestClient) -> None:
+    spec = client.get("/openapi.json").json()
+    for path in (
+        "/api/v1/robots",
+        "/api/v1/robots/{robot}",
+        "/api/v1/robots/{robot}/topology",
+        "/api/v1/robots/{robot}/topology/history",
+        "/api/v1/robots/{robot}/baseline",
+        "/api/v1/robots/{robot}/alerts",
+        "/api/v1/alerts",
+        "/api/v1/alerts/{alert_id}/ack",
+        "/api/v1/robots/{robot}/simulate/damage",
+        "/livez",
+        "/readyz",
+        "/metrics",
+    ):
+        assert path in spec["paths"], path
+    kinds = spec["components"]["schemas"]["DamageIn"]["properties"]["kind"]["enum"]
+    assert "link_lost" in kinds and "insufficient_excitation" not in kinds
+    docs = client.get("/docs")
+    assert docs.status_code == 200 and "swagger" in docs.text.lower()
+
+
+def test_livez_readyz(client: TestClient, sstore: Store) -> None:
+    assert client.get("/livez").json() == {"status": "ok"}
+    r = client.get("/readyz")
+    assert r.status_code == 503 and r.json()["checks"]["database"] is True
+    assert r.json()["checks"]["worker"] is False
+    sstore.heartbeat("worker", time.time())
+    r = client.get("/readyz")
+    assert r.status_code == 200 and r.json()["status"] == "ready"
+    sstore.heartbeat("worker", time.time() - 3600)
+    assert client.get("/readyz").status_code == 503
+
+
+def test_metrics(sstore: Store) -> None:
+    counters = Counters()
+    counters.add("received", 120)
+    counters.add("stored", 100)
+    counters.add("dropped", 20)
+    m = Metrics(counters=counters.as_dict)
+    sstore.write(batch("arm"))
+    w = Worker(sstore, SETTINGS, estimator=lambda rec, method: TOPO, metrics=m, min_samples=5)
+    w.run_cycle()
+    c = TestClient(create_app(sstore, settings=SETTINGS, worker=w))
+    text = c.get("/metrics").text
+    assert "bodyhealth_frames_received_total 120.0" in text
+    assert "bodyhealth_frames_stored_total 100.0" in text
+    assert "bodyhealth_frames_dropped_total 20.0" in text
+    assert 'bodyhealth_retrain_seconds_count{method="fast"} 1.0' in text
+    assert 'bodyhealth_alerts_active{robot="arm"} 0.0' in text
+
+
+def test_dashboard_served(client: TestClient) -> None:
+    r = client.get("/")
+    assert r.status_code == 200 and "bodyhealth" in r.text
