@@ -1,0 +1,213 @@
+"""Device emulators: a recording played out as a robot would send it, on the far end of a pty.
+
+- :class:`SerialEmulator` writes :mod:`service.ingest.serial_frame` frames, one per sample.
+- :class:`SlcanEmulator` behaves like an slcan (Lawicel) USB-CAN adapter on a bus where the robot sends
+  the project CAN layout (:mod:`service.ingest.can_layout`): it answers the host's commands (``O``,
+  ``C``, ``S6``, ``V``, ``N`` ...) and forwards frames as ``tIIILDD..\\r`` lines only while the channel is
+  open, as a real adapter does.
+
+Both take the sample counter from the recording's time stamps (``round(t / period)``), so the host's
+times equal the recording's. ``speed`` 1.0 paces samples in real time; 0 sends as fast as the reader
+takes them (the pty applies back-pressure).
+
+Example
+-------
+>>> import numpy as np, serial
+>>> from bodyschema.recording import Recording
+>>> from service.ingest.serial import SerialSource
+>>> rec = Recording(t=np.arange(50) * 0.01, joint_names=["j1"], q=np.zeros((50, 1)),
+...                 imu_names=["imu0"], acc=np.zeros((50, 1, 3)), gyro=np.zeros((50, 1, 3)))
+>>> em = SerialEmulator(rec)
+>>> src = SerialSource(em.port.name, em.device_config())
+>>> em.start()
+>>> n = 0
+>>> while n < 50:
+...     n += sum(b.n_samples for b in src.read(1.0))
+>>> n, em.wait_done(5.0)
+(50, True)
+>>> src.close(); em.stop()
+"""
+
+from __future__ import annotations
+
+import logging
+import select
+import threading
+import time
+
+import numpy as np
+
+from bodyschema.recording import Recording
+from service.emulators.pty_port import PtyPort
+from service.ingest.can_layout import encode_samples
+from service.ingest.device import DeviceConfig
+from service.ingest.serial_frame import FrameEncoder
+
+__all__ = ["SerialEmulator", "SlcanEmulator", "sample_counters"]
+
+log = logging.getLogger(__name__)
+
+
+def sample_counters(rec: Recording) -> tuple[np.ndarray, float]:
+    """Device counters (T,) and the period, from the recording's time stamps."""
+    period = 1.0 / rec.sample_rate if rec.n_samples > 1 else 0.01
+    return np.rint(rec.t / period).astype(np.int64), period
+
+
+class _PtyEmulator:
+    """Streams pre-encoded per-sample chunks into a :class:`PtyPort` from a thread."""
+
+    def __init__(self, rec: Recording, *, robot: str = "robot", speed: float = 0.0, link: str | None = None,
+                 port: PtyPort | None = None) -> None:
+        self.rec = rec
+        self.robot = robot
+        self._replies = b""
+        self.counters, self.period = sample_counters(rec)
+        self.speed = speed
+        self.port = port or PtyPort(link)
+        self.chunks = self._encode()
+        self.sent = 0  # samples fully written
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.streaming = self._streams_at_once()
+
+    # subclasses
+    def _encode(self) -> list[bytes]:
+        raise NotImplementedError
+
+    def _streams_at_once(self) -> bool:
+        return True
+
+    def _on_input(self, data: bytes) -> None:
+        """Bytes the host wrote (commands); the serial device ignores them."""
+
+    def device_config(self) -> DeviceConfig:
+        """What the host must be told: robot name, names in wire order, period."""
+        return DeviceConfig(self.robot, self.period, self.rec.joint_names, self.rec.imu_names)
+
+    # lifecycle
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=type(self).__name__, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        self.port.close()
+
+    def wait_done(self, timeout: float | None = None) -> bool:
+        """True once every sample has been written into the pty."""
+        return self._done.wait(timeout)
+
+    def unplug(self) -> None:
+        """Pull the cable: the pty goes away (a partly written sample is lost)."""
+        self.port.unplug()
+
+    def plug(self) -> None:
+        self.streaming = self._streams_at_once()
+        self.port.plug()
+
+    def _run(self) -> None:
+        out = memoryview(b"")
+        i, n = 0, len(self.chunks)
+        t0 = time.monotonic()
+        while not self._stop.is_set():
+            fd = self.port.fileno()
+            if fd < 0:
+                out = memoryview(b"")  # unplugged: what was in flight is gone
+                time.sleep(0.01)
+                continue
+            if not out and self._replies:
+                out, self._replies = memoryview(self._replies), b""
+                self._pending_end = i
+            elif not out and i < n and self.streaming:
+                if self.speed > 0:
+                    due = int((time.monotonic() - t0) * self.speed / self.period) + 1
+                    j = min(max(due, i), n)
+                else:
+                    j = i
+                    size = 0
+                    while j < n and size < 65536:
+                        size += len(self.chunks[j])
+                        j += 1
+                if j > i:
+                    out = memoryview(b"".join(self.chunks[i:j]))
+                    self._pending_end = j
+            wait = 0.002 if (self.speed > 0 and not out and i < n) else 0.05
+            try:
+                r, w, _ = select.select([fd], [fd] if out else [], [], wait)
+            except (OSError, ValueError):
+                continue
+            if r:
+                data = self.port.read_available()
+                if data:
+                    self._on_input(data)
+            if w and out:
+                k = self.port.write_some(out)
+                out = out[k:]
+                if not out:
+                    i = self._pending_end
+                    self.sent = i
+            if i >= n and not out:
+                self._done.set()
+
+
+class SerialEmulator(_PtyEmulator):
+    """A robot streaming :mod:`serial_frame` frames on a pty."""
+
+    def _encode(self) -> list[bytes]:
+        rec = self.rec
+        enc = FrameEncoder(rec.n_joints, rec.n_imus)
+        q = rec.q if rec.q is not None else np.zeros((rec.n_samples, 0))
+        chunks = [enc.encode(int(c), q[i], rec.acc[i], rec.gyro[i]) for i, c in enumerate(self.counters)]
+        self.clipped = enc.clipped
+        return chunks
+
+
+class SlcanEmulator(_PtyEmulator):
+    """An slcan adapter on a bus carrying the project CAN layout."""
+
+    VERSION = b"V1013\r"
+    SERIAL = b"NBH01\r"
+
+    def _streams_at_once(self) -> bool:
+        return False
+
+    def _encode(self) -> list[bytes]:
+        rec = self.rec
+        q = rec.q if rec.q is not None else np.zeros((rec.n_samples, 0))
+        ids, data = encode_samples(self.counters, q, rec.acc, rec.gyro)
+        prefixes = [f"t{int(i):03X}8".encode() for i in ids]
+        hexed = data.reshape(-1).tobytes().hex().upper().encode()
+        F = len(ids)
+        chunks = []
+        for s in range(rec.n_samples):
+            base = s * F * 16
+            chunks.append(b"".join(prefixes[f] + hexed[base + 16 * f:base + 16 * f + 16] + b"\r"
+                                   for f in range(F)))
+        self._cmd = b""
+        return chunks
+
+    def _on_input(self, data: bytes) -> None:
+        self._cmd += data
+        *lines, self._cmd = self._cmd.split(b"\r")
+        replies = []
+        for line in lines:
+            c = line[:1]
+            if c in (b"O", b"L"):
+                self.streaming = True
+                replies.append(b"\r")
+            elif c == b"C":
+                self.streaming = False
+                replies.append(b"\r")
+            elif c == b"V":
+                replies.append(self.VERSION)
+            elif c == b"N":
+                replies.append(self.SERIAL)
+            elif c in (b"S", b"s", b"t", b"T", b"r", b"R", b"F", b"Z", b"M", b"m", b"Y"):
+                replies.append(b"\r")
+            elif line:
+                replies.append(b"\a")
+        self._replies += b"".join(replies)

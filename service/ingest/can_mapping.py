@@ -1,0 +1,140 @@
+"""Which DBC signal carries which joint position or IMU axis: the ``can`` section of a device config.
+
+A robot integrator with their own DBC writes a device config like this (``docs/wire-formats.md``)::
+
+    {"robot": "rover", "period_s": 0.005,
+     "joints": ["hip", "knee"], "imus": ["thigh_imu"],
+     "can": {"dbc": "rover.dbc",
+             "counter": {"signal": "SeqCnt", "bits": 8},
+             "joints": {"hip": "EncHip.Angle", "knee": "EncKnee.Angle"},
+             "imus": {"thigh_imu": {"acc": ["ImuA.AccX", "ImuA.AccY", "ImuA.AccZ"],
+                                    "gyro": ["ImuG.RateX", "ImuG.RateY", "ImuG.RateZ"]}},
+             "units": {"q": 0.017453292519943295, "acc": 9.80665, "gyro": 0.017453292519943295}}}
+
+``units`` multiplies the DBC's physical value into the contract units (rad, m/s², rad/s); here the
+DBC speaks degrees and g. Every mapped message must carry the counter signal. Without ``joints``/``imus``
+in the ``can`` section the project layout (:mod:`can_layout`) is used, in config order; without ``dbc``
+the project DBC.
+
+Example
+-------
+>>> from service.ingest.device import DeviceConfig
+>>> sm = SignalMap.for_config(DeviceConfig("r1", 0.01, ("j1", "j2", "j3"), ("imu0",)))
+>>> sorted(hex(i) for i in sm.by_id), sm.n_frames
+(['0x100', '0x180', '0x80', '0x81'], 4)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cantools
+from cantools.database.can import Database, Message
+
+from service.ingest.can_layout import load_project_database, project_signal_map
+from service.ingest.device import DeviceConfig, DeviceConfigError
+
+__all__ = ["FrameRoute", "SignalMap", "load_dbc"]
+
+Q, ACC, GYRO = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class FrameRoute:
+    """Where the signals of one frame id go: (signal, kind, index, axis, factor) per mapped signal."""
+
+    message: Message
+    targets: tuple[tuple[str, int, int, int, float], ...]
+    joints: tuple[int, ...]
+    imus: tuple[int, ...]
+
+
+def load_dbc(path: str | None) -> Database:
+    """The user's DBC at ``path``, or the project DBC when ``path`` is None."""
+    if path is None:
+        return load_project_database()
+    try:
+        db = cantools.database.load_file(path, database_format="dbc", strict=False)
+    except (OSError, cantools.database.UnsupportedDatabaseFormatError) as err:
+        raise DeviceConfigError(f"{path}: cannot read DBC ({err})") from err
+    assert isinstance(db, Database)
+    return db
+
+
+class SignalMap:
+    """Resolved routing from frame ids to the joint/IMU arrays, checked against the DBC."""
+
+    def __init__(self, db: Database, config: DeviceConfig, section: dict) -> None:
+        self.config = config
+        counter = section.get("counter", {})
+        self.counter_signal = str(counter.get("signal", "counter"))
+        self.counter_bits = int(counter.get("bits", 16))
+        units = section.get("units", {})
+        factor = {Q: float(units.get("q", 1.0)), ACC: float(units.get("acc", 1.0)),
+                  GYRO: float(units.get("gyro", 1.0))}
+        jmap: dict = section.get("joints", {})
+        imap: dict = section.get("imus", {})
+        missing = [j for j in config.joints if j not in jmap] + [i for i in config.imus if i not in imap]
+        unknown = [n for n in jmap if n not in config.joints] + [n for n in imap if n not in config.imus]
+        if missing or unknown:
+            raise DeviceConfigError(f"CAN mapping: names without a signal {missing}, unknown names {unknown}")
+        routes: dict[int, list] = {}
+        joints_of: dict[int, set[int]] = {}
+        imus_of: dict[int, set[int]] = {}
+        self.imu_frames: list[frozenset[int]] = []
+
+        def resolve(ref: str) -> Message:
+            mname, _, sname = str(ref).partition(".")
+            try:
+                msg = db.get_message_by_name(mname)
+            except KeyError:
+                raise DeviceConfigError(f"CAN mapping: no message {mname!r} in the DBC") from None
+            names = {s.name for s in msg.signals}
+            if sname not in names:
+                raise DeviceConfigError(f"CAN mapping: message {mname!r} has no signal {sname!r}")
+            if self.counter_signal not in names:
+                raise DeviceConfigError(f"CAN mapping: message {mname!r} lacks the counter signal "
+                                        f"{self.counter_signal!r}")
+            return msg
+
+        def add(ref: str, kind: int, index: int, axis: int) -> int:
+            msg = resolve(ref)
+            routes.setdefault(msg.frame_id, []).append((ref.partition(".")[2], kind, index, axis,
+                                                        factor[kind]))
+            self._messages[msg.frame_id] = msg
+            return msg.frame_id
+
+        self._messages: dict[int, Message] = {}
+        for j, name in enumerate(config.joints):
+            fid = add(jmap[name], Q, j, 0)
+            joints_of.setdefault(fid, set()).add(j)
+        for k, name in enumerate(config.imus):
+            spec = imap[name]
+            if not (isinstance(spec, dict) and all(len(spec.get(k, ())) == 3 for k in ("acc", "gyro"))):
+                raise DeviceConfigError(f"CAN mapping: IMU {name!r} needs 'acc' and 'gyro' lists of "
+                                        "3 signals")
+            fids = set()
+            for kind, key in ((ACC, "acc"), (GYRO, "gyro")):
+                for axis, ref in enumerate(spec[key]):
+                    fid = add(ref, kind, k, axis)
+                    fids.add(fid)
+                    imus_of.setdefault(fid, set()).add(k)
+            self.imu_frames.append(frozenset(fids))
+        self.by_id: dict[int, FrameRoute] = {
+            fid: FrameRoute(self._messages[fid], tuple(t), tuple(sorted(joints_of.get(fid, ()))),
+                            tuple(sorted(imus_of.get(fid, ()))))
+            for fid, t in routes.items()
+        }
+        self.joint_frames = frozenset(joints_of)
+        self.n_frames = len(self.by_id)
+
+    @classmethod
+    def for_config(cls, config: DeviceConfig, db: Database | None = None) -> SignalMap:
+        """Resolve ``config.extra['can']`` (or the project layout) against its DBC."""
+        section = dict(config.extra.get("can") or {})
+        if db is None:
+            db = load_dbc(section.get("dbc"))
+        if "joints" not in section and "imus" not in section:
+            layout = project_signal_map(config.joints, config.imus)
+            section = {**layout, **{k: v for k, v in section.items() if k not in layout}}
+        return cls(db, config, section)

@@ -1,0 +1,210 @@
+"""The serial wire frame: one sample of encoders and IMUs per frame, CRC-32 protected.
+
+Layout (all integers little-endian; full tables and a worked example in ``docs/wire-formats.md``)::
+
+    offset size  field
+    0      2     sync 0xA5 0x5A
+    2      2     length    payload bytes = 4·N + 12·K
+    4      2     seq       frame sequence number, +1 per frame (mod 2^16): gaps = lost frames
+    6      4     counter   device sample counter, +1 per sample (mod 2^32): t = counter × period
+    10     1     N         number of joints
+    11     1     K         number of IMUs
+    12     4·N   q         int32, joint position, LSB = 1e-6 rad (or m)
+    ..     6·K   acc       int16 x,y,z per IMU, LSB = 0.005 m/s² (specific force, sensor frame)
+    ..     6·K   gyro      int16 x,y,z per IMU, LSB = 0.001 rad/s (sensor frame)
+    end-4  4     crc       CRC-32 (ISO-HDLC, as zlib.crc32) over bytes 2 .. end-4
+
+Why CRC-32 and an exact-length check rather than CRC-16: a burst of line garbage can contain a byte
+pair equal to the sync word followed by plausible header bytes. The decoder accepts a candidate only if
+its length and counts equal the configured device *and* the CRC matches, so a forged header passes with
+probability about 2^-32 per occurrence (CRC-16 alone would let one in every 65,536 through).
+``binascii.crc32`` is the C implementation from the standard library.
+
+Resynchronisation: after a rejected candidate the decoder restarts the search one byte after its sync
+word, so a false sync inside garbage never swallows the real frame behind it.
+
+Example
+-------
+>>> import numpy as np
+>>> enc = FrameEncoder(n_joints=1, n_imus=1)
+>>> wire = enc.encode(counter=7, q=[0.5], acc=[[0, 0, 9.81]], gyro=[[0.1, 0, 0]])
+>>> wire.hex()
+'a55a1000000007000000010120a1070000000000aa076400000000005eea9768'
+>>> dec = FrameDecoder(n_joints=1, n_imus=1)
+>>> frames = dec.feed(b"\\x00garbage" + wire)
+>>> [(f.seq, f.counter) for f in frames], dec.bytes_discarded
+([(0, 7)], 8)
+>>> q, acc, gyro = decode_payloads([f.payload for f in frames], 1, 1)
+>>> float(q[0, 0]), float(acc[0, 0, 2]), float(gyro[0, 0, 0])
+(0.5, 9.81, 0.1)
+"""
+
+from __future__ import annotations
+
+import binascii
+import struct
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "ACC_LSB",
+    "GYRO_LSB",
+    "HEADER",
+    "MAX_IMUS",
+    "MAX_JOINTS",
+    "Q_LSB",
+    "SYNC",
+    "DecodedFrame",
+    "FrameDecoder",
+    "FrameEncoder",
+    "decode_payloads",
+    "frame_size",
+    "payload_dtype",
+    "quantize",
+]
+
+SYNC = b"\xa5\x5a"
+#: sync, length, seq, counter, N, K
+HEADER = struct.Struct("<2sHHIBB")
+CRC = struct.Struct("<I")
+MAX_JOINTS = 255
+MAX_IMUS = 255
+
+#: Quantization shared by both wires (the project DBC uses the same scales).
+Q_LSB = 1e-6
+ACC_LSB = 0.005
+GYRO_LSB = 0.001
+
+
+class DecodedFrame(NamedTuple):
+    seq: int
+    counter: int
+    payload: bytes
+
+
+def payload_dtype(n_joints: int, n_imus: int) -> np.dtype:
+    """The numpy record type of one payload (packed, little-endian)."""
+    return np.dtype([("q", "<i4", (n_joints,)), ("acc", "<i2", (n_imus, 3)), ("gyro", "<i2", (n_imus, 3))])
+
+
+def frame_size(n_joints: int, n_imus: int) -> int:
+    """Bytes of one frame on the wire."""
+    return HEADER.size + 4 * n_joints + 12 * n_imus + CRC.size
+
+
+def quantize(values: np.ndarray, lsb: float, dtype: str) -> tuple[np.ndarray, int]:
+    """Round to integer counts of ``lsb``, saturating at the type's range; returns (counts, n_clipped)."""
+    info = np.iinfo(dtype)
+    counts = np.rint(np.asarray(values, dtype=np.float64) / lsb)
+    clipped = int(np.count_nonzero((counts < info.min) | (counts > info.max)))
+    return np.clip(counts, info.min, info.max).astype(dtype), clipped
+
+
+def _check_counts(n_joints: int, n_imus: int) -> None:
+    if not (0 <= n_joints <= MAX_JOINTS and 0 <= n_imus <= MAX_IMUS and n_joints + n_imus > 0):
+        raise ValueError(f"need 0..{MAX_JOINTS} joints and 0..{MAX_IMUS} IMUs, at least one in all")
+
+
+class FrameEncoder:
+    """Device side: build frames, numbering them. ``clipped`` counts values saturated to the range."""
+
+    def __init__(self, n_joints: int, n_imus: int, seq: int = 0) -> None:
+        _check_counts(n_joints, n_imus)
+        self.n_joints, self.n_imus = n_joints, n_imus
+        self.seq = seq & 0xFFFF
+        self.clipped = 0
+        self._dtype = payload_dtype(n_joints, n_imus)
+
+    def encode(self, counter: int, q: Sequence[float] | np.ndarray, acc: np.ndarray | Sequence,
+               gyro: np.ndarray | Sequence) -> bytes:
+        rec = np.zeros((), dtype=self._dtype)
+        rec["q"], c1 = quantize(np.reshape(q, (self.n_joints,)), Q_LSB, "<i4")
+        rec["acc"], c2 = quantize(np.reshape(acc, (self.n_imus, 3)), ACC_LSB, "<i2")
+        rec["gyro"], c3 = quantize(np.reshape(gyro, (self.n_imus, 3)), GYRO_LSB, "<i2")
+        self.clipped += c1 + c2 + c3
+        body = HEADER.pack(SYNC, self._dtype.itemsize, self.seq, int(counter) & 0xFFFFFFFF,
+                           self.n_joints, self.n_imus) + rec.tobytes()
+        self.seq = (self.seq + 1) & 0xFFFF
+        return body + CRC.pack(binascii.crc32(body[2:]))
+
+
+class FrameDecoder:
+    """Host side: feed it bytes as they come (any chunking), get back the intact frames.
+
+    Counters (every byte fed ends up either in an accepted frame or in ``bytes_discarded``):
+
+    - ``crc_errors``: candidates whose header fitted but whose CRC did not match;
+    - ``bad_headers``: a sync word followed by a length or counts that do not fit this device;
+    - ``bytes_discarded``: bytes skipped while searching for a frame (garbage, rejected frames).
+    """
+
+    def __init__(self, n_joints: int, n_imus: int) -> None:
+        _check_counts(n_joints, n_imus)
+        self.n_joints, self.n_imus = n_joints, n_imus
+        self.payload_len = payload_dtype(n_joints, n_imus).itemsize
+        self.frame_len = HEADER.size + self.payload_len + CRC.size
+        self.crc_errors = 0
+        self.bad_headers = 0
+        self.bytes_discarded = 0
+        self.bytes_accepted = 0
+        self._buf = bytearray()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back as the possible start of a frame."""
+        return len(self._buf)
+
+    def reset(self) -> None:
+        """Forget a partial frame (the port went away); its bytes count as discarded."""
+        self.bytes_discarded += len(self._buf)
+        self._buf.clear()
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[DecodedFrame]:
+        buf = self._buf
+        buf += data
+        n = len(buf)
+        out: list[DecodedFrame] = []
+        pos = 0
+        hsize, plen, flen = HEADER.size, self.payload_len, self.frame_len
+        while True:
+            i = buf.find(SYNC, pos)
+            if i < 0:
+                keep = n - 1 if n > pos and buf[n - 1] == SYNC[0] else n
+                self.bytes_discarded += keep - pos
+                pos = keep
+                break
+            self.bytes_discarded += i - pos
+            pos = i
+            if n - i < hsize:
+                break
+            _, length, seq, counter, nj, ni = HEADER.unpack_from(buf, i)
+            if length != plen or nj != self.n_joints or ni != self.n_imus:
+                self.bad_headers += 1
+                self.bytes_discarded += 1
+                pos = i + 1
+                continue
+            end = i + flen
+            if n < end:
+                break
+            (crc,) = CRC.unpack_from(buf, end - 4)
+            if binascii.crc32(buf[i + 2:end - 4]) != crc:
+                self.crc_errors += 1
+                self.bytes_discarded += 1
+                pos = i + 1
+                continue
+            out.append(DecodedFrame(seq, counter, bytes(buf[i + hsize:end - 4])))
+            self.bytes_accepted += flen
+            pos = end
+        del buf[:pos]
+        return out
+
+
+def decode_payloads(payloads: Sequence[bytes], n_joints: int, n_imus: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Payloads of T frames -> ``q`` (T,N) rad, ``acc`` (T,K,3) m/s², ``gyro`` (T,K,3) rad/s, at once."""
+    dt = payload_dtype(n_joints, n_imus)
+    rec = np.frombuffer(b"".join(payloads), dtype=dt)
+    return (rec["q"].astype(np.float64) * Q_LSB, rec["acc"].astype(np.float64) * ACC_LSB,
+            rec["gyro"].astype(np.float64) * GYRO_LSB)
