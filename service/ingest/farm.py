@@ -1,0 +1,121 @@
+"""The simulated robot farm (:class:`simulators.farm.Farm`) as an ingest source.
+
+The farm is stepped in ``step_seconds`` of simulated (device) time, paced to ``speed`` × the wall clock
+(``math.inf``: as fast as the simulation runs). Every step yields one batch per robot. The source
+exposes ``.farm`` and a thread-safe :meth:`FarmSource.inject` so the API can damage a robot while the
+reader thread is stepping it. On attach it marks every farm robot simulated in the store.
+
+Example (any object with the farm's ``advance``/``robot_names``/``catalog_name`` works)
+-------
+>>> import numpy as np
+>>> from bodyschema.recording import Recording
+>>> class Still:
+...     robot_names = ("r1",)
+...     t = 0.0
+...     def catalog_name(self, name): return "toy"
+...     def advance(self, seconds):
+...         t = self.t + np.arange(1, 11) * seconds / 10
+...         self.t = float(t[-1])
+...         return {"r1": Recording(t=t, joint_names=["j1"], q=np.zeros((10, 1)), imu_names=["i0"],
+...                                 acc=np.zeros((10, 1, 3)), gyro=np.zeros((10, 1, 3)))}
+>>> src = FarmSource(Still(), speed=math.inf, max_steps_per_read=3)
+>>> [(b.robot, b.n_samples) for b in src.read()]
+[('r1', 10), ('r1', 10), ('r1', 10)]
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from service.ingest.base import FrameBatch, Source
+from service.ingest.replay import recording_batch
+
+__all__ = ["FarmSource", "farm_robot_names"]
+
+
+def farm_robot_names(catalog_names: list[str]) -> dict[str, str]:
+    """Robot names for catalog models: ``["ur5e", "ur5e", "paper-3"]`` ->
+    ``{"ur5e-1": "ur5e", "ur5e-2": "ur5e", "paper-3-1": "paper-3"}``.
+
+    >>> farm_robot_names(["ur5e", "ur5e", "paper-3"])
+    {'ur5e-1': 'ur5e', 'ur5e-2': 'ur5e', 'paper-3-1': 'paper-3'}
+    """
+    counts: dict[str, int] = {}
+    out: dict[str, str] = {}
+    for c in catalog_names:
+        counts[c] = counts.get(c, 0) + 1
+        out[f"{c}-{counts[c]}"] = c
+    return out
+
+
+class FarmSource(Source):
+    """Batches from a stepping farm (see the module docstring)."""
+
+    def __init__(
+        self,
+        farm: Any,
+        *,
+        speed: float = 1.0,
+        step_seconds: float = 0.1,
+        max_steps_per_read: int = 20,
+        name: str = "farm",
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be positive (math.inf = as fast as possible), got {speed}")
+        if not step_seconds > 0:
+            raise ValueError(f"step_seconds must be positive, got {step_seconds}")
+        super().__init__(name)
+        self.farm = farm
+        self.speed = float(speed)
+        self.step_seconds = float(step_seconds)
+        self.max_steps_per_read = int(max_steps_per_read)
+        self.sim_seconds = 0.0  # simulated time advanced so far
+        #: Held while the farm steps; take it to touch the farm from another thread.
+        self.lock = threading.RLock()
+        self._clock, self._sleep = clock, sleep
+        self._wall0: float | None = None
+
+    @property
+    def robot_names(self) -> list[str]:
+        return list(self.farm.robot_names)
+
+    def attach_store(self, store: Any) -> None:
+        """Register every robot of the farm as simulated, with its catalog model."""
+        for name in self.robot_names:
+            store.mark_simulated(name, self.farm.catalog_name(name))
+
+    def inject(self, robot: str, kind: str, **params: Any) -> Any:
+        """Damage ``robot`` (e.g. ``inject("ur5e-1", "imu_moved", imu="imu3")``); returns the farm's
+        ground-truth diff. Safe to call while the reader thread is stepping the farm."""
+        with self.lock:
+            return self.farm.inject(robot, kind, **params)
+
+    def _behind(self) -> float:
+        """Simulated seconds the farm is behind its wall-clock target (negative: ahead)."""
+        assert self._wall0 is not None
+        return (self._clock() - self._wall0) * self.speed - self.sim_seconds
+
+    def _read_raw(self, timeout: float) -> list[FrameBatch]:
+        if self._wall0 is None:
+            self._wall0 = self._clock() - self.step_seconds / self.speed  # the first step is due now
+        if math.isfinite(self.speed):
+            wait = (self.step_seconds - self._behind()) / self.speed
+            if wait > 0:
+                self._sleep(min(wait, timeout))
+                if self._behind() < self.step_seconds:
+                    return []
+        out: list[FrameBatch] = []
+        for _ in range(self.max_steps_per_read):
+            with self.lock:
+                chunks = self.farm.advance(seconds=self.step_seconds)
+            self.sim_seconds += self.step_seconds
+            out.extend(recording_batch(name, rec) for name, rec in chunks.items() if rec.n_samples)
+            if math.isfinite(self.speed) and self._behind() < self.step_seconds:
+                break
+        return out

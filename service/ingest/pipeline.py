@@ -1,0 +1,387 @@
+"""The ingest pipeline: source threads -> one bounded queue -> one store writer thread.
+
+Each :class:`~service.ingest.base.Source` gets its own reader thread calling ``read()``. Batches go on
+one bounded queue: when the store falls behind, a full queue blocks the reader for at most
+``put_timeout`` seconds (backpressure on the transport), after which the batch is dropped and counted
+as ``dropped``. The writer thread takes whatever is queued (up to ``coalesce_max_samples``), writes it
+with :meth:`Store.write_many` in one transaction, and counts ``stored``. A batch the store rejects is
+counted ``malformed`` without losing the good batches written with it; a database that is briefly
+unavailable is retried; nothing kills a thread. :meth:`Pipeline.stop` stops the readers, drains the
+queue into the store and joins every thread.
+
+Counters are per source (``source.counters``, in samples): ``received`` and ``malformed`` are kept by
+the source's ``read()``, ``stored`` and ``dropped`` by the pipeline.
+
+A source may define ``attach_store(store)`` (called once on start: the farm marks its robots simulated,
+a replay resumes after the last stored frame) and an ``exhausted`` attribute (a finite source that has
+delivered everything; its reader then ends).
+
+Run as a program it ingests sources into a database until they are exhausted or it is stopped::
+
+    python -m service.ingest.pipeline --database-url sqlite:///var/x.db --commit-log var/commits.jsonl \\
+        replay:data/run1.npz@max
+
+Example
+-------
+>>> import numpy as np
+>>> from service.ingest.base import FrameBatch, Source
+>>> from service.store import Store
+>>> class Three(Source):
+...     exhausted = False
+...     def _read_raw(self, timeout):
+...         self.exhausted = True
+...         return [FrameBatch("r", np.array([float(i)]), (), np.zeros((1, 0)), ("imu0",),
+...                            np.zeros((1, 1, 3)), np.zeros((1, 1, 3))) for i in range(3)]
+>>> store = Store("sqlite://")
+>>> src = Three("three")
+>>> with Pipeline(store, [src]) as pipe:
+...     pipe.wait_exhausted(timeout=10)
+True
+>>> src.counters.as_dict()
+{'received': 3, 'stored': 3, 'dropped': 0, 'malformed': 0}
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import queue
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from sqlalchemy.exc import SQLAlchemyError
+
+from service.ingest.base import Counters, FrameBatch, FrameError, Source
+from service.settings import Settings, get_settings
+from service.store import Store
+
+__all__ = ["CommitCallback", "Pipeline", "main"]
+
+log = logging.getLogger(__name__)
+
+#: Called by the writer after each commit with the batches that commit stored.
+CommitCallback = Callable[[list[FrameBatch]], None]
+
+_Item = tuple[Source, FrameBatch]
+
+
+class Pipeline:
+    """Ingest ``sources`` into ``store`` on background threads (see the module docstring).
+
+    Parameters default to the settings: ``queue_max_batches`` and ``put_timeout``
+    (``queue_put_timeout_seconds``), ``prune_interval`` (``prune_interval_seconds``, wall time between
+    retention prunes; 0 disables). ``write_retry_seconds`` bounds how long one commit is retried while
+    the database is unavailable before its batches are dropped.
+    """
+
+    def __init__(
+        self,
+        store: Store,
+        sources: Sequence[Source],
+        *,
+        settings: Settings | None = None,
+        queue_max_batches: int | None = None,
+        put_timeout: float | None = None,
+        read_timeout: float = 0.1,
+        coalesce_max_samples: int = 5000,
+        prune_interval: float | None = None,
+        write_retry_seconds: float = 10.0,
+        on_commit: CommitCallback | None = None,
+    ) -> None:
+        s = settings or get_settings()
+        self.store = store
+        self.sources = list(sources)
+        names = [src.name for src in self.sources]
+        if len(set(names)) != len(names):
+            raise ValueError(f"source names must be unique, got {names}")
+        self.queue_max_batches = int(queue_max_batches or s.queue_max_batches)
+        self.put_timeout = float(s.queue_put_timeout_seconds if put_timeout is None else put_timeout)
+        self.read_timeout = float(read_timeout)
+        self.coalesce_max_samples = int(coalesce_max_samples)
+        self.prune_interval = float(s.prune_interval_seconds if prune_interval is None else prune_interval)
+        self.write_retry_seconds = float(write_retry_seconds)
+        self.on_commit = on_commit
+        #: Pipeline-wide counts: ``transactions``, ``write_errors``, ``retries``, ``pruned``.
+        self.stats = Counters()
+        self._queue: queue.Queue[_Item] = queue.Queue(maxsize=self.queue_max_batches)
+        self._stop = threading.Event()
+        self._readers_done = threading.Event()
+        self._readers: list[threading.Thread] = []
+        self._writer: threading.Thread | None = None
+        self._finished: set[str] = set()
+        self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)
+        self._pending = 0  # batches handed to the queue and not yet written (or dropped)
+
+    # ------------------------------------------------------------------------------ control
+    def start(self) -> Pipeline:
+        """Attach sources to the store and start the threads."""
+        if self._writer is not None:
+            raise RuntimeError("pipeline already started")
+        for src in self.sources:
+            attach = getattr(src, "attach_store", None)
+            if callable(attach):
+                attach(self.store)
+        self._writer = threading.Thread(target=self._write_loop, name="ingest-writer", daemon=True)
+        self._writer.start()
+        for src in self.sources:
+            th = threading.Thread(target=self._read_loop, args=(src,), name=f"ingest-{src.name}", daemon=True)
+            self._readers.append(th)
+            th.start()
+        return self
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Stop reading, write everything already queued, join the threads (idempotent)."""
+        self._stop.set()
+        deadline = time.monotonic() + timeout
+        for th in self._readers:
+            th.join(max(deadline - time.monotonic(), 0.0))
+        self._readers_done.set()
+        if self._writer is not None:
+            self._writer.join(max(deadline - time.monotonic(), 0.0))
+            if self._writer.is_alive():
+                log.error("ingest writer did not finish within %.1f s", timeout)
+
+    @property
+    def running(self) -> bool:
+        return self._writer is not None and self._writer.is_alive() and not self._stop.is_set()
+
+    def wait_exhausted(self, timeout: float | None = None) -> bool:
+        """Wait until every source is exhausted and all its batches are written; False on timeout.
+        (With an endless source, e.g. the farm, this only returns on timeout.)"""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._idle:
+            while not (len(self._finished) == len(self.sources) and self._pending == 0):
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._idle.wait(0.05 if left is None else min(left, 0.05))
+        return True
+
+    def counters(self) -> dict[str, dict[str, int]]:
+        """Counters of each source by name."""
+        return {src.name: src.counters.as_dict() for src in self.sources}
+
+    def totals(self) -> dict[str, int]:
+        """Counters summed over sources, plus the pipeline's own stats and the queue depth."""
+        out: dict[str, int] = {}
+        for c in self.counters().values():
+            for k, v in c.items():
+                out[k] = out.get(k, 0) + v
+        out.update(self.stats.extra)
+        out["queue_depth"] = self._queue.qsize()
+        return out
+
+    def __enter__(self) -> Pipeline:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------------------ readers
+    def _read_loop(self, src: Source) -> None:
+        try:
+            while not self._stop.is_set():
+                if getattr(src, "exhausted", False):
+                    break
+                try:
+                    batches = src.read(self.read_timeout)
+                except Exception:  # a transport error must not end ingest for good
+                    log.exception("source %s: read failed", src.name)
+                    src.counters.add("read_errors")
+                    self._stop.wait(0.5)
+                    continue
+                for b in batches:
+                    self._put(src, b)
+        finally:
+            with self._idle:
+                self._finished.add(src.name)
+                self._idle.notify_all()
+
+    def _put(self, src: Source, b: FrameBatch) -> None:
+        with self._lock:
+            self._pending += 1
+        try:
+            self._queue.put((src, b), timeout=self.put_timeout)
+        except queue.Full:
+            self._done(1)
+            src.counters.add("dropped", b.n_samples)
+            log.warning(
+                "source %s: queue full for %.2f s, dropped %d samples",
+                src.name,
+                self.put_timeout,
+                b.n_samples,
+            )
+
+    # ------------------------------------------------------------------------------- writer
+    def _write_loop(self) -> None:
+        last_prune = time.monotonic()
+        while True:
+            try:
+                first = self._queue.get(timeout=0.1)
+            except queue.Empty:
+                if self._readers_done.is_set():
+                    break
+                with self._idle:
+                    self._idle.notify_all()
+                if self.prune_interval > 0 and time.monotonic() - last_prune >= self.prune_interval:
+                    self._prune()
+                    last_prune = time.monotonic()
+                continue
+            items = [first]
+            n = first[1].n_samples
+            while n < self.coalesce_max_samples:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                items.append(item)
+                n += item[1].n_samples
+            try:
+                self._commit(items)
+            except Exception:  # never let the writer die: count and go on
+                log.exception("ingest writer: unexpected error; %d batches dropped", len(items))
+                for src, b in items:
+                    src.counters.add("dropped", b.n_samples)
+            finally:
+                self._done(len(items))
+            if self.prune_interval > 0 and time.monotonic() - last_prune >= self.prune_interval:
+                self._prune()
+                last_prune = time.monotonic()
+
+    def _done(self, n: int) -> None:
+        with self._idle:
+            self._pending -= n
+            self._idle.notify_all()
+
+    def _prune(self) -> None:
+        try:
+            self.stats.add("pruned", self.store.prune())
+        except SQLAlchemyError:
+            log.exception("retention prune failed")
+
+    def _commit(self, items: list[_Item]) -> None:
+        stored = self._write_retrying(items)
+        if stored is None:  # one batch is bad: write them one by one to keep the good ones
+            stored = []
+            for src, b in items:
+                try:
+                    ok = self._write_retrying([(src, b)])
+                except FrameError:
+                    ok = None
+                if ok is None:
+                    src.counters.add("malformed", b.n_samples)
+                else:
+                    stored.extend(ok)
+        for src, b in stored:
+            src.counters.add("stored", b.n_samples)
+        if stored and self.on_commit is not None:
+            try:
+                self.on_commit([b for _, b in stored])
+            except Exception:
+                log.exception("on_commit callback failed")
+
+    def _write_retrying(self, items: list[_Item]) -> list[_Item] | None:
+        """Write in one transaction, retrying while the database is unavailable. Returns the items
+        written, None when the store rejected a batch, [] when the retries ran out (counted dropped)."""
+        deadline = time.monotonic() + self.write_retry_seconds
+        delay = 0.05
+        while True:
+            try:
+                self.store.write_many([b for _, b in items])
+                self.stats.add("transactions")
+                return items
+            except FrameError as err:
+                if len(items) == 1:
+                    log.warning("ingest writer: rejected batch from %s: %s", items[0][0].name, err)
+                return None
+            except SQLAlchemyError as err:
+                self.stats.add("write_errors")
+                if time.monotonic() + delay > deadline:
+                    log.error(
+                        "ingest writer: giving up on %d batches after %.1f s: %s",
+                        len(items),
+                        self.write_retry_seconds,
+                        err,
+                    )
+                    for src, b in items:
+                        src.counters.add("dropped", b.n_samples)
+                    return []
+                log.warning(
+                    "ingest writer: write failed (%s); retrying in %.2f s", err.__class__.__name__, delay
+                )
+                self.stats.add("retries")
+                time.sleep(delay)
+                delay = min(delay * 2, 1.0)
+
+
+# ------------------------------------------------------------------------------------------ program
+class _CommitLog:
+    """Appends one JSON line per commit: ``{"robot": .., "t_end": .., "samples": ..}`` per robot, with
+    ``samples`` the running total stored for that robot by this process. Flushed after every line so a
+    killed process leaves every line it reported."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = path.open("a", encoding="utf-8")
+        self._totals: dict[str, int] = {}
+
+    def __call__(self, batches: list[FrameBatch]) -> None:
+        ends: dict[str, float] = {}
+        for b in batches:
+            self._totals[b.robot] = self._totals.get(b.robot, 0) + b.n_samples
+            ends[b.robot] = max(ends.get(b.robot, float("-inf")), float(b.t[-1]))
+        for robot, t_end in ends.items():
+            self._fh.write(
+                json.dumps({"robot": robot, "t_end": t_end, "samples": self._totals[robot]}) + "\n"
+            )
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Ingest the given source specs into a database until they are exhausted, SIGTERM or SIGINT."""
+    from service.ingest.spec import open_source
+
+    p = argparse.ArgumentParser(prog="python -m service.ingest.pipeline", description=main.__doc__)
+    p.add_argument("specs", nargs="+", help="source specs, e.g. replay:PATH@SPEED or farm:ur5e@1")
+    p.add_argument("--database-url", help="default: the settings' database_url")
+    p.add_argument("--commit-log", type=Path, help="append one JSON line per commit here")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this many wall seconds")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    settings = get_settings()
+    store = Store(args.database_url or settings.database_url, settings=settings)
+    sources = [open_source(spec, settings) for spec in args.specs]
+    commit_log = _CommitLog(args.commit_log) if args.commit_log else None
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    pipe = Pipeline(store, sources, settings=settings, on_commit=commit_log).start()
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    try:
+        while not stop.is_set():
+            if pipe.wait_exhausted(timeout=0.2):
+                break
+            if deadline is not None and time.monotonic() > deadline:
+                break
+    finally:
+        pipe.stop()
+        for src in sources:
+            src.close()
+        if commit_log is not None:
+            commit_log.close()
+        store.close()
+    print(json.dumps(pipe.counters()), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

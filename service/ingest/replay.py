@@ -1,0 +1,164 @@
+"""Replay a recording (DESIGN §2 ``.npz``) as a live source, at N× real time, in device-time chunks.
+
+The recording's own time stamps are the device time of the frames. ``speed=1`` paces batches to the
+wall clock, ``speed=10`` ten times faster, ``speed=math.inf`` as fast as the pipeline takes them.
+``loop=True`` starts over at the end with time shifted on (device time keeps increasing). When the
+pipeline attaches a store, the replay resumes after the last frame the store already has of this robot,
+so a restarted ingest neither duplicates nor skips frames.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.recording import Recording
+>>> rec = Recording(t=np.arange(50) * 0.01, joint_names=["j1"], q=np.zeros((50, 1)), imu_names=["imu0"],
+...                 acc=np.zeros((50, 1, 3)), gyro=np.zeros((50, 1, 3)))
+>>> src = ReplaySource(rec, robot="arm", speed=math.inf, chunk_seconds=0.2)
+>>> [b.n_samples for b in src.read()], src.exhausted
+([20, 20, 10], True)
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bodyschema.recording import Recording
+from service.ingest.base import FrameBatch, Source
+from simulators.recording_io import load_recording
+
+__all__ = ["ReplaySource", "recording_batch"]
+
+
+def recording_batch(
+    robot: str, rec: Recording, index: slice = slice(None), t_offset: float = 0.0
+) -> FrameBatch:
+    """Samples ``index`` of ``rec`` as a frame batch of ``robot`` (a recording without encoders gives
+    N = 0 joints)."""
+    t = rec.t[index]
+    q = rec.q[index] if rec.q is not None else np.zeros((t.shape[0], 0))
+    names = rec.joint_names if rec.q is not None else ()
+    return FrameBatch(
+        robot, t + t_offset if t_offset else t, names, q, rec.imu_names, rec.acc[index], rec.gyro[index]
+    )
+
+
+class ReplaySource(Source):
+    """A recording played back as :class:`FrameBatch` es of ``chunk_seconds`` device time each.
+
+    ``recording`` is a :class:`Recording` or a path to an ``.npz``; ``robot`` defaults to the file's
+    stem. ``max_batches_per_read`` bounds one unpaced read so the reader thread stays responsive.
+    """
+
+    def __init__(
+        self,
+        recording: Recording | str | os.PathLike[str],
+        robot: str | None = None,
+        *,
+        speed: float = 1.0,
+        chunk_seconds: float = 0.1,
+        loop: bool = False,
+        resume: bool = True,
+        max_batches_per_read: int = 50,
+        name: str | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        if isinstance(recording, Recording):
+            rec, stem = recording, "replay"
+        else:
+            rec, stem = load_recording(recording), Path(recording).stem
+        if not speed > 0:
+            raise ValueError(f"speed must be positive (math.inf = as fast as possible), got {speed}")
+        if not chunk_seconds > 0:
+            raise ValueError(f"chunk_seconds must be positive, got {chunk_seconds}")
+        self.robot = robot or stem
+        super().__init__(name or f"replay:{self.robot}")
+        self.recording = rec
+        self.speed = float(speed)
+        self.loop = bool(loop)
+        self.resume = bool(resume)
+        self.max_batches_per_read = int(max_batches_per_read)
+        self._clock, self._sleep = clock, sleep
+        t = rec.t
+        edges = np.arange(t[0], t[-1] + chunk_seconds, chunk_seconds)
+        bounds = np.unique(np.concatenate([[0], np.searchsorted(t, edges[1:], side="left"), [t.shape[0]]]))
+        self._bounds = [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+        dt = float(np.median(np.diff(t))) if t.shape[0] > 1 else chunk_seconds
+        self._period = float(t[-1] - t[0]) + dt  # device-time shift per loop
+        self._next = 0  # index into _bounds
+        self._offset = 0.0  # device-time shift of the current pass
+        self._start_after = -math.inf
+        self._origin: tuple[float, float] | None = None  # (wall, device) at the first batch
+        self.exhausted = False
+
+    def attach_store(self, store: Any) -> None:
+        """Resume after the last frame ``store`` holds of this robot (when ``resume``)."""
+        if not self.resume:
+            return
+        info = store.robot(self.robot)
+        if info is not None and info.last_frame_t is not None:
+            self.skip_until(info.last_frame_t)
+
+    def skip_until(self, t: float) -> None:
+        """Deliver only frames with device time after ``t``."""
+        self._start_after = float(t)
+        if self.loop and t >= self.recording.t[0]:
+            self._offset = math.floor((t - self.recording.t[0]) / self._period) * self._period
+        while (
+            self._next < len(self._bounds)
+            and self.recording.t[self._bounds[self._next][1] - 1] + self._offset <= t
+        ):
+            self._next += 1
+        self._roll_over()
+
+    def _roll_over(self) -> None:
+        if self._next >= len(self._bounds):
+            if self.loop:
+                self._next, self._offset = 0, self._offset + self._period
+            else:
+                self.exhausted = True
+
+    def _due(self, t_dev: float) -> float:
+        """Wall time at which the frame of device time ``t_dev`` is due."""
+        assert self._origin is not None
+        return self._origin[0] + (t_dev - self._origin[1]) / self.speed
+
+    def _read_raw(self, timeout: float) -> list[FrameBatch]:
+        out: list[FrameBatch] = []
+        while not self.exhausted and len(out) < self.max_batches_per_read:
+            a, b = self._bounds[self._next]
+            t_end = float(self.recording.t[b - 1]) + self._offset
+            if self._origin is None:
+                self._origin = (self._clock(), float(self.recording.t[a]) + self._offset)
+            if math.isfinite(self.speed):
+                wait = self._due(t_end) - self._clock()
+                if wait > 0:
+                    if out or wait > timeout:
+                        if not out:
+                            self._sleep(timeout)
+                        break
+                    self._sleep(wait)
+            batch = recording_batch(self.robot, self.recording, slice(a, b), self._offset)
+            if batch.t[0] <= self._start_after:  # the first chunk after a resume point
+                keep = batch.t > self._start_after
+                batch = FrameBatch(
+                    batch.robot,
+                    batch.t[keep],
+                    batch.joint_names,
+                    batch.q[keep],
+                    batch.imu_names,
+                    batch.acc[keep],
+                    batch.gyro[keep],
+                )
+            if batch.n_samples:
+                out.append(batch)
+            self._next += 1
+            self._roll_over()
+        return out
