@@ -1,0 +1,168 @@
+"""The service process: REST API + dashboard (uvicorn), ingest pipeline and monitoring worker in one.
+
+Start order: store (migrated) → pipeline (sources attached, reader and writer threads) → worker thread
+→ HTTP server in the main thread. SIGTERM or SIGINT stops the server, then the worker (after its
+current robot), then the pipeline (readers stop, everything already queued is written), then the store
+is closed, and the process exits 0. A SIGKILL loses at most the batches still queued: every committed
+transaction is in the database (SQLite WAL or PostgreSQL), and a replay source resumes after the last
+stored frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from service.api import create_app
+from service.api.deps import DamageInjector
+from service.ingest.base import Source
+from service.ingest.pipeline import Pipeline, _CommitLog
+from service.metrics import Metrics
+from service.settings import Settings
+from service.store import Store
+from service.worker import Estimator, Worker
+
+__all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_injector"]
+
+log = logging.getLogger(__name__)
+
+#: The catalog models ``serve --demo`` simulates.
+DEMO_ROBOTS: tuple[str, ...] = ("ur5e", "paper-3", "quadruped")
+
+
+def demo_spec(speed: float = 1.0) -> str:
+    """The farm source spec of the demo at ``speed`` × real time.
+
+    >>> demo_spec(10)
+    'farm:ur5e,paper-3,quadruped@10'
+    """
+    return f"farm:{','.join(DEMO_ROBOTS)}@{speed:g}"
+
+
+def farm_injector(sources: Sequence[Source]) -> DamageInjector | None:
+    """A damage injector over every farm source among ``sources`` (None when there is none).
+
+    The API passes ``(robot, kind, params)``; the farm that simulates ``robot`` applies the damage and
+    answers its ground-truth diff, returned as DESIGN §2 diff JSON. ``KeyError`` means no farm here
+    simulates that robot.
+    """
+    farms = [s for s in sources if callable(getattr(s, "inject", None)) and hasattr(s, "robot_names")]
+    if not farms:
+        return None
+
+    def inject(robot: str, kind: str, params: dict[str, Any]) -> dict[str, Any]:
+        for src in farms:
+            if robot in src.robot_names:
+                truth = src.inject(robot, kind, **params)  # type: ignore[attr-defined]
+                return truth.to_json() if hasattr(truth, "to_json") else dict(truth or {})
+        raise KeyError(robot)
+
+    return inject
+
+
+@dataclass
+class Daemon:
+    """Everything one ``bodyhealth serve`` runs (see the module doc)."""
+
+    settings: Settings
+    specs: Sequence[str] = ()
+    estimator: Estimator | None = None
+    commit_log: Path | None = None
+    store: Store | None = field(default=None, init=False)
+    pipeline: Pipeline | None = field(default=None, init=False)
+    worker: Worker | None = field(default=None, init=False)
+    sources: list[Source] = field(default_factory=list, init=False)
+    _stop: threading.Event = field(default_factory=threading.Event, init=False)
+    _commit_log: Any = field(default=None, init=False)
+
+    def start(self) -> Any:
+        """Open the store, start ingest and the worker; returns the ASGI app (not yet served)."""
+        from service.ingest.spec import open_source
+
+        s = self.settings
+        _ensure_sqlite_dir(s.database_url)
+        self.store = Store(s.database_url, settings=s)
+        self.sources = [open_source(spec, s) for spec in self.specs]
+        metrics = Metrics()
+        self._commit_log = _CommitLog(self.commit_log) if self.commit_log else None
+        self.pipeline = Pipeline(self.store, self.sources, settings=s, on_commit=self._commit_log)
+        metrics.bind_counters(self.pipeline.totals)
+        self.pipeline.start()
+        self.worker = Worker(self.store, s, estimator=self.estimator, metrics=metrics)
+        self.worker.start()
+        log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
+        return create_app(
+            self.store, settings=s, worker=self.worker, metrics=metrics, injector=farm_injector(self.sources)
+        )
+
+    def stop(self) -> None:
+        """Stop worker, drain the pipeline, close the store (idempotent)."""
+        if self.worker is not None:
+            self.worker.stop()
+        if self.pipeline is not None:
+            self.pipeline.stop()
+            log.info("ingest drained", extra={"counters": self.pipeline.totals()})
+        for src in self.sources:
+            try:
+                src.close()
+            except Exception:
+                log.exception("closing source %s failed", src.name)
+        if self._commit_log is not None:
+            self._commit_log.close()
+            self._commit_log = None
+        if self.store is not None:
+            self.store.close()
+        self.worker = self.pipeline = self.store = None
+        log.info("service stopped")
+
+    def serve(self, announce: bool = True) -> int:
+        """Run until SIGTERM/SIGINT; returns the exit code (0 on a clean stop)."""
+        import uvicorn
+
+        def on_signal(sig: int, frame: object) -> None:
+            self._stop.set()
+
+        # Our handler stays installed around uvicorn's own: uvicorn re-raises the signal it caught
+        # after its shutdown, which then lands here instead of killing the process before the drain.
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+        code = 0
+        try:
+            app = self.start()
+            config = uvicorn.Config(
+                app,
+                host=self.settings.host,
+                port=self.settings.port,
+                log_config=None,
+                access_log=False,
+                lifespan="off",
+            )
+            server = uvicorn.Server(config)
+            if announce:
+                host = "127.0.0.1" if self.settings.host in ("0.0.0.0", "::") else self.settings.host
+                print(
+                    f"bodyhealth: dashboard at http://{host}:{self.settings.port}/  (API docs at /docs)",
+                    flush=True,
+                )
+            if not self._stop.is_set():
+                server.run()
+        except SystemExit as err:  # uvicorn exits this way when it cannot bind the port
+            code = int(err.code or 1)
+        finally:
+            t0 = time.monotonic()
+            self.stop()
+            log.info("shutdown took %.2f s", time.monotonic() - t0)
+            for sig, h in previous.items():
+                signal.signal(sig, h)
+        return code
+
+
+def _ensure_sqlite_dir(url: str) -> None:
+    """Create the folder of a relative or absolute SQLite file URL (``sqlite:///./var/x.db``)."""
+    if url.startswith("sqlite:///") and not url.startswith("sqlite:///:memory:"):
+        Path(url[len("sqlite:///") :].split("?", 1)[0]).parent.mkdir(parents=True, exist_ok=True)
