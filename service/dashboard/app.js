@@ -1,0 +1,260 @@
+// bodyhealth dashboard: plain JS polling the REST API (no build step).
+// Robots, their learned trees (baseline vs current, SVG), active alerts, simulated damage.
+"use strict";
+
+const API = "/api/v1";
+const POLL_MS = 2000;
+const KINDS = ["imu_moved", "imu_detached", "imu_dead", "joint_locked", "encoder_fault",
+  "joint_reparented", "link_lost"];
+const SVGNS = "http://www.w3.org/2000/svg";
+const cards = new Map();  // robot name -> {root, trees, meta, ...}
+
+async function getJSON(url, opts) {
+  const r = await fetch(url, opts);
+  const body = await r.json().catch(() => ({}));
+  if (!r.ok) {
+    const d = body && body.detail;
+    throw new Error(typeof d === "string" ? d : JSON.stringify(d || r.statusText));
+  }
+  return body;
+}
+
+function el(tag, attrs = {}, text) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function svg(tag, attrs = {}, text) {
+  const e = document.createElementNS(SVGNS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function fmtTime(s) {
+  if (s === null || s === undefined) return "–";
+  return new Date(s * 1000).toLocaleTimeString();
+}
+
+// ------------------------------------------------------------------------------------ tree drawing
+// Tidy layout: leaves get consecutive columns, a parent sits above the middle of its children.
+function layout(topo) {
+  const joints = Object.keys(topo.joints);
+  const kids = new Map([["", []]]);
+  joints.forEach((j) => kids.set(j, []));
+  joints.forEach((j) => kids.get(topo.joints[j].parent || "").push(j));
+  kids.forEach((v) => v.sort());
+  const pos = new Map();
+  let col = 0;
+  let depthMax = 0;
+  (function place(node, depth) {
+    depthMax = Math.max(depthMax, depth);
+    const ch = kids.get(node) || [];
+    if (!ch.length) { pos.set(node, { x: col++, y: depth }); return; }
+    ch.forEach((c) => place(c, depth + 1));
+    const xs = ch.map((c) => pos.get(c).x);
+    pos.set(node, { x: (Math.min(...xs) + Math.max(...xs)) / 2, y: depth });
+  })("", 0);
+  return { pos, cols: Math.max(col, 1), depth: depthMax };
+}
+
+function drawTree(topo, changed, cls) {
+  const { pos, cols, depth } = layout(topo);
+  const dx = 74, dy = 62, pad = 30;
+  const w = Math.max(cols * dx + pad, 220), h = (depth + 1) * dy + pad + 14;
+  const X = (p) => pad / 2 + p.x * dx + dx / 2 - 4, Y = (p) => pad / 2 + p.y * dy + 10;
+  const root = svg("svg", { class: `tree ${cls}`, viewBox: `0 0 ${w} ${h}`, "data-tree": cls });
+  const undetermined = new Set(topo.insufficient_excitation || []);
+  for (const [j, info] of Object.entries(topo.joints)) {
+    const a = pos.get(info.parent || ""), b = pos.get(j);
+    const c = changed.joints.has(j) ? " changed" : "";
+    root.appendChild(svg("line", { class: "edge" + c, x1: X(a), y1: Y(a), x2: X(b), y2: Y(b) }));
+  }
+  const base = pos.get("");
+  root.appendChild(svg("rect", { class: "base-node", x: X(base) - 14, y: Y(base) - 7, width: 28, height: 14, rx: 3 }));
+  root.appendChild(svg("text", { x: X(base) + 18, y: Y(base) + 4 }, "base"));
+  const imusOf = new Map();
+  for (const [imu, j] of Object.entries(topo.imus)) {
+    const k = j || "";
+    if (!imusOf.has(k)) imusOf.set(k, []);
+    imusOf.get(k).push(imu);
+  }
+  for (const j of Object.keys(topo.joints)) {
+    const p = pos.get(j);
+    let c = changed.joints.has(j) ? " changed" : "";
+    if (!c && undetermined.has(j)) c = " undetermined";
+    const node = svg("circle", { class: "joint-node" + c, cx: X(p), cy: Y(p), r: 8, "data-joint": j });
+    node.appendChild(svg("title", {}, j + (undetermined.has(j) ? " (not enough excitation)" : "")));
+    root.appendChild(node);
+    root.appendChild(svg("text", { x: X(p) + 11, y: Y(p) - 6 }, j));
+  }
+  for (const [k, imus] of imusOf) {
+    const p = pos.get(k);
+    if (!p) continue;
+    imus.sort((a, b) => (changed.imus.has(b) - changed.imus.has(a)) || a.localeCompare(b));
+    const shown = imus.slice(0, 6);
+    shown.forEach((imu, i) => {
+      const c = changed.imus.has(imu) ? " changed" : "";
+      const sq = svg("rect", { class: "imu-node" + c, x: X(p) - 21 + i * 7, y: Y(p) + 13, width: 6, height: 6,
+        "data-imu": imu });
+      sq.appendChild(svg("title", {}, `${imu} on ${k || "base"}`));
+      root.appendChild(sq);
+    });
+    if (imus.length > shown.length) {
+      root.appendChild(svg("text", { class: "imu-more", x: X(p) - 21 + 6 * 7 + 2, y: Y(p) + 19 },
+        `+${imus.length - shown.length}`));
+    }
+  }
+  return root;
+}
+
+function changedParts(baseline, current, alerts) {
+  const joints = new Set(), imus = new Set();
+  if (baseline && current) {
+    for (const [j, info] of Object.entries(baseline.joints)) {
+      const cur = current.joints[j];
+      if (!cur || (cur.parent || null) !== (info.parent || null)) joints.add(j);
+    }
+    for (const [imu, j] of Object.entries(baseline.imus)) {
+      if (!(imu in current.imus) || (current.imus[imu] || null) !== (j || null)) imus.add(imu);
+    }
+  }
+  for (const a of alerts) {
+    if (a.imu) imus.add(a.imu);
+    if (a.joint) joints.add(a.joint);
+  }
+  return { joints, imus };
+}
+
+// ----------------------------------------------------------------------------------- robot cards
+function makeCard(robot) {
+  const root = el("article", { class: "robot", "data-robot": robot.name });
+  const h = el("h3", {}, robot.name);
+  const meta = el("div", { class: "meta" });
+  const trees = el("div", { class: "trees" });
+  root.append(h, meta, trees);
+  const card = { root, meta, trees, damage: null };
+  if (robot.simulated) {
+    const form = el("form", { class: "damage" });
+    const kind = el("select", { name: "kind" });
+    KINDS.forEach((k) => kind.appendChild(el("option", { value: k }, k)));
+    const part = el("input", { name: "part", placeholder: "part (optional): imu or joint name", size: 26 });
+    const btn = el("button", { type: "submit" }, "Inject damage");
+    const result = el("span", { class: "result" });
+    form.append(el("span", {}, "simulate:"), kind, part, btn, result);
+    form.addEventListener("submit", async (ev) => {
+      ev.preventDefault();
+      const body = { kind: kind.value };
+      const p = part.value.trim();
+      if (p) {
+        if (kind.value.startsWith("imu_")) body.imu = p; else body.joint = p;
+      }
+      result.textContent = "…";
+      try {
+        const r = await getJSON(`${API}/robots/${encodeURIComponent(robot.name)}/simulate/damage`, {
+          method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify(body),
+        });
+        const f = (r.truth.findings || [])[0] || {};
+        result.textContent = `injected ${r.kind} on ${f.imu || f.joint || "?"}`;
+      } catch (err) {
+        result.textContent = `failed: ${err.message}`;
+      }
+    });
+    root.appendChild(form);
+    card.damage = form;
+  }
+  return card;
+}
+
+async function renderRobot(robot, alerts) {
+  let card = cards.get(robot.name);
+  if (!card) {
+    card = makeCard(robot);
+    cards.set(robot.name, card);
+    document.getElementById("robots").appendChild(card.root);
+  }
+  const mine = alerts.filter((a) => a.robot === robot.name);
+  card.root.classList.toggle("damaged", mine.length > 0);
+  const exc = Object.values(robot.excitation || {});
+  const excTxt = exc.length ? `excitation ${Math.min(...exc).toFixed(2)}–${Math.max(...exc).toFixed(2)} rad/s` : "";
+  card.meta.textContent = [
+    robot.catalog ? `${robot.catalog} (simulated)` : (robot.simulated ? "simulated" : "real"),
+    `${robot.joints.length} joints, ${robot.imus.length} IMUs`,
+    robot.silent_imus.length ? `silent: ${robot.silent_imus.join(", ")}` : null,
+    `last frame t=${robot.last_frame_t === null ? "–" : robot.last_frame_t.toFixed(1)} s`,
+    robot.has_baseline ? "baseline set" : "learning baseline…",
+    excTxt,
+  ].filter(Boolean).join(" · ");
+  let topo;
+  try {
+    topo = await getJSON(`${API}/robots/${encodeURIComponent(robot.name)}/topology`);
+  } catch (err) {
+    return;
+  }
+  const changed = changedParts(topo.baseline, topo.current, mine);
+  const figs = [];
+  for (const [which, t] of [["baseline", topo.baseline], ["current", topo.current]]) {
+    const fig = el("figure", {});
+    if (t) fig.appendChild(drawTree(t, changed, which));
+    else fig.appendChild(el("div", { class: "empty" }, which === "baseline" ? "no baseline yet" : "nothing learned yet"));
+    const meta = which === "baseline" ? topo.baseline_meta : topo.current_meta;
+    fig.appendChild(el("figcaption", {}, meta ? `${which} (${meta.method}${meta.source ? ", " + meta.source : ""}, ${fmtTime(meta.wall_time)})` : which));
+    figs.push(fig);
+  }
+  card.trees.replaceChildren(...figs);
+}
+
+function renderAlerts(alerts) {
+  const body = document.querySelector("#alerts tbody");
+  const rows = alerts.map((a) => {
+    const tr = el("tr", { class: "alert", "data-alert": String(a.id), "data-kind": a.kind, "data-part": a.part });
+    const f = a.finding || {};
+    const detail = f.from !== undefined || f.to !== undefined ? `${f.from ?? "base"} → ${f.to ?? "base"}` : (f.detail || "");
+    tr.append(el("td", {}, a.robot), el("td", {}, a.kind), el("td", {}, a.part), el("td", {}, detail),
+      el("td", {}, fmtTime(a.raised_at)));
+    const td = el("td", {});
+    if (a.acked) td.textContent = "acked";
+    else {
+      const b = el("button", {}, "ack");
+      b.addEventListener("click", async () => {
+        b.disabled = true;
+        await getJSON(`${API}/alerts/${a.id}/ack`, { method: "POST" }).catch(() => null);
+        refresh();
+      });
+      td.appendChild(b);
+    }
+    tr.appendChild(td);
+    return tr;
+  });
+  body.replaceChildren(...rows);
+  document.getElementById("no-alerts").hidden = alerts.length > 0;
+  const c = document.getElementById("alert-count");
+  c.textContent = String(alerts.length);
+  c.classList.toggle("bad", alerts.length > 0);
+}
+
+let busy = false;
+async function refresh() {
+  if (busy) return;
+  busy = true;
+  const status = document.getElementById("status");
+  try {
+    const ready = await fetch("/readyz").then((r) => r.json()).catch(() => null);
+    status.textContent = ready ? ready.status : "unreachable";
+    status.className = "status " + (ready && ready.status === "ready" ? "ready" : "down");
+    const [robots, alerts] = await Promise.all([getJSON(`${API}/robots`), getJSON(`${API}/alerts?active=true`)]);
+    renderAlerts(alerts);
+    await Promise.all(robots.map((r) => renderRobot(r, alerts)));
+    document.body.dataset.loaded = "1";
+  } catch (err) {
+    status.textContent = "API error: " + err.message;
+    status.className = "status down";
+  } finally {
+    busy = false;
+  }
+}
+
+refresh();
+setInterval(refresh, POLL_MS);

@@ -1,0 +1,182 @@
+"""The dashboard in a real headless Chromium (Debian's package, driven by the playwright package).
+
+Two levels: the page against an in-process server on a prepared store (trees, highlights, alerts, the
+damage form, ack), and the whole demo daemon where a damage injected from the page becomes an alert.
+Skipped only when no Chromium is installed.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bodyschema.topology import Topology
+from service.api import create_app
+from service.ingest.base import FrameBatch
+from service.settings import Settings
+from service.store import Store
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "dashboard.png"
+
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.skipif(
+        not Path(CHROMIUM).exists() and shutil.which("chromium") is None,
+        reason="Debian's chromium is not installed (make setup-browser installs it)",
+    ),
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(
+            executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"), args=ARGS
+        )
+        yield b
+        b.close()
+
+
+BASE = Topology(
+    {"j1": None, "j2": "j1", "j3": "j2", "j4": "j1"},
+    {"i1": "j1", "i2": "j2", "i3": "j3", "i4": "j3", "i5": "j4"},
+    method="fast",
+)
+CUR = Topology(
+    {"j1": None, "j2": "j1", "j3": "j2", "j4": "j1"},
+    {"i1": "j1", "i2": "j2", "i3": "j3", "i4": "j4", "i5": "j4"},
+    method="fast",
+)
+
+
+class StoreInjector:
+    """Records the damage the page asked for, as the farm would, and answers its ground truth."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, str, dict]] = []
+
+    def __call__(self, robot: str, kind: str, params: dict) -> dict:
+        self.calls.append((robot, kind, params))
+        return {
+            "changed": True,
+            "findings": [{"kind": kind, "imu": params.get("imu", "i2"), "confidence": 1.0}],
+        }
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[tuple[str, Store, StoreInjector]]:
+    import uvicorn
+
+    store = Store(f"sqlite:///{tmp_path / 'dash.db'}")
+    n = 50
+    for robot in ("arm", "leg"):
+        store.write(
+            FrameBatch(
+                robot,
+                np.arange(n) * 0.01,
+                ("j1", "j2", "j3", "j4"),
+                np.zeros((n, 4)),
+                ("i1", "i2", "i3", "i4", "i5"),
+                np.full((n, 5, 3), 9.81),
+                np.zeros((n, 5, 3)),
+            )
+        )
+        store.save_topology(robot, BASE, time.time() - 10, 0.49)
+        store.set_baseline(robot, BASE, "auto")
+    store.save_topology("arm", CUR, time.time(), 0.49)
+    store.mark_simulated("arm", "toy")
+    store.upsert_alert(
+        "arm",
+        "imu_moved",
+        "imu:i4",
+        {"kind": "imu_moved", "imu": "i4", "from": "j3", "to": "j4"},
+        "active",
+        time.time(),
+    )
+    store.heartbeat("worker", time.time())
+    inj = StoreInjector()
+    port = free_port()
+    app = create_app(store, settings=Settings(database_url="sqlite://"), injector=inj)
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 20
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}", store, inj
+    server.should_exit = True
+    th.join(10)
+    store.close()
+
+
+def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, StoreInjector]) -> None:
+    url, store, inj = served
+    page = browser.new_page(viewport={"width": 1300, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url + "/")
+    page.wait_for_selector("body[data-loaded='1']", timeout=20_000)
+    page.wait_for_selector("article[data-robot='leg'] svg[data-tree='current']", timeout=20_000)
+    for robot in ("arm", "leg"):
+        for tree in ("baseline", "current"):
+            nodes = page.locator(f"article[data-robot='{robot}'] svg[data-tree='{tree}'] circle.joint-node")
+            assert nodes.count() == 4, (robot, tree)
+        assert (
+            page.locator(f"article[data-robot='{robot}'] svg[data-tree='current'] rect.imu-node").count() == 5
+        )
+    # the moved IMU is red in arm's trees, nothing is red on leg
+    assert (
+        page.locator("article[data-robot='arm'] svg[data-tree='current'] rect.imu-node.changed").count() == 1
+    )
+    assert page.locator("article[data-robot='arm'] rect.imu-node.changed[data-imu='i4']").count() == 2
+    assert page.locator("article[data-robot='leg'] .changed").count() == 0
+    row = page.locator("#alerts tr[data-kind='imu_moved']")
+    assert row.count() == 1 and "imu:i4" in row.inner_text() and "j3 → j4" in row.inner_text()
+    # only the simulated robot has the damage control; using it posts to the API
+    assert page.locator("article[data-robot='leg'] form.damage").count() == 0
+    form = page.locator("article[data-robot='arm'] form.damage")
+    form.locator("select").select_option("imu_dead")
+    form.locator("input").fill("i2")
+    form.locator("button").click()
+    page.wait_for_function(
+        "document.querySelector(\"article[data-robot='arm'] .result\").textContent.startsWith('injected')",
+        timeout=10_000,
+    )
+    assert inj.calls == [("arm", "imu_dead", {"imu": "i2"})]
+    # an alert that appears in the store shows up at the next poll; ack works from the page
+    store.upsert_alert("arm", "imu_dead", "imu:i2", {"kind": "imu_dead", "imu": "i2"}, "active", time.time())
+    page.wait_for_selector("#alerts tr[data-kind='imu_dead']", timeout=10_000)
+    page.locator("#alerts tr[data-kind='imu_dead'] button").click()
+    page.wait_for_function(
+        "document.querySelector(\"#alerts tr[data-kind='imu_dead']\").textContent.includes('acked')",
+        timeout=10_000,
+    )
+    assert [a.acked for a in store.alerts("arm", active=True) if a.kind == "imu_dead"] == [True]
+    assert errors == []
+    page.close()
