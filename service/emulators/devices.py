@@ -57,6 +57,9 @@ def sample_counters(rec: Recording) -> tuple[np.ndarray, float]:
 class _PtyEmulator:
     """Streams pre-encoded per-sample chunks into a :class:`PtyPort` from a thread."""
 
+    #: Seconds a reader must have had the port open before data flows (pyserial flushes input on open).
+    SETTLE_S = 0.1
+
     def __init__(self, rec: Recording, *, robot: str = "robot", speed: float = 0.0, link: str | None = None,
                  port: PtyPort | None = None) -> None:
         self.rec = rec
@@ -112,13 +115,27 @@ class _PtyEmulator:
     def _run(self) -> None:
         out = memoryview(b"")
         i, n = 0, len(self.chunks)
-        t0 = time.monotonic()
+        t0: float | None = None
+        reader_since: float | None = None
         while not self._stop.is_set():
             fd = self.port.fileno()
             if fd < 0:
                 out = memoryview(b"")  # unplugged: what was in flight is gone
+                reader_since = None
                 time.sleep(0.01)
                 continue
+            if not self.port.reader_present():
+                reader_since = None  # nobody listening: a USB device would not be sending either
+                time.sleep(0.005)
+                continue
+            now = time.monotonic()
+            if reader_since is None:
+                reader_since = now
+            if now - reader_since < self.SETTLE_S:
+                time.sleep(0.005)
+                continue
+            if t0 is None:
+                t0 = now
             if not out and self._replies:
                 out, self._replies = memoryview(self._replies), b""
                 self._pending_end = i

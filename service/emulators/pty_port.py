@@ -1,15 +1,22 @@
 """A pseudo-terminal an emulator writes into, with an optional stable link name and unplug/replug.
 
 The emulator holds the master side; a reader opens the slave path (``/dev/pts/N``) exactly like a USB
-serial adapter. A pty's number changes each time one is made, so :class:`PtyPort` can keep a symlink
-(``link``) pointing at the current one, as udev does for ``/dev/serial/by-id``: unplug and plug again
-and a reader reopening the link finds the new pty.
+serial adapter. Nothing else holds the slave open, so the emulator can tell whether a reader is there
+(:meth:`PtyPort.reader_present`), as a USB CDC device sees the host open its port.
+
+A pty's number changes each time one is made, so :class:`PtyPort` can keep a symlink (``link``)
+pointing at the current one, as udev does for ``/dev/serial/by-id``: unplug and plug again and a reader
+reopening the link finds the new pty.
 
 Example
 -------
 >>> import os, serial
 >>> port = PtyPort()
+>>> port.reader_present()
+False
 >>> reader = serial.Serial(port.name, timeout=1)
+>>> port.reader_present()
+True
 >>> port.write_all(b"hello\\r\\n")
 True
 >>> reader.read(7)
@@ -32,7 +39,7 @@ class PtyPort:
 
     def __init__(self, link: str | None = None) -> None:
         self.link = link
-        self.master = self.slave = -1
+        self.master = -1
         self.path = ""
         self._lock = threading.Lock()
         self.plug()
@@ -52,9 +59,10 @@ class PtyPort:
             if self.master >= 0:
                 return
             m, s = os.openpty()
-            tty.setraw(s)
+            tty.setraw(s)  # the settings stay with the pty after this end closes
             os.set_blocking(m, False)
-            self.master, self.slave, self.path = m, s, os.ttyname(s)
+            self.master, self.path = m, os.ttyname(s)
+            os.close(s)  # held by nobody until a reader opens it: see reader_present()
             if self.link:
                 tmp = f"{self.link}.{os.getpid()}.tmp"
                 os.symlink(self.path, tmp)
@@ -63,15 +71,22 @@ class PtyPort:
     def unplug(self) -> None:
         """Close the pty: a reader gets an I/O error, and the path disappears."""
         with self._lock:
-            for fd in (self.master, self.slave):
-                if fd >= 0:
-                    os.close(fd)
-            self.master = self.slave = -1
+            if self.master >= 0:
+                os.close(self.master)
+            self.master = -1
 
     def close(self) -> None:
         self.unplug()
         if self.link and os.path.islink(self.link):
             os.unlink(self.link)
+
+    def reader_present(self) -> bool:
+        """Whether some process has the slave side open (the master reports a hang-up while none has)."""
+        if self.master < 0:
+            return False
+        p = select.poll()
+        p.register(self.master, select.POLLOUT)
+        return not any(ev & select.POLLHUP for _, ev in p.poll(0))
 
     def fileno(self) -> int:
         return self.master
