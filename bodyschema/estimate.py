@@ -1,0 +1,230 @@
+"""One entry point for every topology estimator: recording in, :class:`~bodyschema.topology.Topology` out.
+
+Methods (``METHODS``):
+
+* ``fast`` — gyro regression tests (:mod:`bodyschema.fast`); about a second, the service's default.
+* ``network`` — the paper's SE(3) sensor networks (:mod:`bodyschema.networks`) with the Jacobian
+  *second moment* statistic (:mod:`bodyschema.dependency`; DESIGN §3 says why).
+* ``network-paper`` — the same networks with the paper's *variance* statistic (Sec. III-C).
+* ``mlp`` — the MLP regressor baseline of Sec. IV-D (:mod:`bodyschema.mlp_baseline`).
+
+Every method ends in a 0/1 dependency matrix (IMU rows, joint columns); :func:`topology_from_dependency`
+merges IMUs with equal rows onto one link, corrects a matrix that is no out-tree (MILP + trellis, paper
+III-H), completes a partial one (links without IMUs, III-F/G) and converts the result. Estimators never
+read the ``truth_*`` fields of the recording.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.recording import Recording
+>>> T = 2000; t = np.arange(T) / 100
+>>> q = np.stack([np.sin(0.9 * t), np.cos(0.6 * t + 1)], 1); qd = np.gradient(q, t, axis=0)
+>>> w1 = np.stack([0 * t, 0 * t, qd[:, 0]], 1)
+>>> w2 = np.stack([qd[:, 1], np.sin(q[:, 1]) * qd[:, 0], np.cos(q[:, 1]) * qd[:, 0]], 1)
+>>> gyro = np.stack([w1, w2], 1) + np.random.default_rng(0).normal(scale=1e-3, size=(T, 2, 3))
+>>> rec = Recording(t=t, joint_names=["a", "b"], q=q, imu_names=["i1", "i2"],
+...                 acc=np.zeros((T, 2, 3)), gyro=gyro)
+>>> topo = estimate_topology(rec)
+>>> topo.joint_parent, topo.imu_joint, topo.unique
+({'a': None, 'b': 'a'}, {'i1': 'a', 'i2': 'b'}, True)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from bodyschema.completion import complete
+from bodyschema.conditions import check_p_minus
+from bodyschema.convert import tree_to_topology
+from bodyschema.depmatrix import DependencyMatrix
+from bodyschema.outtree import OutTree
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+
+__all__ = ["METHODS", "estimate_topology", "topology_from_dependency"]
+
+METHODS: tuple[str, ...] = ("fast", "network", "network-paper", "mlp")
+
+#: At most this many alternative answers are listed for a robot whose answer is not unique.
+MAX_CANDIDATES = 24
+
+
+def estimate_topology(rec: Recording, method: str = "fast", **kw: Any) -> Topology:
+    """Learn the joint tree and IMU placement of ``rec`` with ``method`` (see :data:`METHODS`).
+
+    Keyword arguments go to the method's estimator (e.g. ``epochs=``, ``seed=`` for the networks,
+    ``fit_ratio=`` for ``fast``). ``seconds`` in the result is the CPU time spent here, all threads
+    counted (a cost measure; nothing in the estimate depends on it).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if rec.q is None:
+        raise ValueError("topology estimation needs joint positions q (this recording has none)")
+    if rec.n_joints == 0 or rec.n_imus == 0:
+        raise ValueError("topology estimation needs at least one joint and one IMU")
+    start = time.process_time()
+    rec = rec.derived()
+    assert rec.qd is not None and rec.q is not None
+    excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
+    if method == "fast":
+        from bodyschema.fast import fast_fit
+
+        fit = fast_fit(rec.q, rec.qd, rec.gyro, **kw)
+        dep = fit.dependency
+        undetermined = [rec.joint_names[j] for j in fit.undetermined]
+        imu_conf = dict(zip(rec.imu_names, fit.imu_confidence.tolist(), strict=True))
+        joint_conf = dict(zip(rec.joint_names, fit.joint_confidence.tolist(), strict=True))
+    else:
+        from bodyschema.dependency import network_dependency
+
+        res = network_dependency(rec, method=method, **kw)
+        dep = res.dependency
+        undetermined = [rec.joint_names[j] for j in res.undetermined]
+        imu_conf = dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True))
+        joint_conf = dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True))
+    topo = topology_from_dependency(
+        dep, rec.imu_names, rec.joint_names,
+        undetermined=undetermined, imu_confidence=imu_conf, joint_confidence=joint_conf,
+        method=method, excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
+    )
+    return _with(topo, seconds=time.process_time() - start)
+
+
+def _with(topo: Topology, **changes: Any) -> Topology:
+    from dataclasses import replace
+
+    return replace(topo, **changes)
+
+
+def topology_from_dependency(
+    dependency: np.ndarray,
+    imu_names: Sequence[str],
+    joint_names: Sequence[str],
+    undetermined: Sequence[str] = (),
+    imu_confidence: Mapping[str, float] | None = None,
+    joint_confidence: Mapping[str, float] | None = None,
+    method: str = "",
+    excitation: Mapping[str, float] | None = None,
+    max_candidates: int = MAX_CANDIDATES,
+) -> Topology:
+    """Turn a 0/1 IMU x joint dependency matrix into a topology (merge, correct, complete, convert).
+
+    ``undetermined`` joints are left out of the matrix and hung on the base as placeholders (their
+    child links are indistinguishable from their parents' in the data). When the matrix is no valid
+    partial dependency matrix it is corrected first (nearest out-tree matrices, paper III-H) and every
+    joint's confidence is scaled by how many entries had to change. ``unique`` is False when several
+    trees explain the data; ``candidates`` then lists up to ``max_candidates`` of them and each joint's
+    confidence is scaled by the share of candidates that agree with the chosen parent.
+    """
+    dependency = np.asarray(dependency, dtype=bool)
+    imu_names = list(imu_names)
+    joint_names = list(joint_names)
+    if dependency.shape != (len(imu_names), len(joint_names)):
+        expected = (len(imu_names), len(joint_names))
+        raise ValueError(f"dependency has shape {dependency.shape}, expected {expected}")
+    undetermined = [j for j in joint_names if j in set(undetermined)]
+    keep = [k for k, j in enumerate(joint_names) if j not in set(undetermined)]
+    cols = [joint_names[k] for k in keep]
+    imu_conf = {f"imu:{k}": float(v) for k, v in (imu_confidence or {}).items()}
+    joint_conf = dict(joint_confidence or {})
+
+    trees: list[OutTree]
+    unique = True
+    imu_nodes: dict[str, str | None]
+    if not cols:
+        trees = [OutTree({})]
+        imu_nodes = {i: None for i in imu_names}
+    else:
+        D = DependencyMatrix(dependency[:, keep], imu_names, cols)
+        merged = D.merge_rows()
+        imu_nodes = merged.imu_nodes()
+        M = merged.matrix
+        corrected = 0
+        if not check_p_minus(M).ok:
+            M, imu_nodes, corrected = _correct(M, merged.groups, imu_nodes)
+        comp = complete(M)
+        unique = comp.unique
+        trees = [comp.tree()]
+        if not unique:
+            alts = [t for t in comp.trees(limit=max_candidates) if t.joint_parent != trees[0].joint_parent]
+            trees += alts[: max_candidates - 1]
+        if corrected:
+            scale = max(0.0, 1.0 - corrected / max(M.values.size, 1) * 10)
+            joint_conf = {j: c * scale for j, c in joint_conf.items()}
+            imu_conf = {k: c * scale for k, c in imu_conf.items()}
+
+    def full(tree: OutTree, **fields: Any) -> Topology:
+        topo = tree_to_topology(tree, imu_nodes)
+        jp = {j: (topo.joint_parent.get(j) if j in topo.joint_parent else None) for j in joint_names}
+        return Topology(joint_parent=jp, imu_joint={i: topo.imu_joint[i] for i in imu_names}, **fields)
+
+    best = full(trees[0])
+    candidates = tuple(full(t) for t in trees[1:]) if not unique else ()
+    conf: dict[str, float] = dict(imu_conf)
+    for j in joint_names:
+        c = float(joint_conf.get(j, 1.0))
+        if j in undetermined:
+            c = 0.0
+        elif candidates:
+            agree = sum(1 for t in (best, *candidates) if t.joint_parent[j] == best.joint_parent[j])
+            c *= agree / (1 + len(candidates))
+        conf[f"joint:{j}"] = c
+    if candidates:
+        for i in imu_names:
+            agree = sum(1 for t in (best, *candidates) if t.imu_joint[i] == best.imu_joint[i])
+            conf[f"imu:{i}"] = conf.get(f"imu:{i}", 1.0) * agree / (1 + len(candidates))
+    return Topology(
+        joint_parent=best.joint_parent,
+        imu_joint=best.imu_joint,
+        unique=unique,
+        confidence=conf,
+        method=method,
+        undetermined=tuple(undetermined),
+        candidates=candidates,
+        excitation=dict(excitation or {}),
+    )
+
+
+def _correct(
+    M: DependencyMatrix, groups: Mapping[str, Sequence[str]], imu_nodes: dict[str, str | None]
+) -> tuple[DependencyMatrix, dict[str, str | None], int]:
+    """Nearest valid matrix to a noisy one (paper III-H), with the IMU -> node map carried along.
+
+    A matrix with more distinct rows than joints (noise split one link in two) is first reduced to the
+    rows that best fit the correction: rows are merged greedily by Hamming distance until K <= N.
+    """
+    from bodyschema.correction import correct
+
+    rows = list(M.rows)
+    vals = M.values.copy()
+    mapping = dict(imu_nodes)
+    while len(rows) > M.shape[1]:
+        # merge the two closest rows (keep the one with more IMUs)
+        d = (vals[:, None, :] != vals[None, :, :]).sum(-1) + np.eye(len(rows), dtype=int) * 10**6
+        a, b = np.unravel_index(np.argmin(d), d.shape)
+        size = {r: len(groups.get(r, (r,))) for r in rows}
+        keep, drop = (a, b) if size[rows[a]] >= size[rows[b]] else (b, a)
+        for imu, node in mapping.items():
+            if node == rows[drop]:
+                mapping[imu] = rows[keep]
+        rows.pop(drop)
+        vals = np.delete(vals, drop, axis=0)
+    Mr = DependencyMatrix(vals, rows, M.cols)
+    if check_p_minus(Mr).ok:
+        return Mr, mapping, int(np.count_nonzero(M.values.shape[0] - len(rows)))
+    if not Mr.is_square:
+        # pad with hidden-link rows is the completion's job; correction works on square matrices, so
+        # complete the joints without a row by their own column only (a leaf guess) before correcting
+        pad_cols = [c for c in Mr.cols if not Mr.values[:, list(Mr.cols).index(c)].any()]
+        raise ValueError(
+            f"dependency matrix is not an out-tree matrix and has fewer rows than joints "
+            f"({Mr.shape}); columns without any IMU: {pad_cols}"
+        )
+    res = correct(Mr)
+    best = res.candidates[0]
+    best = best.reorder(rows, list(Mr.cols))
+    return best, mapping, int(res.distance)

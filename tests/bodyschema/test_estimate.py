@@ -1,0 +1,63 @@
+"""The dispatcher and the dependency-matrix -> topology step."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from bodyschema.estimate import METHODS, estimate_topology, topology_from_dependency
+from bodyschema.recording import Recording
+
+from .kinematic_fixtures import random_robot_recording
+
+
+def test_unknown_method_and_missing_positions_are_refused(rng):
+    rec = random_robot_recording(rng, n_joints=3, seconds=2.0)
+    with pytest.raises(ValueError, match="unknown method"):
+        estimate_topology(rec, method="magic")
+    no_q = Recording(t=rec.t, joint_names=rec.joint_names, q=None, imu_names=rec.imu_names, acc=rec.acc,
+                     gyro=rec.gyro, ref_quat=np.tile([1.0, 0, 0, 0], (rec.n_samples, 1)))
+    with pytest.raises(ValueError, match="joint positions"):
+        estimate_topology(no_q)
+    assert METHODS == ("fast", "network", "network-paper", "mlp")
+
+
+def test_truth_is_never_read(rng):
+    rec = random_robot_recording(rng, n_joints=6, seconds=10.0)
+    wrong = replace(rec, truth_joint_parent=("",) * rec.n_joints, truth_imu_joint=("",) * rec.n_imus)
+    a, b = estimate_topology(rec), estimate_topology(wrong)
+    assert a.same_structure(b)
+    assert a.method == "fast" and a.seconds > 0
+    assert set(a.excitation) == set(rec.joint_names)
+    np.testing.assert_allclose([a.excitation[j] for j in rec.joint_names],
+                               np.sqrt(np.mean(rec.qd**2, axis=0)))
+
+
+def test_dependency_rows_merge_and_complete():
+    # imu a, a2 on j1's link, b on j2's link under j1, c on the base; j3 carries no IMU (all-0 column)
+    D = np.array([[1, 0, 0], [1, 0, 0], [1, 1, 0], [0, 0, 0]], dtype=bool)
+    topo = topology_from_dependency(D, ["a", "a2", "b", "c"], ["j1", "j2", "j3"], method="x")
+    assert topo.imu_joint == {"a": "j1", "a2": "j1", "b": "j2", "c": None}
+    assert topo.joint_parent["j2"] == "j1" and topo.joint_parent["j1"] is None
+    assert not topo.unique
+    # j3 can hang under the base, j1 or j2: three trees in all
+    assert len(topo.candidates) == 2
+    assert {c.joint_parent["j3"] for c in (topo, *topo.candidates)} == {None, "j1", "j2"}
+    assert topo.confidence["joint:j3"] == pytest.approx(1 / 3)
+    assert topo.confidence["joint:j1"] == pytest.approx(1.0)
+
+
+def test_undetermined_joints_are_placeholders_on_the_base():
+    D = np.array([[1, 0, 0], [1, 0, 1]], dtype=bool)
+    topo = topology_from_dependency(D, ["a", "b"], ["j1", "j2", "j3"], undetermined=["j2"])
+    assert topo.undetermined == ("j2",)
+    assert topo.joint_parent == {"j1": None, "j2": None, "j3": "j1"}
+    assert topo.confidence["joint:j2"] == 0.0
+    assert topo.unique
+
+
+def test_dependency_shape_is_checked():
+    with pytest.raises(ValueError, match="shape"):
+        topology_from_dependency(np.zeros((2, 2), dtype=bool), ["a"], ["j1", "j2"])

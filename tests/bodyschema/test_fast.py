@@ -1,0 +1,143 @@
+"""The fast estimator on random kinematic trees (fresh seed per run, logged by the ``seed`` fixture)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from bodyschema.estimate import estimate_topology
+from bodyschema.fast import FastEstimator, fast_fit, noise_level
+
+from .kinematic_fixtures import random_robot_recording
+
+
+def truth_dependency(rec) -> np.ndarray:
+    par = rec.truth_parent_map
+    names = list(rec.joint_names)
+    D = np.zeros((rec.n_imus, rec.n_joints), dtype=bool)
+    for k, j in enumerate(rec.truth_imu_joint):
+        cur = j or None
+        while cur is not None:
+            D[k, names.index(cur)] = True
+            cur = par[cur]
+    return D
+
+
+def contract(joint_parent, imu_joint, u):
+    """The truth with joint ``u`` removed: its child link merged into its parent link."""
+    jp = {j: (joint_parent[u] if p == u else p) for j, p in joint_parent.items() if j != u}
+    ij = {i: (joint_parent[u] if j == u else j) for i, j in imu_joint.items()}
+    return jp, ij
+
+
+def test_noise_level_recovers_white_noise_under_smooth_motion(rng):
+    t = np.arange(3000) / 100
+    smooth = np.sin(2 * np.pi * 0.5 * t)[:, None, None] * np.ones((1, 2, 3))
+    sigma = np.array([1e-3, 5e-3])
+    x = smooth + rng.normal(size=(3000, 2, 3)) * sigma[None, :, None]
+    est = noise_level(x)
+    np.testing.assert_allclose(est, sigma, rtol=0.1)
+
+
+def test_random_trees_are_recovered_exactly(rng):
+    for _ in range(3):
+        n = int(rng.integers(5, 26))
+        rec = random_robot_recording(rng, n_joints=n, seconds=20.0)
+        fit = fast_fit(rec.q, rec.qd, rec.gyro)
+        np.testing.assert_array_equal(fit.dependency, truth_dependency(rec))
+        topo = estimate_topology(rec)
+        assert topo.joint_parent == rec.truth_parent_map
+        assert topo.imu_joint == rec.truth_imu_map
+        assert topo.unique and not topo.undetermined
+        assert min(topo.confidence.values()) > 0.9
+        assert set(topo.confidence) == {f"imu:{i}" for i in rec.imu_names} | {
+            f"joint:{j}" for j in rec.joint_names
+        }
+
+
+def test_short_window_without_velocities_is_exact(rng):
+    """10 s of data, joint velocities derived from positions by the recording (no qd given)."""
+    n = int(rng.integers(5, 16))
+    rec = replace(random_robot_recording(rng, n_joints=n, seconds=10.0), qd=None)
+    topo = estimate_topology(rec)
+    assert topo.joint_parent == rec.truth_parent_map
+    assert topo.imu_joint == rec.truth_imu_map
+
+
+def test_joint_held_still_is_undetermined_and_nothing_false_is_said(rng):
+    n = int(rng.integers(5, 20))
+    still = int(rng.integers(n))
+    rec = random_robot_recording(rng, n_joints=n, seconds=20.0, still=(still,))
+    u = rec.joint_names[int(np.argmin(np.abs(rec.qd).sum(axis=0)))]
+    topo = estimate_topology(rec)
+    assert topo.undetermined == (u,)
+    assert topo.confidence[f"joint:{u}"] == 0.0
+    assert topo.excitation[u] < 1e-9
+    # everything else is exact on the tree with the still joint contracted
+    jp, ij = contract(rec.truth_parent_map, rec.truth_imu_map, u)
+    assert {j: p for j, p in topo.joint_parent.items() if j != u} == jp
+    assert topo.imu_joint == ij
+    assert "insufficient_excitation" in topo.to_json()
+
+
+def test_link_without_imus_gives_truth_or_candidates(rng):
+    for _ in range(2):
+        n = int(rng.integers(5, 20))
+        bare = int(rng.integers(n))
+        rec = random_robot_recording(rng, n_joints=n, seconds=20.0, bare_links=(bare,))
+        topo = estimate_topology(rec)
+        exact = topo.joint_parent == rec.truth_parent_map and topo.imu_joint == rec.truth_imu_map
+        among = any(
+            c.joint_parent == rec.truth_parent_map and c.imu_joint == rec.truth_imu_map
+            for c in topo.candidates
+        )
+        if topo.unique:
+            assert exact
+        else:
+            assert exact or among
+            assert topo.candidates
+
+
+def test_middle_link_without_imus_needs_two_hinge_models(rng):
+    """A bare link with a child: the child is attached across two joints, the tree still comes out."""
+    parent = [-1, 0, 1, 1, 2]  # joint 1's child link (carrying joints 2 and 3) has no IMU
+    rec = random_robot_recording(rng, n_joints=5, seconds=20.0, parent=parent, bare_links=(1,))
+    topo = estimate_topology(rec)
+    # two children hang under the bare link, so the order of its joint is determined by the rows
+    assert topo.unique
+    assert topo.joint_parent == rec.truth_parent_map
+    assert topo.imu_joint == rec.truth_imu_map
+
+
+def test_all_joints_still_is_all_undetermined(rng):
+    rec = random_robot_recording(rng, n_joints=4, seconds=10.0, still=(0, 1, 2, 3))
+    topo = estimate_topology(rec)
+    assert set(topo.undetermined) == set(rec.joint_names)
+    assert all(topo.confidence[f"joint:{j}"] == 0.0 for j in rec.joint_names)
+    assert all(v is None for v in topo.imu_joint.values())
+
+
+def test_estimator_class_matches_functional_core(rng):
+    rec = random_robot_recording(rng, n_joints=5, seconds=10.0)
+    est = FastEstimator(fit_ratio=30.0).fit(rec.q, rec.qd, rec.gyro)
+    fit = fast_fit(rec.q, rec.qd, rec.gyro, fit_ratio=30.0)
+    np.testing.assert_array_equal(est.dependency_, fit.dependency)
+    np.testing.assert_array_equal(est.group_, fit.group)
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda q, qd, g: (q, qd, g[:, :, :2]), "shapes"),
+        (lambda q, qd, g: (q, qd[:, :-1], g), "shapes"),
+        (lambda q, qd, g: (q[:20], qd[:20], g[:20]), "at least"),
+        (lambda q, qd, g: (q, qd, np.where(np.arange(len(g))[:, None, None] == 5, np.nan, g)), "finite"),
+    ],
+)
+def test_bad_input_is_refused_clearly(rng, mutate, message):
+    rec = random_robot_recording(rng, n_joints=3, seconds=2.0)
+    q, qd, g = mutate(rec.q, rec.qd, rec.gyro)
+    with pytest.raises(ValueError, match=message):
+        fast_fit(q, qd, g)
