@@ -1,0 +1,231 @@
+"""Damage scenarios: change a running simulation's body or sensors and say, as a DESIGN §2 diff, what
+changed.
+
+Physical damage edits the MuJoCo spec and recompiles with the state kept, so the change shows up in
+the physics (and in the ground truth read back from the compiled model):
+
+* ``imu_moved``     the IMU's site moves onto another link's surface;
+* ``imu_detached``  the IMU hangs loose on a short tether (a ball-jointed pendulum on its old link);
+* ``joint_locked``  an equality constraint holds the joint where it is, while it is still commanded;
+* ``link_lost``     the joint's link breaks off: a ball joint after the hinge lets the subtree dangle,
+  while the motor and its encoder keep turning.
+
+Sensor damage acts on the readings: ``imu_dead`` (``frozen`` or ``zero`` output) and
+``encoder_fault`` (``stuck`` at its current value or a constant ``offset``).
+
+Every call returns a :class:`bodyschema.findings.Diff` with one finding; omitted arguments are picked
+with the simulation's damage generator (seeded, reproducible).
+
+Example
+-------
+>>> from simulators.simulation import Simulation
+>>> sim = Simulation("paper-1", seed=0, imu_model="ideal")
+>>> diff = inject(sim, "imu_moved", imu="imu0", to="j5")
+>>> diff.to_json()["findings"][0]["to"], sim.truth().imu_joint["imu0"]
+('j5', 'j5')
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import mujoco
+import numpy as np
+
+from bodyschema.findings import Diff, Finding
+from simulators.builder import LOOSE_PREFIX, surface_frames
+
+if TYPE_CHECKING:
+    from simulators.simulation import Simulation
+
+__all__ = ["DAMAGES", "inject", "parse_damage"]
+
+DAMAGES: tuple[str, ...] = (
+    "imu_moved", "imu_detached", "imu_dead", "joint_locked", "encoder_fault", "link_lost",
+)
+
+
+def parse_damage(text: str) -> tuple[str, dict[str, Any]]:
+    """``KIND[:key=value,...]`` (the CLI form) -> (kind, kwargs); numbers are parsed as floats.
+
+    >>> parse_damage("encoder_fault:joint=j2,mode=offset,value=0.3")
+    ('encoder_fault', {'joint': 'j2', 'mode': 'offset', 'value': 0.3})
+    """
+    kind, _, rest = text.partition(":")
+    kind = kind.strip()
+    if kind not in DAMAGES:
+        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")
+    kw: dict[str, Any] = {}
+    for part in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = part.partition("=")
+        if not eq:
+            raise ValueError(f"damage argument {part!r} is not key=value")
+        try:
+            kw[key.strip()] = float(value)
+        except ValueError:
+            kw[key.strip()] = value.strip()
+    return kind, kw
+
+
+def _pick(rng: np.random.Generator, options: list[str], what: str) -> str:
+    if not options:
+        raise ValueError(f"no {what} to damage")
+    return options[int(rng.integers(len(options)))]
+
+
+def _check(name: str | None, known: tuple[str, ...], what: str) -> None:
+    if name is not None and name not in known:
+        raise ValueError(f"unknown {what} {name!r}")
+
+
+def _joint_body(sim: Simulation, joint: str | None) -> str:
+    m = sim.robot.model
+    if joint is None:
+        return "base" if _has_body(m, "base") else m.body(1).name
+    return m.body(int(m.jnt_bodyid[m.joint(joint).id])).name
+
+
+def _has_body(m: mujoco.MjModel, name: str) -> bool:
+    try:
+        m.body(name)
+    except KeyError:
+        return False
+    return True
+
+
+def _imu_joint(sim: Simulation, imu: str) -> str | None:
+    return sim.robot.truth().imu_joint.get(imu)
+
+
+def _attached_imus(sim: Simulation) -> list[str]:
+    _, _, detached = sim.robot.truth_arrays()
+    dead = {sim.robot.imu_names[k] for k in sim.stream.dead}
+    return [n for n, d in zip(sim.robot.imu_names, detached, strict=True) if not d and n not in dead]
+
+
+def _move_site(sim: Simulation, imu: str, body: str, pos: np.ndarray, quat: np.ndarray) -> None:
+    spec = sim.robot.spec
+    old = spec.site(imu)
+    size, rgba = list(old.size), list(old.rgba)
+    spec.delete(old)
+    spec.body(body).add_site(name=imu, pos=pos.tolist(), quat=quat.tolist(), size=size, rgba=rgba)
+
+
+def _imu_moved(sim: Simulation, imu: str | None = None, to: str | None = None) -> Finding:
+    r = sim.robot
+    _check(imu, r.imu_names, "IMU")
+    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    src = _imu_joint(sim, imu)
+    if "to" not in sim.last_kwargs:
+        to = _pick(sim.damage_rng, [j for j in r.joint_names if j != src], "joint")
+    elif to in ("", "base", "none"):
+        to = None
+    _check(to, r.joint_names, "joint")
+    if to == src:
+        raise ValueError(f"{imu} is already on the link of {to or 'the base'}")
+    body = _joint_body(sim, to)
+    bid = r.model.body(body).id
+    pos, quat = surface_frames(r.model, bid, 8, sim.damage_rng)
+    k = int(sim.damage_rng.integers(len(pos)))
+    _move_site(sim, imu, body, pos[k], quat[k])
+    sim.recompile()
+    return Finding(kind="imu_moved", imu=imu, from_=src, to=to)
+
+
+def _imu_detached(sim: Simulation, imu: str | None = None, tether: float = 0.05) -> Finding:
+    r = sim.robot
+    _check(imu, r.imu_names, "IMU")
+    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    src = _imu_joint(sim, imu)
+    m = r.model
+    sid = m.site(imu).id
+    parent = m.body(int(m.site_bodyid[sid])).name
+    spec = r.spec
+    site = spec.site(imu)
+    pos, quat = np.array(site.pos), np.array(site.quat)
+    loose = spec.body(parent).add_body(name=f"{LOOSE_PREFIX}{imu}", pos=pos.tolist(), quat=quat.tolist())
+    loose.add_joint(name=f"{LOOSE_PREFIX}{imu}", type=mujoco.mjtJoint.mjJNT_BALL, damping=2e-4,
+                    armature=1e-5)
+    loose.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.01, 0, 0], pos=[0, 0, tether], mass=0.02,
+                   contype=0, conaffinity=0)
+    _move_site(sim, imu, loose.name, np.array([0.0, 0.0, tether]), np.array([1.0, 0.0, 0.0, 0.0]))
+    sim.recompile()
+    return Finding(kind="imu_detached", imu=imu, from_=src, detail=f"hangs on a {tether:.3f} m tether")
+
+
+def _imu_dead(sim: Simulation, imu: str | None = None, mode: str = "frozen") -> Finding:
+    r = sim.robot
+    _check(imu, r.imu_names, "IMU")
+    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    sim.stream.kill(r.imu_names.index(imu), mode)
+    return Finding(kind="imu_dead", imu=imu, from_=_imu_joint(sim, imu), detail=mode)
+
+
+def _movable_joints(sim: Simulation) -> list[str]:
+    return [j for j in sim.robot.joint_names if j not in sim.locked and j not in sim.lost]
+
+
+def _joint_locked(sim: Simulation, joint: str | None = None) -> Finding:
+    r = sim.robot
+    _check(joint, r.joint_names, "joint")
+    joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
+    q = float(r.q()[r.joint_names.index(joint)])
+    data = [q] + [0.0] * 11
+    r.spec.add_equality(name=f"lock:{joint}", type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
+                        name1=joint, data=data, solref=[2 * r.model.opt.timestep, 1.0])
+    sim.locked.add(joint)
+    sim.recompile()
+    return Finding(kind="joint_locked", joint=joint, detail=f"seized at {q:.3f} rad")
+
+
+def _encoder_fault(
+    sim: Simulation, joint: str | None = None, mode: str = "stuck", value: float = 0.3
+) -> Finding:
+    r = sim.robot
+    _check(joint, r.joint_names, "joint")
+    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.encoder_faults], "joint")
+    if mode == "stuck":
+        value = float(r.q()[r.joint_names.index(joint)])
+        detail = f"stuck at {value:.3f} rad"
+    elif mode == "offset":
+        detail = f"offset by {float(value):.3f} rad"
+    else:
+        raise ValueError("encoder_fault mode must be 'stuck' or 'offset'")
+    sim.encoder_faults[joint] = (mode, float(value))
+    return Finding(kind="encoder_fault", joint=joint, detail=detail)
+
+
+def _link_lost(sim: Simulation, joint: str | None = None) -> Finding:
+    r = sim.robot
+    _check(joint, r.joint_names, "joint")
+    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.lost], "joint")
+    body = _joint_body(sim, joint)
+    r.spec.body(body).add_joint(name=f"{LOOSE_PREFIX}{joint}", type=mujoco.mjtJoint.mjJNT_BALL,
+                                damping=0.01, armature=1e-4)
+    r.no_gravcomp.update(r.body_names(subtree_of=body))
+    sim.lost.add(joint)
+    sim.recompile()
+    return Finding(kind="link_lost", joint=joint, detail=f"the subtree from {body!r} hangs loose")
+
+
+_HANDLERS = {
+    "imu_moved": _imu_moved,
+    "imu_detached": _imu_detached,
+    "imu_dead": _imu_dead,
+    "joint_locked": _joint_locked,
+    "encoder_fault": _encoder_fault,
+    "link_lost": _link_lost,
+}
+
+
+def inject(sim: Simulation, kind: str, **kwargs: Any) -> Diff:
+    """Apply damage ``kind`` to ``sim`` now; return its ground-truth diff (also kept by ``sim``)."""
+    if kind not in _HANDLERS:
+        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")
+    sim.last_kwargs = dict(kwargs)
+    try:
+        finding = _HANDLERS[kind](sim, **kwargs)
+    except TypeError as err:
+        raise ValueError(f"bad arguments for {kind}: {err}") from err
+    sim.record_damage(finding)
+    return Diff(findings=(finding,))
