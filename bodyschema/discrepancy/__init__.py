@@ -1,0 +1,40 @@
+"""Sim-to-real discrepancy analysis: what the simulation gets wrong about a measured IMU, and why.
+
+Given a reference motion (motion capture of a rigid body, or a robot's joint angles through its
+model) and what the IMU really read, this package predicts what the IMU *should* read under the
+simulator's model, analyses the residual's structure, and selects — on held-out time blocks — the
+error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertainties and gains.
+
+* :mod:`~bodyschema.discrepancy.effects` — the effect library (parameters, signatures, prediction
+  through :mod:`bodyschema.imu_effects`);
+* :mod:`~bodyschema.discrepancy.fit` — data preparation and least-squares fits on sample subsets;
+* :mod:`~bodyschema.discrepancy.residuals` — residual structure and noise;
+* :mod:`~bodyschema.discrepancy.selection` — the greedy held-out selection (:func:`analyze`);
+* :mod:`~bodyschema.discrepancy.report` — the result as data (DESIGN §2 discrepancy JSON).
+"""
+
+from bodyschema.discrepancy.effects import EFFECT_NAMES, EFFECTS, FITTED_EFFECTS, Effect, Params, predict
+from bodyschema.discrepancy.fit import Problem, fit_params, prepare
+from bodyschema.discrepancy.report import Cause, DiscrepancyReport
+from bodyschema.discrepancy.residuals import noise_std, residual_structure
+from bodyschema.discrepancy.selection import DiscrepancyAnalyzer, analyze, analyze_recording, reference_of
+
+__all__ = [
+    "EFFECTS",
+    "EFFECT_NAMES",
+    "FITTED_EFFECTS",
+    "Cause",
+    "DiscrepancyAnalyzer",
+    "DiscrepancyReport",
+    "Effect",
+    "Params",
+    "Problem",
+    "analyze",
+    "analyze_recording",
+    "fit_params",
+    "noise_std",
+    "predict",
+    "prepare",
+    "reference_of",
+    "residual_structure",
+]

@@ -1,0 +1,181 @@
+"""The effect library: each IMU error effect with its parameters, its prediction and its signature.
+
+An *effect* is one physical reason why a real IMU reads differently from what the ideal simulation of
+the same motion says. Every effect here names its parameters (DESIGN §2 discrepancy JSON), their
+null value (effect absent), a typical magnitude (used to scale the optimiser), the sensor channel it
+touches and the *residual signature* that points to it. The prediction composes the one shared forward
+model of each effect, :mod:`bodyschema.imu_effects`, in a fixed order:
+
+1. ``gravity``: specific force ``R^T (a - g)`` with the fitted world gravity ``g``;
+2. ``mounting_rotation``: the sensor frame rotated by ``rotvec`` from the body frame;
+3. ``lever_arm``: the accelerometer displaced by ``meters`` (sensor frame) from the body origin;
+4. ``time_offset``: both channels delayed by ``seconds`` (positive = IMU samples lag the reference);
+5. ``gyro_scale``/``gyro_bias`` and ``acc_scale``/``acc_bias``: per-axis gain and offset;
+
+``noise`` (white, std per axis) changes no expected reading and is measured apart
+(:func:`bodyschema.discrepancy.residuals.noise_std`).
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.rigid_motion import ReferenceMotion
+>>> t = np.arange(4) * 0.01
+>>> ref = ReferenceMotion(t, np.tile(np.eye(3), (4, 1, 1)), np.zeros((4, 3)), np.zeros((4, 3)),
+...                       np.array([0.0, 0.0, -9.81]))
+>>> gyro, acc = predict(ref, {"gyro_bias": {"bias": [0.1, 0.0, 0.0]}})
+>>> gyro[0].tolist(), acc[0].tolist()
+([0.1, 0.0, 0.0], [0.0, 0.0, 9.81])
+>>> EFFECTS["lever_arm"].to_params(np.array([0.01, 0.0, 0.02]))
+{'meters': [0.01, 0.0, 0.02]}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodyschema import imu_effects as fx
+from bodyschema.rigid_motion import ReferenceMotion
+
+__all__ = [
+    "EFFECTS",
+    "EFFECT_NAMES",
+    "FITTED_EFFECTS",
+    "Effect",
+    "Params",
+    "pack",
+    "predict",
+    "unpack",
+]
+
+#: Fitted parameters: effect name -> {parameter name -> value (float or list)}.
+Params = dict[str, dict[str, object]]
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One error effect: its parameter vector layout, null value, scale and residual signature."""
+
+    name: str
+    key: str  # the parameter name in the JSON (params.<key>)
+    size: int
+    channel: str  # "gyro", "acc" or "both"
+    typical: float  # a typical magnitude of one parameter (optimiser scaling)
+    signature: str  # the residual pattern that points to this cause
+    null: tuple[float, ...]
+
+    def to_params(self, vec: np.ndarray) -> dict[str, object]:
+        """Parameter vector -> the JSON-ready dict of this effect."""
+        v = np.asarray(vec, dtype=np.float64).reshape(self.size)
+        if self.size == 1:
+            return {self.key: float(v[0])}
+        return {self.key: [float(x) for x in v]}
+
+    def from_params(self, params: Mapping[str, object] | None) -> np.ndarray:
+        """The JSON dict of this effect -> its parameter vector (the null vector when absent)."""
+        if not params or self.key not in params:
+            return np.asarray(self.null, dtype=np.float64)
+        v = np.asarray(params[self.key], dtype=np.float64).reshape(-1)
+        if v.size != self.size:
+            raise ValueError(f"{self.name}.{self.key} needs {self.size} values, got {v.size}")
+        return v
+
+
+_G = (0.0, 0.0, -9.81)
+
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        Effect("time_offset", "seconds", 1, "both", 0.005,
+               "residual proportional to the derivative of the reading (angular acceleration, jerk)",
+               (0.0,)),
+        Effect("gyro_bias", "bias", 3, "gyro", 0.01,
+               "constant gyro residual, present at rest", (0.0, 0.0, 0.0)),
+        Effect("acc_bias", "bias", 3, "acc", 0.05,
+               "constant accelerometer residual in the sensor frame, whatever the orientation",
+               (0.0, 0.0, 0.0)),
+        Effect("gyro_scale", "gain", 3, "gyro", 0.01,
+               "gyro residual proportional to the angular rate on the same axis", (1.0, 1.0, 1.0)),
+        Effect("acc_scale", "gain", 3, "acc", 0.01,
+               "accelerometer residual proportional to the reading on the same axis",
+               (1.0, 1.0, 1.0)),
+        Effect("mounting_rotation", "rotvec", 3, "both", 0.02,
+               "residual = reading x axis in both channels: a rate/orientation-dependent cross-axis leak",
+               (0.0, 0.0, 0.0)),
+        Effect("lever_arm", "meters", 3, "acc", 0.01,
+               "accelerometer residual following w x (w x r) + dw/dt x r (grows with the rate squared)",
+               (0.0, 0.0, 0.0)),
+        Effect("gravity", "vector", 3, "acc", 0.02,
+               "accelerometer residual fixed in the world, so it turns with the orientation (R^T dg)",
+               _G),
+        Effect("noise", "std", 6, "both", 0.01,
+               "white residual above the motion band (std: gyro xyz, then acc xyz)",
+               (0.0,) * 6),
+    )
+}
+
+#: Effect names in the order the library lists them (DESIGN §2).
+EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
+
+#: The effects that change the expected reading and so are fitted by least squares.
+FITTED_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n != "noise")
+
+
+def pack(params: Mapping[str, Mapping[str, object]], names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """The concatenated parameter vector of the effects ``names`` (null values where absent)."""
+    parts = [EFFECTS[n].from_params(params.get(n)) for n in names]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def unpack(vec: np.ndarray, names: tuple[str, ...] | list[str]) -> Params:
+    """Inverse of :func:`pack`."""
+    out: Params = {}
+    i = 0
+    for n in names:
+        e = EFFECTS[n]
+        out[n] = e.to_params(vec[i : i + e.size])
+        i += e.size
+    if i != np.asarray(vec).size:
+        raise ValueError(f"parameter vector has {np.asarray(vec).size} values, the effects need {i}")
+    return out
+
+
+def predict(
+    ref: ReferenceMotion, params: Mapping[str, Mapping[str, object]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(gyro, acc)`` (T, 3) the IMU reads for the reference motion under the effects in ``params``.
+
+    Effects absent from ``params`` take their null value; unknown names raise ``ValueError``.
+    """
+    unknown = set(params) - set(EFFECTS)
+    if unknown:
+        raise ValueError(f"unknown effects {sorted(unknown)}; known: {list(EFFECT_NAMES)}")
+    g = EFFECTS["gravity"].from_params(params.get("gravity"))
+    acc = fx.specific_force(ref.R, ref.acc_world, g if "gravity" in params else ref.gravity)
+    gyro = ref.omega
+    if "mounting_rotation" in params:
+        rv = EFFECTS["mounting_rotation"].from_params(params["mounting_rotation"])
+        both = fx.rotate(np.concatenate([gyro, acc]), rv)  # one call for both triads
+        gyro, acc = both[: len(gyro)], both[len(gyro) :]
+    if "lever_arm" in params:
+        r = EFFECTS["lever_arm"].from_params(params["lever_arm"])
+        acc = fx.lever_arm(acc, gyro, fx.angular_acceleration(ref.t, gyro), r)
+    if "time_offset" in params:
+        tau = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
+        both = fx.time_shift(ref.t, np.stack([gyro, acc], axis=1), tau)
+        gyro, acc = both[:, 0], both[:, 1]
+    if "gyro_scale" in params or "gyro_bias" in params:
+        gyro = fx.affine(
+            gyro,
+            EFFECTS["gyro_scale"].from_params(params.get("gyro_scale")),
+            EFFECTS["gyro_bias"].from_params(params.get("gyro_bias")),
+        )
+    if "acc_scale" in params or "acc_bias" in params:
+        acc = fx.affine(
+            acc,
+            EFFECTS["acc_scale"].from_params(params.get("acc_scale")),
+            EFFECTS["acc_bias"].from_params(params.get("acc_bias")),
+        )
+    return np.asarray(gyro, dtype=np.float64), np.asarray(acc, dtype=np.float64)

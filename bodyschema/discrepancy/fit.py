@@ -1,0 +1,250 @@
+"""Least-squares fit of IMU error effects to measured readings, on any subset of the samples.
+
+The data are first brought to a common band (:func:`prepare`): the reference-derived readings and the
+measured ones are low-passed alike (zero phase) and decimated to an analysis rate, and samples near
+gaps of the reference are masked. Residuals are normalised per channel (gyro, accelerometer) by the
+RMS residual of the ideal model (floored, so a near-perfect recording does not blow small numeric
+errors up), which makes the *score* — the mean squared normalised residual averaged over both
+channels — start at about 1 and makes gains fractions of the original residual energy.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.rigid_motion import reference_motion, smooth_random_motion
+>>> m = smooth_random_motion(20.0, 100.0, np.random.default_rng(0))
+>>> ref = reference_motion(m["t"], m["quat"], m["pos"])
+>>> gyro = m["gyro"] + [0.05, 0.0, 0.0]
+>>> prob = prepare(ref, gyro, m["acc"], cutoff=None, analysis_rate=None)
+>>> p = fit_params(prob, ["gyro_bias"], {}, prob.index)
+>>> np.round(p["gyro_bias"]["bias"], 3).tolist()[0]
+0.05
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import binary_erosion
+from scipy.optimize import least_squares
+
+from bodyschema.discrepancy.effects import EFFECTS, Params, pack, predict, unpack
+from bodyschema.rigid_motion import ReferenceMotion, lowpass
+
+__all__ = [
+    "Problem",
+    "block_folds",
+    "fit_params",
+    "jacobian",
+    "normalized_residual",
+    "prepare",
+    "score",
+]
+
+#: Bounds of each parameter's deviation from null (wide: they only keep the optimiser sane).
+_BOUND = {
+    "time_offset": 0.25,
+    "gyro_bias": 5.0,
+    "acc_bias": 20.0,
+    "gyro_scale": 0.5,
+    "acc_scale": 0.5,
+    "mounting_rotation": 4.0,
+    "lever_arm": 1.0,
+    "gravity": 5.0,
+}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Measured and reference readings on one time grid, with the samples that may be used.
+
+    ``ref`` and ``gyro``/``acc`` (T, 3) share ``ref.t``; ``index`` holds the usable sample indices;
+    ``scale`` the per-channel normalisation (gyro rad/s, acc m/s²); ``rate`` the analysis rate.
+    """
+
+    ref: ReferenceMotion
+    gyro: np.ndarray
+    acc: np.ndarray
+    index: np.ndarray
+    scale: np.ndarray
+    rate: float
+
+
+def prepare(
+    ref: ReferenceMotion,
+    gyro: np.ndarray,
+    acc: np.ndarray,
+    valid: np.ndarray | None = None,
+    cutoff: float | None = 10.0,
+    analysis_rate: float | None = 100.0,
+    margin: float = 0.25,
+    scale_floor: tuple[float, float] = (0.002, 0.02),
+) -> Problem:
+    """Low-pass the measured readings like the reference, decimate, mask and normalise.
+
+    ``ref`` must already be low-passed at ``cutoff`` (:func:`bodyschema.rigid_motion.reference_motion`).
+    ``valid`` (T,) marks samples with a trustworthy reference; ``margin`` seconds around every invalid
+    stretch and at both ends are dropped as well (filter and difference transients).
+    """
+    g = np.asarray(gyro, dtype=np.float64)
+    a = np.asarray(acc, dtype=np.float64)
+    T = ref.t.shape[0]
+    if g.shape != (T, 3) or a.shape != (T, 3):
+        raise ValueError(f"gyro and acc must have shape {(T, 3)}, got {g.shape} and {a.shape}")
+    ok = np.all(np.isfinite(g), axis=1) & np.all(np.isfinite(a), axis=1)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.shape != (T,):
+            raise ValueError(f"valid must have shape {(T,)}, got {v.shape}")
+        ok &= v
+    if not ok.any():
+        raise ValueError("no sample has both a finite IMU reading and a valid reference")
+    g = np.where(ok[:, None], g, 0.0)
+    a = np.where(ok[:, None], a, 0.0)
+    rate = float(1.0 / np.median(np.diff(ref.t)))
+    g = lowpass(g, rate, cutoff)
+    a = lowpass(a, rate, cutoff)
+    m = max(1, round(margin * rate))
+    ok = binary_erosion(ok, structure=np.ones(2 * m + 1, dtype=bool), border_value=0)
+    step = 1 if analysis_rate is None else max(1, round(rate / analysis_rate))
+    sl = slice(0, T, step)
+    ref_d = ref.select(sl)
+    ok_d = ok[sl]
+    index = np.flatnonzero(ok_d)
+    if index.size < 20:
+        raise ValueError(f"only {index.size} usable samples after masking; need at least 20")
+    prob = Problem(ref_d, g[sl], a[sl], index, np.ones(2), rate / step)
+    gp, ap = predict(ref_d, {})
+    rms = np.array(
+        [
+            np.sqrt(np.mean((prob.gyro[index] - gp[index]) ** 2)),
+            np.sqrt(np.mean((prob.acc[index] - ap[index]) ** 2)),
+        ]
+    )
+    scale = np.maximum(rms, np.asarray(scale_floor, dtype=np.float64))
+    return Problem(ref_d, prob.gyro, prob.acc, index, scale, prob.rate)
+
+
+def block_folds(index: np.ndarray, n_blocks: int) -> list[np.ndarray]:
+    """Split the usable sample indices into ``n_blocks`` contiguous blocks of (nearly) equal size.
+
+    >>> [b.tolist() for b in block_folds(np.arange(7), 3)]
+    [[0, 1, 2], [3, 4], [5, 6]]
+    """
+    if n_blocks < 2:
+        raise ValueError("need at least 2 blocks")
+    if index.size < 2 * n_blocks:
+        raise ValueError(f"{index.size} samples are too few for {n_blocks} blocks")
+    return [np.asarray(b) for b in np.array_split(index, n_blocks)]
+
+
+def normalized_residual(prob: Problem, params: Mapping[str, Mapping[str, object]]) -> np.ndarray:
+    """(T, 6) measured minus predicted, gyro then acc, each divided by its channel scale."""
+    gp, ap = predict(prob.ref, params)
+    out = np.empty((gp.shape[0], 6))
+    np.subtract(prob.gyro, gp, out=out[:, :3])
+    np.subtract(prob.acc, ap, out=out[:, 3:])
+    out[:, :3] /= prob.scale[0]
+    out[:, 3:] /= prob.scale[1]
+    return out
+
+
+def score(resid: np.ndarray, index: np.ndarray) -> float:
+    """Mean squared normalised residual over ``index`` (both channels weigh alike)."""
+    return float(np.mean(resid[index] ** 2))
+
+
+def fit_params(
+    prob: Problem,
+    names: Sequence[str],
+    init: Mapping[str, Mapping[str, object]],
+    index: np.ndarray,
+    max_nfev: int | None = None,
+) -> Params:
+    """Least-squares fit of the effects ``names`` on the samples ``index``; others stay as in ``init``.
+
+    Returns all effects of ``init`` plus ``names`` (the fitted ones replaced). The effect's own ``fit``
+    is this with one name: the rest of the model is held fixed.
+    """
+    free = [n for n in EFFECTS if n in names]
+    if any(n == "noise" or n not in EFFECTS for n in names):
+        raise ValueError(f"cannot least-squares fit {list(names)}; fittable: {list(_BOUND)}")
+    fixed: Params = {k: dict(v) for k, v in init.items() if k not in free}
+    x0 = pack(init, free)
+    null = pack({}, free)
+    width = np.concatenate([np.full(EFFECTS[n].size, _BOUND[n]) for n in free])
+    x_scale = np.concatenate([np.full(EFFECTS[n].size, EFFECTS[n].typical) for n in free])
+    x0 = np.clip(x0, null - width * 0.999, null + width * 0.999)
+
+    # The optimiser works on z = 1 + (x - null) / typical: O(1) everywhere. MINPACK sizes its first
+    # trust region by |z|, so a variable starting at (almost) zero — an offset, a bias — would
+    # otherwise be stuck there.
+    def to_x(z: np.ndarray) -> np.ndarray:
+        return null + (z - 1.0) * x_scale
+
+    cache: dict[bytes, np.ndarray] = {}
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in cache:
+            cache.clear()
+            p = dict(fixed)
+            p.update(unpack(to_x(z), free))
+            cache[key] = normalized_residual(prob, p)[index].ravel()
+        return cache[key]
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        # Forward differences with absolute steps (MINPACK's are relative to |z|).
+        f0 = fun(z).copy()
+        J = np.empty((f0.size, z.size))
+        for i in range(z.size):
+            zp = z.copy()
+            zp[i] += 0.01
+            J[:, i] = (fun(zp) - f0) / 0.01
+        return J
+
+    # Levenberg-Marquardt (MINPACK, QR) is several times faster here than the bounded trust-region
+    # method, whose exact solver takes an SVD of the full Jacobian every step; the bounds are only
+    # a sanity clamp, applied after.
+    sol = least_squares(
+        fun,
+        1.0 + (x0 - null) / x_scale,
+        jac=jac,
+        method="lm",
+        max_nfev=max_nfev or 30 * (x0.size + 1),
+        xtol=1e-8,
+        ftol=1e-8,
+    )
+    x = np.clip(to_x(sol.x), null - width, null + width)
+    out = dict(fixed)
+    out.update(unpack(x, free))
+    return {n: out[n] for n in EFFECTS if n in out}
+
+
+def jacobian(
+    prob: Problem, params: Mapping[str, Mapping[str, object]], names: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(columns (T, 6, p), base residual (T, 6))``: how the normalised *prediction* moves per parameter.
+
+    Finite differences around ``params`` (each effect's step is a tenth of its typical size). The
+    columns are the residual signatures: regressing a residual on an effect's columns says how much
+    of it that effect explains.
+    """
+    base_p = {k: dict(v) for k, v in params.items()}
+    for n in names:
+        base_p.setdefault(n, EFFECTS[n].to_params(np.asarray(EFFECTS[n].null)))
+    base = normalized_residual(prob, base_p)
+    cols = []
+    for n in names:
+        e = EFFECTS[n]
+        x = e.from_params(base_p[n])
+        h = 0.1 * e.typical
+        for i in range(e.size):
+            xp = x.copy()
+            xp[i] += h
+            p = dict(base_p)
+            p[n] = e.to_params(xp)
+            cols.append((base - normalized_residual(prob, p)) / h)
+    J = np.stack(cols, axis=2) if cols else np.zeros((*base.shape, 0))
+    return J, base

@@ -1,0 +1,470 @@
+"""Greedy, held-out selection of the effects that explain a measured IMU's discrepancy.
+
+The procedure (forward selection with blocked cross-validation):
+
+1. The usable samples are cut into ``n_blocks`` contiguous time blocks. Fold *k* fits on all blocks
+   but *k* and scores on block *k* (contiguous blocks, not shuffled samples: neighbouring samples are
+   correlated and would leak).
+2. **Screening.** For every effect not yet in the model, each fold linearises the model around its
+   current fit (the effect's columns of the Jacobian *are* its residual signature: a constant for a
+   bias, the angular rate for a gyro scale, the derivative of the reading for a time offset, ``w x (w
+   x r)`` for a lever arm, ``R^T dg`` for gravity), takes one Gauss-Newton step on the training blocks
+   and scores the held-out block. The candidates are ranked by that held-out gain.
+3. **Confirmation.** The best candidate is added and every fold is refitted by nonlinear least
+   squares (all effects of the model free). The per-block drops of the held-out score form a paired
+   sample; the effect is accepted when their mean exceeds ``min_gain`` (fraction of the ideal model's
+   residual energy) *and* a one-sided t-test of the per-block log ratios (score before / after; a
+   ratio, because blocks with more motion have larger residuals) gives ``p < alpha``. Otherwise the
+   next-ranked candidate is tried (up to ``max_tries``); when none passes, selection stops.
+4. The accepted model is fitted on all usable samples; the spread of the leave-one-block-out fits
+   gives each parameter's standard error (delete-one-block jackknife).
+
+White ``noise`` is measured apart (it changes no expected reading): named when its std exceeds
+``noise_floor``; its density follows the convention ``std = density * sqrt(rate)``.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.rigid_motion import reference_motion, smooth_random_motion
+>>> m = smooth_random_motion(30.0, 100.0, np.random.default_rng(3))
+>>> ref = reference_motion(m["t"], m["quat"], m["pos"], cutoff=10.0)
+>>> rep = analyze(ref, m["gyro"] + [0.0, 0.05, 0.0], m["acc"])
+>>> rep.names, np.round(rep.params["gyro_bias"]["bias"], 3).tolist()
+(['gyro_bias'], [0.0, 0.05, 0.0])
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import ttest_1samp
+
+from bodyschema import imu_effects as fx
+from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, pack, predict, unpack
+from bodyschema.discrepancy.fit import (
+    Problem,
+    block_folds,
+    fit_params,
+    jacobian,
+    normalized_residual,
+    prepare,
+    score,
+)
+from bodyschema.discrepancy.report import Cause, DiscrepancyReport
+from bodyschema.discrepancy.residuals import noise_std, residual_structure
+from bodyschema.recording import Recording
+from bodyschema.rigid_motion import ReferenceMotion, reference_motion
+
+__all__ = ["DiscrepancyAnalyzer", "analyze", "analyze_recording", "reference_of"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Fold:
+    train: np.ndarray
+    test: np.ndarray
+    params: Params = field(default_factory=dict)
+    held: float = 0.0
+
+
+def _rms(prob: Problem, params: Params, index: np.ndarray) -> dict[str, object]:
+    gp, ap = predict(prob.ref, params)
+    rg = (prob.gyro - gp)[index]
+    ra = (prob.acc - ap)[index]
+    return {
+        "gyro_rms": float(np.sqrt(np.mean(rg**2))),
+        "acc_rms": float(np.sqrt(np.mean(ra**2))),
+        "gyro_rms_axis": [float(x) for x in np.sqrt(np.mean(rg**2, axis=0))],
+        "acc_rms_axis": [float(x) for x in np.sqrt(np.mean(ra**2, axis=0))],
+    }
+
+
+def _raw_residual(prob: Problem, params: Params) -> tuple[np.ndarray, np.ndarray]:
+    gp, ap = predict(prob.ref, params)
+    pred = np.concatenate([gp, ap], axis=1)
+    return np.concatenate([prob.gyro, prob.acc], axis=1) - pred, pred
+
+
+def _init_time_offset(prob: Problem, params: Params, index: np.ndarray) -> Params:
+    """Start a time-offset fit at the best of a grid (the cost is not convex in the offset).
+
+    The shift commutes with the per-sample effects applied after it, so the prediction without the
+    offset is computed once and only shifted per grid point.
+    """
+    p0 = {k: v for k, v in params.items() if k != "time_offset"}
+    gp, ap = predict(prob.ref, p0)
+    both = np.stack([gp, ap], axis=1)
+    meas = np.stack([prob.gyro, prob.acc], axis=1)[index]
+    w = 1.0 / prob.scale[None, :, None]
+    best, best_s = 0.0, np.inf
+    step = 2.0 / prob.rate
+    for tau in np.arange(-0.2, 0.2 + step / 2, step):
+        r = (meas - fx.time_shift(prob.ref.t, both, float(tau))[index]) * w
+        s = float(np.mean(r**2))
+        if s < best_s:
+            best, best_s = float(tau), s
+    out = dict(params)
+    out["time_offset"] = {"seconds": best}
+    return out
+
+
+def _init_mounting(prob: Problem, params: Params, index: np.ndarray) -> Params:
+    """Start a mounting-rotation fit at the rotation that best aligns predicted and measured rates."""
+    p0 = {k: v for k, v in params.items() if k != "mounting_rotation"}
+    gp, _ = predict(prob.ref, p0)
+    w = np.linalg.norm(gp[index], axis=1) > 0.05
+    if w.sum() < 10:
+        return params
+    # measured ~ R^T predicted, so R maps measured onto predicted.
+    rot, _ = Rotation.align_vectors(gp[index][w], prob.gyro[index][w])
+    out = dict(params)
+    out["mounting_rotation"] = {"rotvec": [float(x) for x in rot.as_rotvec()]}
+    return out
+
+
+def _gauss_newton(
+    J: np.ndarray, base: np.ndarray, names: list[str], cols: list[str], train: np.ndarray
+) -> np.ndarray:
+    """One Gauss-Newton step (parameter deltas of ``names``) on the training samples."""
+    offs = np.cumsum([0] + [EFFECTS[n].size for n in cols])
+    idx = np.concatenate([np.arange(offs[i], offs[i + 1]) for i, n in enumerate(cols) if n in names])
+    A = J[train][:, :, idx].reshape(-1, idx.size)
+    delta, *_ = np.linalg.lstsq(A, base[train].ravel(), rcond=None)
+    return delta
+
+
+def _mean_params(params: list[Params], names: list[str]) -> Params:
+    if not names:
+        return {}
+    return unpack(np.mean([pack(p, names) for p in params], axis=0), names)
+
+
+def _step_params(params: Params, names: list[str], delta: np.ndarray) -> Params:
+    x = pack(params, names) + delta
+    out = dict(params)
+    out.update(unpack(x, names))
+    return out
+
+
+def analyze(
+    ref: ReferenceMotion,
+    gyro: np.ndarray,
+    acc: np.ndarray,
+    valid: np.ndarray | None = None,
+    *,
+    effects: Sequence[str] = FITTED_EFFECTS,
+    n_blocks: int = 8,
+    alpha: float = 0.01,
+    min_gain: float = 0.002,
+    cutoff: float | None = 10.0,
+    analysis_rate: float | None = 100.0,
+    margin: float = 0.25,
+    noise_floor: tuple[float, float] = (1e-4, 1e-3),
+    scale_floor: tuple[float, float] = (0.002, 0.02),
+    max_tries: int = 2,
+    progress: bool = False,
+) -> DiscrepancyReport:
+    """Name the effects that explain why the measured ``gyro``/``acc`` differ from the ideal prediction.
+
+    ``ref`` is the reference motion low-passed at ``cutoff`` (:func:`reference_of` builds it from a
+    recording); ``gyro``/``acc`` (T, 3) the measured readings on ``ref.t``; ``valid`` (T,) the
+    samples with a trustworthy reference. See the module docstring for the procedure and
+    :class:`DiscrepancyAnalyzer` for the hyper-parameters.
+    """
+    bad = [e for e in effects if e not in FITTED_EFFECTS]
+    if bad:
+        raise ValueError(f"unknown or unfittable effects {bad}; choose from {list(FITTED_EFFECTS)}")
+    prob = prepare(ref, gyro, acc, valid, cutoff, analysis_rate, margin, scale_floor)
+    blocks = block_folds(prob.index, n_blocks)
+    folds = [
+        _Fold(np.concatenate([b for j, b in enumerate(blocks) if j != k]), blocks[k]) for k in range(n_blocks)
+    ]
+    r0 = normalized_residual(prob, {})
+    for f in folds:
+        f.held = score(r0, f.test)
+    held_before = float(np.mean([f.held for f in folds]))
+    selected: list[str] = []
+    causes: list[Cause] = []
+    screening: list[dict[str, float]] = []
+    bar = _progress(progress, len(effects))
+    while True:
+        cands = [e for e in effects if e not in selected]
+        if not cands:
+            break
+        cols = [n for n in EFFECTS if n in selected or n in cands]
+        gains = {c: np.zeros(n_blocks) for c in cands}
+        steps: dict[str, list[Params]] = {c: [] for c in cands}
+        # Signature columns at the mean of the fold fits (they are features, not fitted to the
+        # held-out data; the gain that decides is measured in the confirmation step below).
+        mean_p = _mean_params([f.params for f in folds], selected)
+        J, _ = jacobian(prob, mean_p, cols)
+        for k, f in enumerate(folds):
+            base = normalized_residual(prob, f.params)
+            for c in cands:
+                names = [n for n in cols if n in selected or n == c]
+                delta = _gauss_newton(J, base, names, cols, f.train)
+                p_new = _step_params(f.params, names, delta)
+                gains[c][k] = f.held - score(normalized_residual(prob, p_new), f.test)
+                steps[c].append(p_new)
+        ranked = sorted(cands, key=lambda c: -float(np.mean(gains[c])))
+        screening.append({c: round(float(np.mean(gains[c])), 6) for c in ranked})
+        accepted = False
+        for c in ranked[:max_tries]:
+            if np.mean(gains[c]) < 0.25 * min_gain:
+                break
+            names = [n for n in EFFECTS if n in selected or n == c]
+            new_params, new_held = [], []
+            for k, f in enumerate(folds):
+                init = steps[c][k]
+                if c == "time_offset":
+                    init = _init_time_offset(prob, f.params, f.train)
+                elif c == "mounting_rotation":
+                    init = _init_mounting(prob, init, f.train)
+                p = fit_params(prob, names, init, f.train)
+                new_params.append(p)
+                new_held.append(score(normalized_residual(prob, p), f.test))
+            old_held = np.array([f.held for f in folds])
+            d = old_held - np.array(new_held)
+            p_val = _paired_p(np.log(old_held) - np.log(np.maximum(new_held, 1e-300)))
+            log.info("candidate %s: held-out gain %.4f, p=%.2g", c, float(np.mean(d)), p_val)
+            if float(np.mean(d)) >= min_gain and p_val < alpha:
+                remaining = float(np.mean([f.held for f in folds]))
+                for f, p, h in zip(folds, new_params, new_held, strict=True):
+                    f.params, f.held = p, h
+                selected.append(c)
+                causes.append(
+                    Cause(
+                        effect=c,
+                        params={},
+                        uncertainty={},
+                        gain=float(np.mean(d)) / held_before,
+                        p_value=p_val,
+                        signature=EFFECTS[c].signature,
+                        explained=float(np.mean(gains[c])) / max(remaining, 1e-300),
+                        block_gains=[float(x) / held_before for x in d],
+                    )
+                )
+                bar.update(1)
+                accepted = True
+                break
+        if not accepted:
+            break
+    bar.close()
+    # Final fit on every usable sample, started from the mean of the fold fits.
+    names = [n for n in EFFECTS if n in selected]
+    params: Params = {}
+    if names:
+        xs = np.stack([pack(f.params, names) for f in folds])
+        params = fit_params(prob, names, unpack(xs.mean(axis=0), names), prob.index)
+        se = np.sqrt((n_blocks - 1) / n_blocks * np.sum((xs - xs.mean(axis=0)) ** 2, axis=0))
+        unc = unpack(se, names)
+        causes = [
+            Cause(c.effect, params[c.effect], unc[c.effect], c.gain, c.p_value, c.signature, c.explained,
+                  c.block_gains)
+            for c in causes
+        ]
+    # Noise, from the full-rate measured readings above the motion band.
+    causes += _noise_cause(ref, gyro, acc, valid, prob, margin, noise_floor)
+    if any(c.effect == "noise" for c in causes):
+        params["noise"] = causes[-1].params
+    fitted = {k: v for k, v in params.items() if k != "noise"}
+    held_after = float(np.mean([f.held for f in folds]))
+    res_b, pred_b = _raw_residual(prob, {})
+    res_a, pred_a = _raw_residual(prob, fitted)
+    held = _held_out_rms(prob, folds)
+    return DiscrepancyReport(
+        residual_before=_rms(prob, {}, prob.index),
+        causes=causes,
+        residual_after=_rms(prob, fitted, prob.index),
+        held_out={
+            "blocks": n_blocks,
+            "score_before": held_before,
+            "score_after": held_after,
+            "gain": 1.0 - held_after / held_before,
+            **held,
+        },
+        params=params,
+        structure_before=residual_structure(prob.ref, res_b, pred_b, prob.index, prob.rate),
+        structure_after=residual_structure(prob.ref, res_a, pred_a, prob.index, prob.rate),
+        screening=screening,
+        settings={
+            "n_blocks": n_blocks,
+            "alpha": alpha,
+            "min_gain": min_gain,
+            "cutoff_hz": cutoff,
+            "analysis_rate_hz": prob.rate,
+            "margin_s": margin,
+            "channel_scale": [float(x) for x in prob.scale],
+            "samples_used": int(prob.index.size),
+            "effects": list(effects),
+        },
+    )
+
+
+def _held_out_rms(prob: Problem, folds: list[_Fold]) -> dict[str, float]:
+    """Pooled held-out RMS per channel of the ideal model and of the fold fits."""
+    sq = {"gyro_before": 0.0, "acc_before": 0.0, "gyro_after": 0.0, "acc_after": 0.0}
+    n = 0
+    for f in folds:
+        for tag, p in (("before", {}), ("after", {k: v for k, v in f.params.items() if k != "noise"})):
+            gp, ap = predict(prob.ref, p)
+            sq[f"gyro_{tag}"] += float(np.sum((prob.gyro - gp)[f.test] ** 2))
+            sq[f"acc_{tag}"] += float(np.sum((prob.acc - ap)[f.test] ** 2))
+        n += f.test.size * 3
+    return {f"{k.split('_')[0]}_rms_{k.split('_')[1]}": float(np.sqrt(v / n)) for k, v in sq.items()}
+
+
+def _paired_p(d: np.ndarray) -> float:
+    if np.all(d > 0) and np.ptp(d) == 0:
+        return 0.0
+    if np.allclose(d, 0):
+        return 1.0
+    return float(ttest_1samp(d, 0.0, alternative="greater").pvalue)
+
+
+def _noise_cause(
+    ref: ReferenceMotion,
+    gyro: np.ndarray,
+    acc: np.ndarray,
+    valid: np.ndarray | None,
+    prob: Problem,
+    margin: float,
+    floor: tuple[float, float],
+) -> list[Cause]:
+    rate = float(1.0 / np.median(np.diff(ref.t)))
+    ok = np.ones(ref.t.shape[0], dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    ok = ok & np.all(np.isfinite(gyro), axis=1) & np.all(np.isfinite(acc), axis=1)
+    m = max(1, round(margin * rate))
+    ok[:m] = False
+    ok[-m:] = False
+    idx = np.flatnonzero(ok)
+    if idx.size < 20:
+        return []
+    g = np.where(np.isfinite(gyro), gyro, 0.0)
+    a = np.where(np.isfinite(acc), acc, 0.0)
+    sg, sa = noise_std(g, rate, idx), noise_std(a, rate, idx)
+    if np.all(sg < floor[0]) and np.all(sa < floor[1]):
+        return []
+    # Standard error of a std estimate from the halves of the trial (a crude block spread).
+    halves = np.array_split(idx, 2)
+    spread = np.abs(
+        np.concatenate([noise_std(g, rate, halves[0]), noise_std(a, rate, halves[0])])
+        - np.concatenate([noise_std(g, rate, halves[1]), noise_std(a, rate, halves[1])])
+    ) / 2
+    std = np.concatenate([sg, sa])
+    return [
+        Cause(
+            effect="noise",
+            params={
+                "std": [float(x) for x in std],
+                "gyro_density": [float(x) for x in sg / np.sqrt(rate)],
+                "acc_density": [float(x) for x in sa / np.sqrt(rate)],
+                "rate_hz": rate,
+            },
+            uncertainty={"std": [float(x) for x in spread]},
+            gain=0.0,
+            p_value=float("nan"),
+            signature=EFFECTS["noise"].signature
+            + f"; measured above {rate / 4:.0f} Hz; changes no expected reading, so no held-out gain",
+            explained=0.0,
+        )
+    ]
+
+
+class _NoBar:
+    def update(self, n: int) -> None:  # pragma: no cover - trivial
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress(enabled: bool, total: int):
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="effects", unit="effect", leave=False)
+
+
+def reference_of(rec: Recording, cutoff: float | None = 10.0) -> ReferenceMotion:
+    """The low-passed reference motion of a recording with ``ref_quat``/``ref_pos`` (motion capture)."""
+    if rec.ref_quat is None:
+        raise ValueError("the recording has no reference motion (ref_quat); a robot recording needs a model")
+    pos = rec.ref_pos if rec.ref_pos is not None else np.zeros((rec.n_samples, 3))
+    return reference_motion(rec.t, rec.ref_quat, pos, rec.gravity, cutoff)
+
+
+def analyze_recording(
+    rec: Recording, imu: int | str = 0, cutoff: float | None = 10.0, **kwargs: object
+) -> DiscrepancyReport:
+    """:func:`analyze` for one IMU of a recording with a reference motion.
+
+    ``extra['ref_valid']`` (samples with a trustworthy reference) is honoured when present.
+    """
+    k = rec.imu_names.index(imu) if isinstance(imu, str) else int(imu)
+    if not 0 <= k < rec.n_imus:
+        raise ValueError(f"imu {imu!r} not in {rec.imu_names}")
+    valid = rec.extra.get("ref_valid")
+    ref = reference_of(rec, cutoff)
+    rep = analyze(ref, rec.gyro[:, k], rec.acc[:, k], valid, cutoff=cutoff, **kwargs)  # type: ignore[arg-type]
+    meta = {"imu": rec.imu_names[k], "samples": rec.n_samples, "duration_s": rec.duration}
+    for key in ("attribution", "source"):
+        if key in rec.extra and rec.extra[key].shape == ():
+            meta[key] = str(rec.extra[key])
+    rep.meta.update(meta)
+    return rep
+
+
+class DiscrepancyAnalyzer:
+    """Estimator form of :func:`analyze` (scikit-learn style: settings in ``__init__``, ``fit`` -> self).
+
+    Learned: ``report_`` (:class:`~bodyschema.discrepancy.report.DiscrepancyReport`), ``params_``
+    (the fitted effects), ``causes_`` (their names in order).
+    """
+
+    def __init__(
+        self,
+        effects: Sequence[str] = FITTED_EFFECTS,
+        n_blocks: int = 8,
+        alpha: float = 0.01,
+        min_gain: float = 0.002,
+        cutoff: float | None = 10.0,
+        analysis_rate: float | None = 100.0,
+        margin: float = 0.25,
+        noise_floor: tuple[float, float] = (1e-4, 1e-3),
+        scale_floor: tuple[float, float] = (0.002, 0.02),
+        max_tries: int = 2,
+    ) -> None:
+        self.effects = effects
+        self.n_blocks = n_blocks
+        self.alpha = alpha
+        self.min_gain = min_gain
+        self.cutoff = cutoff
+        self.analysis_rate = analysis_rate
+        self.margin = margin
+        self.noise_floor = noise_floor
+        self.scale_floor = scale_floor
+        self.max_tries = max_tries
+
+    def _kwargs(self) -> dict[str, object]:
+        return {k: getattr(self, k) for k in (
+            "effects", "n_blocks", "alpha", "min_gain", "analysis_rate", "margin", "noise_floor",
+            "scale_floor", "max_tries")}
+
+    def fit(self, rec: Recording, imu: int | str = 0) -> DiscrepancyAnalyzer:
+        """Analyse one IMU of a recording with a reference motion."""
+        self.report_ = analyze_recording(rec, imu, cutoff=self.cutoff, **self._kwargs())
+        self.params_ = self.report_.params
+        self.causes_ = self.report_.names
+        return self
+
+    def predict(self, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+        """``(gyro, acc)`` (T, 3) the fitted model says the IMU reads for ``rec``'s reference motion."""
+        ref = reference_of(rec, self.cutoff)
+        return predict(ref, {k: v for k, v in self.params_.items() if k != "noise"})

@@ -1,0 +1,98 @@
+"""Hide one effect at random in a simulated recording: the analysis must name it and measure it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bodyschema.discrepancy import EFFECT_NAMES, analyze
+from bodyschema.discrepancy.inject import draw, inject
+from bodyschema.rigid_motion import reference_motion, smooth_random_motion
+
+
+def _motion(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return smooth_random_motion(30.0, 100.0, rng, max_rate=3.0, max_accel=2.0)
+
+
+def check_params(effect: str, true: dict, got: dict, scale: float = 1.0) -> None:
+    """Fitted vs injected parameters within tolerances a sensor calibration would accept.
+
+    ``scale`` loosens every tolerance (measured data carry more than the injected effect).
+    """
+    if effect == "time_offset":
+        assert got["seconds"] == pytest.approx(true["seconds"], abs=2e-4 * scale)
+    elif effect in ("gyro_bias",):
+        assert np.allclose(got["bias"], true["bias"], atol=1e-3 * scale)
+    elif effect == "acc_bias":
+        assert np.allclose(got["bias"], true["bias"], atol=1e-2 * scale)
+    elif effect in ("gyro_scale", "acc_scale"):
+        assert np.allclose(got["gain"], true["gain"], atol=1e-3 * scale)
+    elif effect == "mounting_rotation":
+        err = Rotation.from_rotvec(got["rotvec"]).inv() * Rotation.from_rotvec(true["rotvec"])
+        assert np.degrees(err.magnitude()) < 0.05 * scale
+    elif effect == "lever_arm":
+        assert np.allclose(got["meters"], true["meters"], atol=1e-3 * scale)
+    elif effect == "gravity":
+        assert np.allclose(got["vector"], true["vector"], atol=1e-2 * scale)
+    elif effect == "noise":
+        rate = got["rate_hz"]
+        want = np.concatenate([true["gyro_density"], true["acc_density"]]) * np.sqrt(rate)
+        assert np.allclose(got["std"], want, rtol=0.1 * scale)
+    else:  # pragma: no cover
+        raise AssertionError(effect)
+
+
+@pytest.mark.parametrize("effect", EFFECT_NAMES)
+def test_a_hidden_effect_is_named_and_measured(effect: str, rng: np.random.Generator) -> None:
+    m = _motion(rng)
+    true = draw(effect, rng)
+    gyro, acc = inject(effect, true, m["t"], m["gyro"], m["acc"], m["quat"], rng)
+    ref = reference_motion(m["t"], m["quat"], m["pos"], m["gravity"], cutoff=10.0)
+    rep = analyze(ref, gyro, acc)
+    assert rep.names == [effect], f"injected {effect} {true}, named {rep.names}"
+    check_params(effect, true, rep.params[effect])
+    cause = rep.cause(effect)
+    if effect != "noise":
+        # the held-out gain is most of the residual, and significant over the blocks
+        assert cause.gain > 0.9
+        assert cause.p_value < 0.01
+        assert rep.held_out["score_after"] < 0.1 * rep.held_out["score_before"]
+
+
+def test_nothing_is_named_in_a_clean_recording(rng: np.random.Generator) -> None:
+    m = _motion(rng)
+    ref = reference_motion(m["t"], m["quat"], m["pos"], m["gravity"], cutoff=10.0)
+    rep = analyze(ref, m["gyro"], m["acc"])
+    assert rep.names == []
+    assert rep.held_out["score_after"] == rep.held_out["score_before"]
+    assert rep.residual_before["gyro_rms"] < 2e-3 and rep.residual_before["acc_rms"] < 2e-2
+
+
+@pytest.mark.slow
+def test_two_hidden_effects_are_both_named(rng: np.random.Generator) -> None:
+    m = _motion(rng)
+    gyro, acc = m["gyro"], m["acc"]
+    truths = {e: draw(e, rng) for e in ("time_offset", "lever_arm")}
+    # the lever arm sits on the body, the time offset delays what the sensor reports
+    gyro, acc = inject("lever_arm", truths["lever_arm"], m["t"], gyro, acc, m["quat"], rng)
+    gyro, acc = inject("time_offset", truths["time_offset"], m["t"], gyro, acc, m["quat"], rng)
+    ref = reference_motion(m["t"], m["quat"], m["pos"], m["gravity"], cutoff=10.0)
+    rep = analyze(ref, gyro, acc)
+    assert set(rep.names) == set(truths)
+    for e, p in truths.items():
+        check_params(e, p, rep.params[e], scale=2.0)
+    assert sum(c.gain for c in rep.causes) > 0.95
+
+
+def test_unknown_effects_and_bad_shapes_are_refused(rng: np.random.Generator) -> None:
+    m = smooth_random_motion(5.0, 100.0, rng)
+    ref = reference_motion(m["t"], m["quat"], m["pos"])
+    with pytest.raises(ValueError, match="unknown"):
+        analyze(ref, m["gyro"], m["acc"], effects=["gyro_bias", "warp_drive"])
+    with pytest.raises(ValueError, match="shape"):
+        analyze(ref, m["gyro"][:-1], m["acc"])
+    bad = m["gyro"].copy()
+    bad[:] = np.nan
+    with pytest.raises(ValueError, match="no sample"):
+        analyze(ref, bad, m["acc"])
