@@ -172,9 +172,12 @@ def _joint_locked(sim: Simulation, joint: str | None = None) -> Finding:
     q = float(r.q()[r.joint_names.index(joint)])
     data = [q] + [0.0] * 11
     r.spec.add_equality(name=f"lock:{joint}", type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
-                        name1=joint, data=data, solref=[2 * r.model.opt.timestep, 1.0])
+                        name1=joint, data=data, solref=[2 * r.model.opt.timestep, 1.0],
+                        solimp=[0.99, 0.9999, 0.001, 0.5, 2.0])
     sim.locked.add(joint)
     sim.recompile()
+    # a seizure stops the joint at once (the constraint alone would let it coast a few ms)
+    r.data.qvel[r.dof_adr[r.joint_names.index(joint)]] = 0.0
     return Finding(kind="joint_locked", joint=joint, detail=f"seized at {q:.3f} rad")
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from simulators.robot import Robot
 
-__all__ = ["EXCITATIONS", "Excitation", "Hold", "Observable", "RandomTorque", "SineVelocity",
+__all__ = ["EXCITATIONS", "Excitation", "Hold", "Observable", "Poses", "RandomTorque", "SineVelocity",
            "excitation_rms", "make_excitation"]
 
 #: Paper Table I (UR5e): joint-velocity frequencies k (Hz) and phases y (rad).
@@ -249,16 +249,56 @@ class Hold(_Tracking):
         return zero, pos, zero
 
 
+class Poses(_Tracking):
+    """A new random pose every ``dwell`` seconds, reached by a smooth ``move`` (s) ramp and then held:
+    static readings in many orientations, as in a multi-position accelerometer calibration."""
+
+    name = "poses"
+
+    def __init__(self, dwell: float = 1.5, move: float = 0.7, amplitude: float = 1.2,
+                 bandwidth: float = 4.0) -> None:
+        super().__init__(bandwidth=bandwidth)
+        self.dwell = dwell
+        self.move = move
+        self.amplitude = amplitude
+
+    def _bind(self, robot: Robot, rng: np.random.Generator) -> None:
+        m = robot.model
+        lo, hi = self.q0_ - self.amplitude, self.q0_ + self.amplitude
+        for i, name in enumerate(robot.joint_names):
+            j = m.joint(name).id
+            if m.jnt_limited[j]:
+                lo[i] = max(lo[i], m.jnt_range[j][0] + 0.05)
+                hi[i] = min(hi[i], m.jnt_range[j][1] - 0.05)
+        self.lo_, self.hi_ = lo, hi
+        self.poses_: list[np.ndarray] = [self.q0_.copy()]
+
+    def targets(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        seg = np.floor(t / self.dwell + 1e-9).astype(np.int64)
+        while len(self.poses_) < int(seg.max(initial=0)) + 2:
+            self.poses_.append(self.rng_.uniform(self.lo_, self.hi_))
+        prev = np.array([self.poses_[max(s - 1, 0)] if s > 0 else self.poses_[0] for s in seg])
+        nxt = np.array([self.poses_[s] for s in seg]).reshape(len(t), self.n_joints_)
+        prev = prev.reshape(len(t), self.n_joints_)
+        u = np.clip((t - seg * self.dwell) / self.move, 0.0, 1.0)[:, None]
+        w = 0.5 - 0.5 * np.cos(np.pi * u)
+        dw = np.where((u > 0) & (u < 1), 0.5 * np.pi * np.sin(np.pi * u) / self.move, 0.0)
+        pos = prev + (nxt - prev) * w
+        vel = (nxt - prev) * dw
+        return np.zeros_like(pos), pos, vel
+
+
 EXCITATIONS: dict[str, type[Excitation]] = {
     "random-torque": RandomTorque,
     "sine": SineVelocity,
     "observable": Observable,
     "hold": Hold,
+    "poses": Poses,
 }
 
 
 def make_excitation(name: str | Excitation) -> Excitation:
-    """An excitation by name (``random-torque``, ``sine``, ``observable``, ``hold``) with defaults."""
+    """An excitation by name (``random-torque``, ``sine``, ``observable``, ``hold``, ``poses``)."""
     if isinstance(name, Excitation):
         return name
     try:

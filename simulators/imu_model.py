@@ -424,10 +424,11 @@ def finish(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Effects 7-8: white noise, then quantization and full-scale clipping."""
     g_std, a_std = p.noise_std(rate)
-    if p.flags["gyro_noise"]:
-        gyro = gyro + rng.standard_normal(gyro.shape) * g_std
-    if p.flags["acc_noise"]:
-        acc = acc + rng.standard_normal(acc.shape) * a_std
+    if p.flags["gyro_noise"] or p.flags["acc_noise"]:
+        # one draw, time-major: the noise of sample i does not depend on how samples are chunked
+        n = rng.standard_normal((gyro.shape[0], 2, *gyro.shape[1:]))
+        gyro = gyro + n[:, 0] * g_std
+        acc = acc + n[:, 1] * a_std
     if math.isfinite(p.gyro_range):
         gyro = np.clip(gyro, -p.gyro_range, p.gyro_range)
     if math.isfinite(p.acc_range):
