@@ -6,12 +6,16 @@ works from the most specific cause to the least, and every part a cause explains
 reported again:
 
 1. ``imu_dead`` — the IMU is silent, reports zeros or repeats one sample (signal health).
-2. ``encoder_fault`` — the joint's child link turns against its parent but the encoder is flat or does
+2. ``link_lost`` — the joint's encoder turns but no live IMU of its subtree depends on it any more
+   (where no IMU health could judge the joint: all of at least two subtree IMUs lost it).
+3. ``encoder_fault`` — the joint's child link turns against its parent but the encoder is flat or does
    not agree (signal health).
-3. ``joint_locked`` — the joint no longer moves (encoder flat, child link rigid with its parent) while
+4. ``joint_locked`` — the joint no longer moves (encoder flat, child link rigid with its parent) while
    other joints do, and it did move in the baseline.
-4. ``link_lost`` — every live IMU of a subtree (at least two, or the encoder still turns while its link
-   does not follow) no longer depends on the subtree's top joint.
+
+A joint-level cause claims its whole subtree's structure changes (an upstream fault scrambles the
+estimate below it), so one broken joint gives one finding.
+
 5. ``imu_detached`` / ``imu_moved`` — one IMU follows no joint any more / follows another joint.
 6. ``joint_reparented`` — a joint hangs under another joint than in the baseline.
 7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
@@ -103,20 +107,44 @@ def diff_bodies(
             findings.append(Finding("imu_dead", imu=imu, from_=joint, detail="silent"))
             claimed_imus.add(imu)
 
-    def claim_joint(j: str) -> None:
-        """A joint-level cause explains its own changes, its child link's IMUs and its children."""
-        claimed_joints.add(j)
-        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
-        claimed_joints.update(baseline.children(j))
+    def lost_below(j: str) -> tuple[list[str], list[str]]:
+        """Live (unclaimed) baseline IMUs of ``j``'s subtree, and those no longer depending on ``j``."""
+        sub = set(baseline.subtree(j))
+        live = [i for i, jj in baseline.imu_joint.items() if jj in sub and i not in claimed_imus]
+        return live, [i for i in live if not _depends(current, i, j)]
 
-    # 2./3. encoder faults and locked joints -------------------------------------------------------
+    def claim_subtree(j: str) -> None:
+        """A cause at ``j`` explains the subtree's structure changes: every joint below ``j`` and every
+        IMU below it that lost its dependency on ``j`` (an IMU that still depends on ``j`` but moved
+        within the subtree is judged on its own)."""
+        claimed_joints.update(baseline.subtree(j))
+        claimed_imus.update(lost_below(j)[1])
+        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
+
+    # 2.-4. joint-level causes from signal health ------------------------------------------------
+    judged: set[str] = set()
     if health is not None:
         moving = set(health.moving_joints)
         for j in order:
             jh = health.joints.get(j)
             if jh is None or j in claimed_joints:
                 continue
-            if jh.state in ("frozen_encoder", "wrong_encoder"):
+            if jh.state not in ("moving", "flat"):
+                judged.add(j)  # the IMUs on its link were judged: no structure-only verdict on it
+            live, lost = lost_below(j)
+            all_lost = bool(live) and len(lost) == len(live)
+            if jh.state in ("wrong_encoder", "unfollowed") and all_lost:
+                # the encoder turns, but nothing below follows it: the link broke off
+                findings.append(
+                    Finding(
+                        "link_lost",
+                        joint=j,
+                        from_=baseline.joint_parent[j],
+                        detail=f"{len(live)} IMUs no longer follow {j}",
+                    )
+                )
+                claim_subtree(j)
+            elif jh.state in ("frozen_encoder", "wrong_encoder"):
                 detail = (
                     "encoder flat while its link turns"
                     if jh.state == "frozen_encoder"
@@ -124,7 +152,7 @@ def diff_bodies(
                 )
                 c = 1.0 if jh.explained is None else max(0.5, 1.0 - jh.explained)
                 findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
-                claim_joint(j)
+                claim_subtree(j)
             elif jh.state in ("still", "flat"):
                 base_exc = baseline.excitation.get(j)
                 was_moving = base_exc is None or base_exc > th.excitation_rad_s
@@ -136,37 +164,33 @@ def diff_bodies(
                             detail=f"encoder {jh.excitation:.3f} rad/s while others move",
                         )
                     )
-                    claim_joint(j)
+                    claim_subtree(j)
     elif current.excitation:
-        # Structure only: a joint whose encoder went flat while others move, and which the current
-        # estimate cannot place, is locked (without IMU health an encoder fault reads the same).
+        # Structure only: a joint whose encoder went flat while others move is locked (without IMU
+        # health an encoder fault reads the same).
         moving = {j for j, e in current.excitation.items() if e > th.excitation_rad_s}
         for j in order:
             e = current.excitation.get(j)
             base_exc = baseline.excitation.get(j)
             if (
-                e is not None
+                j not in claimed_joints
+                and e is not None
                 and e <= th.excitation_rad_s
                 and moving - {j}
                 and (base_exc is None or base_exc > th.excitation_rad_s)
             ):
                 findings.append(Finding("joint_locked", joint=j, detail=f"encoder {e:.3f} rad/s"))
-                claim_joint(j)
+                claim_subtree(j)
 
     # 7 (first half). undecidable joints: nothing that hangs on them is judged ----------------------
     undecided = [j for j in current.undetermined if j in baseline.joint_parent and j not in claimed_joints]
 
-    # 4. lost links --------------------------------------------------------------------------------
+    # structure-only lost links (joints whose child link no IMU health could judge) ------------------
     for j in order:
-        if j in claimed_joints or j in undecided:
+        if j in claimed_joints or j in undecided or j in judged:
             continue
-        sub = set(baseline.subtree(j))
-        live = [i for i, jj in baseline.imu_joint.items() if jj in sub and i not in claimed_imus]
-        if not live:
-            continue
-        lost = [i for i in live if not _depends(current, i, j)]
-        unfollowed = health is not None and j in health.joints and health.joints[j].state == "unfollowed"
-        if len(lost) == len(live) and (len(live) >= th.min_link_imus or unfollowed):
+        live, lost = lost_below(j)
+        if live and len(lost) == len(live) and len(live) >= th.min_link_imus:
             findings.append(
                 Finding(
                     "link_lost",
@@ -175,8 +199,7 @@ def diff_bodies(
                     detail=f"{len(live)} IMUs no longer follow {j}",
                 )
             )
-            claimed_joints.update(sub)
-            claimed_imus.update(live)
+            claim_subtree(j)
 
     for j in undecided:
         if j in claimed_joints:
@@ -189,7 +212,9 @@ def diff_bodies(
                 detail="the window does not move this joint enough to place it",
             )
         )
-        claim_joint(j)
+        claimed_joints.add(j)
+        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
+        claimed_joints.update(baseline.children(j))
 
     # 5. single IMUs -------------------------------------------------------------------------------
     for imu, b in baseline.imu_joint.items():
@@ -201,7 +226,10 @@ def diff_bodies(
         if c in undecided or c in claimed_joints:
             continue
         if c is None and b is not None:
-            findings.append(Finding("imu_detached", imu=imu, from_=b, confidence=conf(f"imu:{imu}")))
+            # the estimator's confidence is in its (base) placement; report how sure "follows nothing" is
+            key = f"imu:{imu}"
+            sure = 1.0 if key not in current.confidence else min(1.0, max(0.5, 1.0 - conf(key)))
+            findings.append(Finding("imu_detached", imu=imu, from_=b, confidence=sure))
         else:
             findings.append(Finding("imu_moved", imu=imu, from_=b, to=c, confidence=conf(f"imu:{imu}")))
 

@@ -87,14 +87,16 @@ class HealthThresholds:
     ``frozen_fraction``: share of repeated consecutive samples that makes an IMU frozen.
     ``zero_abs``: readings below this magnitude (both acc and gyro) count as zero.
     ``min_samples``: fewer samples than this and nothing is judged.
+    ``max_pairs``: IMUs per link used for the relative-motion fits (each side).
     """
 
     excitation_rad_s: float = 0.05
     motion_rad_s: float = 0.05
-    explained: float = 0.5
+    explained: float = 0.8
     frozen_fraction: float = 0.9
     zero_abs: float = 1e-6
     min_samples: int = 20
+    max_pairs: int = 3
 
 
 @dataclass(frozen=True)
@@ -307,8 +309,16 @@ def signal_health(
             parent_joint = layout.joint_parent[j]
             parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in healthy)
             if child and (parent or parent_joint is None):
-                pg = rec.gyro[:, present[parent[0]], :] if parent else None
-                fits = [relative_motion(rec.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for c in child]
+                # Several references and subjects (a few each, to bound the cost): one moved or loose
+                # IMU on either link must not decide the joint. Per subject the best-explained fit wins.
+                refs = [rec.gyro[:, present[p], :] for p in parent[: th.max_pairs]] or [None]
+                fits = [
+                    max(
+                        (relative_motion(rec.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for pg in refs),
+                        key=lambda f: f[1],
+                    )
+                    for c in child[: th.max_pairs]
+                ]
                 states = [_joint_state(excitation, m, e, th) for m, e in fits]
                 # One IMU that agrees with the encoder clears the joint: a single moved or detached
                 # IMU on the link must not read as an encoder fault.

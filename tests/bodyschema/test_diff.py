@@ -146,9 +146,26 @@ def test_encoder_fault_frozen() -> None:
 
 
 def test_encoder_fault_wrong() -> None:
-    cur = topo(imus={"d1": "j1", "d2": "j1"}, joints={"j5": "j1"})
-    d = diff_bodies(BASE, cur, health(joints={"j4": "wrong_encoder"}))
+    # the link turns, the encoder disagrees, but the estimate still hangs the IMUs on j4
+    d = diff_bodies(BASE, topo(), health(joints={"j4": "wrong_encoder"}))
     assert kinds(d) == [("encoder_fault", "joint:j4")]
+
+
+def test_frozen_encoder_scrambling_the_subtree_is_one_finding() -> None:
+    # a stuck encoder high in the tree: the estimate loses every IMU below it
+    cur = topo(
+        joints={"j2": None, "j3": None},
+        imus={"b1": None, "b2": None, "c1": None, "c2": None},
+        undetermined=("j2",),
+    )
+    d = diff_bodies(BASE, cur, health(joints={"j2": "frozen_encoder"}, excitation={"j2": 0.0}))
+    assert kinds(d) == [("encoder_fault", "joint:j2")]
+
+
+def test_wrong_encoder_with_every_imu_below_lost_is_link_lost() -> None:
+    cur = topo(joints={"j5": None}, imus={"d1": None, "d2": None, "e1": None})
+    d = diff_bodies(BASE, cur, health(joints={"j4": "wrong_encoder"}))
+    assert kinds(d) == [("link_lost", "joint:j4")]
 
 
 def test_link_lost_subtree() -> None:
