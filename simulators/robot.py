@@ -129,7 +129,7 @@ class Robot:
     """
 
     def __init__(self, spec: mujoco.MjSpec, *, name: str | None = None, rate: float = 100.0,
-                 max_timestep: float = 0.005) -> None:
+                 max_timestep: float = 0.01) -> None:
         if not rate > 0:
             raise ValueError("rate must be > 0")
         self.spec = spec

@@ -80,6 +80,7 @@ class Simulation:
         self.last_kwargs: dict[str, Any] = {}
         self._samples = 0
         self._truth: tuple[tuple[str, ...], tuple[str, ...], np.ndarray] | None = None
+        self._ctrl_cache: tuple[int, np.ndarray] = (0, np.empty((0, self.robot.model.nu)))
 
     # ------------------------------------------------------------------ state
     @property
@@ -114,6 +115,17 @@ class Simulation:
         return inject(self, kind, **kwargs)
 
     # ------------------------------------------------------------------ running
+    def _ctrl(self, start: int, n: int) -> np.ndarray:
+        # Commands are a pure function of time: compute a second ahead and slice, so small chunks
+        # (the farm's) do not pay the excitation's per-call cost every time.
+        c0, block = self._ctrl_cache
+        if not (c0 <= start and start + n <= c0 + len(block)):
+            m = max(n, int(self.rate))
+            block = self.excitation.ctrl(self.robot, (start + np.arange(m)) / self.rate)
+            c0 = start
+            self._ctrl_cache = (c0, block)
+        return block[start - c0 : start - c0 + n]
+
     def advance(self, n_samples: int | None = None, *, seconds: float | None = None) -> Recording:
         """The next ``n_samples`` samples (or ``seconds`` worth) as a DESIGN §2 recording."""
         if n_samples is None:
@@ -125,7 +137,7 @@ class Simulation:
         r = self.robot
         t_cmd = (self._samples + np.arange(n_samples)) / self.rate
         poses = self.stream.needs_poses
-        s = r.sample(self.excitation.ctrl(r, t_cmd), poses=poses)
+        s = r.sample(self._ctrl(self._samples, n_samples), poses=poses)
         # sample times on the rate grid: the physics clock is the same up to float accumulation
         t = t_cmd
         acc, gyro = self.stream.process(t, s.acc, s.gyro, self.noise_rng,
