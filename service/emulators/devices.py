@@ -30,6 +30,8 @@ Example
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import logging
 import select
 import threading
@@ -114,21 +116,33 @@ class _PtyEmulator:
 
     def _run(self) -> None:
         out = memoryview(b"")
+        ends: list[int] = []  # byte offset where each sample of the group in flight ends
+        group_start = written = 0
         i, n = 0, len(self.chunks)
         t0: float | None = None
         reader_since: float | None = None
+        next_check, present = 0.0, False
         while not self._stop.is_set():
             fd = self.port.fileno()
             if fd < 0:
-                out = memoryview(b"")  # unplugged: what was in flight is gone
+                if out:  # unplugged mid-write: a partly written sample is lost on the wire, as are the
+                    done = bisect.bisect_right(ends, written)  # whole ones still in the pty buffer
+                    partial = done < len(ends) and written > (ends[done - 1] if done else 0)
+                    i = group_start + done + int(partial)
+                    self.sent = min(i, n)
+                    out, ends = memoryview(b""), []
                 reader_since = None
                 time.sleep(0.01)
                 continue
-            if not self.port.reader_present():
+            now = time.monotonic()
+            if now >= next_check:  # a poll per write would cost more than the write at full speed
+                present = self.port.reader_present()
+                next_check = now + 0.02
+            if not present:
                 reader_since = None  # nobody listening: a USB device would not be sending either
                 time.sleep(0.005)
+                next_check = 0.0
                 continue
-            now = time.monotonic()
             if reader_since is None:
                 reader_since = now
             if now - reader_since < self.SETTLE_S:
@@ -138,7 +152,7 @@ class _PtyEmulator:
                 t0 = now
             if not out and self._replies:
                 out, self._replies = memoryview(self._replies), b""
-                self._pending_end = i
+                ends, group_start, written = [], i, 0
             elif not out and i < n and self.streaming:
                 if self.speed > 0:
                     due = int((time.monotonic() - t0) * self.speed / self.period) + 1
@@ -150,8 +164,9 @@ class _PtyEmulator:
                         size += len(self.chunks[j])
                         j += 1
                 if j > i:
+                    ends = list(itertools.accumulate(len(c) for c in self.chunks[i:j]))
                     out = memoryview(b"".join(self.chunks[i:j]))
-                    self._pending_end = j
+                    group_start, written = i, 0
             wait = 0.002 if (self.speed > 0 and not out and i < n) else 0.05
             try:
                 r, w, _ = select.select([fd], [fd] if out else [], [], wait)
@@ -164,9 +179,12 @@ class _PtyEmulator:
             if w and out:
                 k = self.port.write_some(out)
                 out = out[k:]
+                written += k
+                if ends:
+                    self.sent = group_start + bisect.bisect_right(ends, written)
                 if not out:
-                    i = self._pending_end
-                    self.sent = i
+                    i = group_start + len(ends)
+                    ends = []
             if i >= n and not out:
                 self._done.set()
 

@@ -1,0 +1,234 @@
+"""Ingest throughput: frames/s each transport's ingestor sustains, against a humanoid's real-time rate.
+
+Paths measured, side by side in one run, on the same synthetic humanoid-size recording (default 25
+joints, 50 IMUs, 100 Hz; random-walk joints and IMU signals):
+
+- ``serial decode``: :class:`~service.ingest.serial.SerialSource` decoding frames from memory;
+- ``serial pty``: the serial emulator in its own process writing into a pty, the source reading it;
+- ``CAN decode+regroup``: :class:`~service.ingest.can_regroup.SampleAssembler` on frames from memory;
+- ``CAN slcan pty``: the slcan emulator in its own process, python-can's notifier thread and the CAN
+  source reading the pty (slcan parsing, decode, regroup).
+
+"× real time" is samples per second over the recording's rate: 10 means the ingestor keeps up with ten
+such robots, or with one robot ten times over.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bodyschema.recording import Recording
+from service.bench import RESULTS_DIR, machine_note
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--joints", type=int, default=25, help="joints of the robot (default humanoid: 25)")
+    parser.add_argument("--imus", type=int, default=50, help="IMUs of the robot (default humanoid: 50)")
+    parser.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    parser.add_argument("--seconds", type=float, default=20.0, help="length of the recording played")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+
+
+def _recording(n: int, k: int, rate: float, seconds: float, seed: int) -> Recording:
+    rng = np.random.default_rng(seed)
+    T = round(seconds * rate)
+    q = np.cumsum(rng.normal(0, 0.01, (T, n)), axis=0)
+    acc = rng.normal(0, 2, (T, k, 3)) + np.array([0, 0, 9.81])
+    gyro = np.cumsum(rng.normal(0, 0.02, (T, k, 3)), axis=0).clip(-30, 30)
+    return Recording(t=np.arange(T) / rate, joint_names=[f"joint{i}" for i in range(n)], q=q,
+                     imu_names=[f"imu{i}" for i in range(k)], acc=acc, gyro=gyro)
+
+
+def _log(msg: str) -> None:
+    print(f"[bench ingest] {msg}", file=sys.stderr, flush=True)
+
+
+def _serial_decode(rec: Recording) -> tuple[float, int]:
+    from service.emulators.devices import SerialEmulator
+    from service.ingest.device import DeviceConfig
+    from service.ingest.serial import SerialSource
+
+    chunks = SerialEmulator._encode(_Shim(rec))  # type: ignore[arg-type]
+    wire = b"".join(chunks)
+    cfg = DeviceConfig("bench", 1 / rec.sample_rate, rec.joint_names, rec.imu_names)
+    src = SerialSource("loop://", cfg)
+    t0 = time.perf_counter()
+    n = 0
+    for off in range(0, len(wire), 4096):
+        n += sum(b.n_samples for b in src.decode(wire[off:off + 4096]))
+    dt = time.perf_counter() - t0
+    src.close()
+    return dt, n
+
+
+class _Shim:
+    """Enough of an emulator for its encoder to run without a pty."""
+
+    def __init__(self, rec: Recording) -> None:
+        from service.emulators.devices import sample_counters
+
+        self.rec = rec
+        self.counters, self.period = sample_counters(rec)
+
+
+def _can_decode(rec: Recording) -> tuple[float, int, int]:
+    from service.ingest.can_layout import encode_samples
+    from service.ingest.can_mapping import SignalMap
+    from service.ingest.can_regroup import SampleAssembler
+    from service.ingest.device import DeviceConfig
+
+    cfg = DeviceConfig("bench", 1 / rec.sample_rate, rec.joint_names, rec.imu_names)
+    ids, data = encode_samples(np.arange(rec.n_samples), rec.q, rec.acc, rec.gyro)
+    F = len(ids)
+    all_ids = np.tile(ids, rec.n_samples).tolist()
+    flat = data.reshape(-1, 8)
+    datas = [flat[i].tobytes() for i in range(len(flat))]
+    asm = SampleAssembler(SignalMap.for_config(cfg))
+    t0 = time.perf_counter()
+    n = 0
+    step = 2048
+    for off in range(0, len(all_ids), step):
+        asm.add_many(all_ids[off:off + step], datas[off:off + step])
+        n += sum(b.n_samples for b in asm.take())
+    n += sum(b.n_samples for b in asm.take(flush=True))
+    return time.perf_counter() - t0, n, F
+
+
+def _pty(kind: str, rec_path: Path, rec: Recording, tmp: Path) -> tuple[float, int, dict]:
+    """Run the emulator in its own process; time from the first sample read to the last."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.emulators", kind, "--recording", str(rec_path), "--speed", "0",
+         "--robot", "bench", "--config-out", str(tmp / f"{kind}.json"), "--linger", "30"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        fields = dict(kv.split("=", 1) for kv in proc.stdout.readline().split())
+        spec = fields["source"]
+        if kind == "can":
+            from service.ingest.can import open_from_spec
+        else:
+            from service.ingest.serial import open_from_spec
+        src = open_from_spec(spec.partition(":")[2])
+        n, t_first, t_last = 0, None, None
+        deadline = time.monotonic() + 300
+        while n < rec.n_samples and time.monotonic() < deadline:
+            got = src.read(0.5)
+            k = sum(b.n_samples for b in got)
+            if k:
+                now = time.perf_counter()
+                t_first = t_first or now
+                t_last = now
+                n += k
+        counters = src.counters.as_dict()
+        src.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    if t_first is None or t_last is None or n < 2:
+        raise RuntimeError(f"{kind} pty: no samples came through")
+    # samples after the first read, over the time they took
+    return t_last - t_first, n - 1, counters
+
+
+def run(args: argparse.Namespace) -> Path:
+    from service.ingest.can_layout import frame_ids
+
+    rec = _recording(args.joints, args.imus, args.rate, args.seconds, args.seed)
+    F = len(frame_ids(args.joints, args.imus))
+    rate = args.rate
+    rows: list[dict] = []
+
+    def add(path: str, frames_per_sample: int, dt: float, n: int, note: str = "") -> None:
+        sps = n / dt
+        rows.append({"path": path, "samples": n, "seconds": round(dt, 3),
+                     "frames_per_s": round(sps * frames_per_sample), "samples_per_s": round(sps),
+                     "x_real_time": round(sps / rate, 1), "note": note})
+        _log(f"{path}: {sps * frames_per_sample:,.0f} frames/s, {sps / rate:.1f}x real time")
+
+    _log(f"robot: {args.joints} joints, {args.imus} IMUs at {rate:g} Hz; {rec.n_samples} samples; "
+         f"CAN {F} frames/sample, serial 1 frame/sample")
+    dt, n = _serial_decode(rec)
+    add("serial decode (memory)", 1, dt, n)
+    dt, n, _ = _can_decode(rec)
+    add("CAN decode+regroup (memory)", F, dt, n)
+    with tempfile.TemporaryDirectory(prefix="bench-ingest-") as tmpdir:
+        tmp = Path(tmpdir)
+        from simulators.recording_io import save_recording
+
+        save_recording(rec, tmp / "rec.npz")
+        dt, n, c = _pty("serial", tmp / "rec.npz", rec, tmp)
+        add("serial pty (emulator process)", 1, dt, n, f"crc_errors={c.get('crc_errors', 0)}, "
+            f"gaps={c.get('sequence_gaps', 0)}")
+        dt, n, c = _pty("can", tmp / "rec.npz", rec, tmp)
+        add("CAN slcan pty (emulator process)", F, dt, n, f"frames_missing={c.get('frames_missing', 0)}, "
+            f"decode_errors={c.get('decode_errors', 0)}")
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    md = args.out / "ingest.md"
+    lines = [
+        "# bench ingest",
+        "",
+        f"Machine: {machine_note()}  ",
+        f"Robot: humanoid-size, {args.joints} joints, {args.imus} IMUs at {rate:g} Hz "
+        f"({rec.n_samples} samples, synthetic signals); CAN: {F} classic frames per sample "
+        f"({F * rate:,.0f} frames/s in real time), serial: 1 frame "
+        f"({12 + 4 * args.joints + 12 * args.imus + 4} B) per sample.  ",
+        "Command: `bodyhealth bench ingest` "
+        + " ".join(f"--{k} {v}" for k, v in (("joints", args.joints), ("imus", args.imus), ("rate", rate),
+                                                ("seconds", args.seconds))),
+        "",
+        "| path | frames/s | samples/s | × real time | note |",
+        "|---|---:|---:|---:|---|",
+        *[f"| {r['path']} | {r['frames_per_s']:,} | {r['samples_per_s']:,} | {r['x_real_time']} "
+          f"| {r['note']} |" for r in rows],
+        "",
+        "pty paths: the emulator runs in its own process with `--speed 0` (as fast as the reader takes it);",
+        "time runs from the first sample read to the last. The machine is shared, so numbers move between",
+        "runs by tens of percent.",
+        "",
+    ]
+    md.write_text("\n".join(lines), encoding="utf-8")
+    (args.out / "ingest.json").write_text(json.dumps({"machine": machine_note(), "rows": rows,
+                                                      "joints": args.joints, "imus": args.imus,
+                                                      "rate": rate, "can_frames_per_sample": F}, indent=1))
+    _plot(rows, args.out / "ingest.png")
+    print("\n".join(lines))
+    return md
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3))
+    names = [r["path"] for r in rows]
+    ax.barh(names, [r["x_real_time"] for r in rows], color="#4a7ab5")
+    ax.axvline(10, color="#b54a4a", ls="--", label="10× real time")
+    ax.set_xscale("log")
+    ax.set_xlabel("× real time (humanoid)")
+    ax.invert_yaxis()
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    run(p.parse_args())
+    os._exit(0)
