@@ -116,7 +116,8 @@ def _apply_matrix(x: np.ndarray, m: np.ndarray) -> np.ndarray:
             return x * m  # per-IMU diagonal (K, 3)
         raise ValueError(f"matrix must be (3,), (3, 3), (K, 3) or (K, 3, 3), got {m.shape}")
     if m.ndim == 3 and m.shape[1:] == (3, 3) and x.ndim == 3 and m.shape[0] == x.shape[1]:
-        return np.einsum("kij,tkj->tki", m, x)
+        # y[t, k] = m[k] @ x[t, k] as one batched matmul over IMUs (fastest numpy form for 3x3s)
+        return np.matmul(x.transpose(1, 0, 2), m.transpose(0, 2, 1)).transpose(1, 0, 2)
     raise ValueError(f"matrix {m.shape} does not fit a signal of shape {x.shape}")
 
 
@@ -164,7 +165,7 @@ def rotate(x: ArrayLike, rotvec: ArrayLike) -> np.ndarray:
         return xs @ r
     if xs.ndim != 3 or xs.shape[1] != r.shape[0]:
         raise ValueError(f"per-IMU rotvec {r.shape[:1]} does not fit a signal of shape {xs.shape}")
-    return np.einsum("kji,tkj->tki", r, xs)
+    return np.matmul(xs.transpose(1, 0, 2), r).transpose(1, 0, 2)  # y[t, k] = x[t, k] @ r[k]
 
 
 def angular_acceleration(t: ArrayLike, gyro: ArrayLike) -> np.ndarray:

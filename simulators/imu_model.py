@@ -83,6 +83,8 @@ __all__ = [
     "ImuParams",
     "ImuStream",
     "apply",
+    "distort",
+    "finish",
     "load_imu_model",
     "resolve_imu_model",
     "save_imu_model",
@@ -338,6 +340,21 @@ class ImuParams:
         z = np.zeros((K, 3))
         return cls(imu_names, np.zeros(K), eye, eye.copy(), z, z.copy(), z.copy(), z.copy())
 
+    def finishing(self, rate: float) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """Noise std (2, 3), full scale (2, 1) and resolution (2, 1) for stacked (gyro, acc), or None
+        where the effect is absent; cached per rate (the farm asks every chunk)."""
+        cache = self.__dict__.setdefault("_finishing", {})
+        if rate not in cache:
+            g, a = self.noise_std(rate)
+            f = self.flags
+            std = np.stack([g, a]) if (f["gyro_noise"] or f["acc_noise"]) else None
+            full = (np.array([[self.gyro_range], [self.acc_range]])
+                    if math.isfinite(self.gyro_range) or math.isfinite(self.acc_range) else None)
+            lsb = (np.array([[self.gyro_lsb], [self.acc_lsb]])
+                   if self.gyro_lsb > 0 or self.acc_lsb > 0 else None)
+            cache[rate] = (std, full, lsb)
+        return cache[rate]
+
     def noise_std(self, rate: float) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample white-noise std (gyro, acc) at ``rate`` Hz."""
         if self.noise_kind == "std":
@@ -385,21 +402,16 @@ class ImuParams:
 
 
 # ------------------------------------------------------------------------------- forward model
-def distort(
+def _pointwise(
     p: ImuParams,
     t: np.ndarray,
     acc: np.ndarray,
     gyro: np.ndarray,
-    *,
-    gyro_dot: np.ndarray | None = None,
-    R: np.ndarray | None = None,
-    world_gravity: np.ndarray | None = None,
+    gyro_dot: np.ndarray | None,
+    R: np.ndarray | None,
+    world_gravity: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Effects 1-6 (deterministic) on ideal ``acc``/``gyro`` (T,K,3).
-
-    ``R`` (T,K,3,3) and ``world_gravity`` are needed for a ``gravity`` effect, ``gyro_dot`` (T,K,3)
-    for a lever arm (estimated by central differences of ``gyro`` when absent).
-    """
+    """Effects 1-3, which need the rotations / angular accelerations of the same samples."""
     acc = np.asarray(acc, dtype=np.float64)
     gyro = np.asarray(gyro, dtype=np.float64)
     flags = p.flags
@@ -412,46 +424,82 @@ def distort(
         acc = fx.lever_arm(acc, gyro, wd, p.lever_arm)
     if flags["rotvec"]:
         acc, gyro = fx.rotate(acc, p.rotvec), fx.rotate(gyro, p.rotvec)
-    if flags["gyro_matrix"] or flags["gyro_bias"] or flags["acc_matrix"] or flags["acc_bias"]:
-        # both triads of every IMU as 2K sensors: one affine call instead of two
-        T, K = gyro.shape[0], gyro.shape[1]
-        both = np.stack([gyro, acc], axis=2).reshape(T, 2 * K, 3)
-        both = fx.affine(both, p.stacked_matrix, p.stacked_bias).reshape(T, K, 2, 3)
-        gyro, acc = both[:, :, 0], both[:, :, 1]
-    if flags["time_offset"] and len(t) > 1:
-        acc, gyro = acc.copy(), gyro.copy()
-        for off in np.unique(p.time_offset):
-            if off == 0.0:
-                continue
-            k = p.time_offset == off
-            acc[:, k] = fx.time_shift(t, acc[:, k], float(off))
-            gyro[:, k] = fx.time_shift(t, gyro[:, k], float(off))
     return acc, gyro
+
+
+# The remaining effects work on both triads of every IMU stacked as (T, K, 2, 3) (gyro first): one
+# numpy call per effect instead of two.
+def _sensitivity(p: ImuParams, both: np.ndarray) -> np.ndarray:
+    """Effects 4-5: sensitivity matrix and bias."""
+    f = p.flags
+    if not (f["gyro_matrix"] or f["gyro_bias"] or f["acc_matrix"] or f["acc_bias"]):
+        return both
+    T, K = both.shape[:2]
+    out = fx.affine(both.reshape(T, 2 * K, 3), p.stacked_matrix, p.stacked_bias)
+    return out.reshape(T, K, 2, 3)
+
+
+def _shift(p: ImuParams, t: np.ndarray, both: np.ndarray) -> np.ndarray:
+    """Effect 6: time offset (per IMU)."""
+    if not p.flags["time_offset"] or len(t) < 2:
+        return both
+    both = both.copy()
+    for off in np.unique(p.time_offset):
+        if off == 0.0:
+            continue
+        k = p.time_offset == off
+        both[:, k] = fx.time_shift(t, both[:, k], float(off))
+    return both
+
+
+def _finish(p: ImuParams, both: np.ndarray, rate: float, rng: np.random.Generator) -> np.ndarray:
+    """Effects 7-8: white noise, then full-scale clipping and quantization."""
+    std, full_scale, lsb = p.finishing(rate)
+    if std is not None:
+        # one time-major draw: the noise of sample i does not depend on how samples are chunked
+        both = both + rng.standard_normal(both.shape, dtype=np.float32) * std
+    if full_scale is not None:
+        both = np.clip(both, -full_scale, full_scale)
+    if lsb is not None:
+        if np.all(lsb > 0):
+            both = np.rint(both * (1.0 / lsb)) * lsb  # fx.quantize, without its zero-step handling
+        else:
+            both = fx.quantize(both, lsb)
+    return both
+
+
+def _stack(acc: np.ndarray, gyro: np.ndarray) -> np.ndarray:
+    return np.stack([gyro, acc], axis=2)
+
+
+def distort(
+    p: ImuParams,
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyro: np.ndarray,
+    *,
+    gyro_dot: np.ndarray | None = None,
+    R: np.ndarray | None = None,
+    world_gravity: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Effects 1-6 (deterministic) on ideal ``acc``/``gyro`` (T,K,3); returns (acc, gyro).
+
+    ``R`` (T,K,3,3) and ``world_gravity`` are needed for a ``gravity`` effect, ``gyro_dot`` (T,K,3)
+    for a lever arm (estimated by central differences of ``gyro`` when absent).
+    """
+    a, g = _pointwise(p, t, acc, gyro, gyro_dot, R, world_gravity)
+    both = _shift(p, np.asarray(t, dtype=np.float64), _sensitivity(p, _stack(a, g)))
+    return both[:, :, 1], both[:, :, 0]
 
 
 def finish(
     p: ImuParams, acc: np.ndarray, gyro: np.ndarray, rate: float, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Effects 7-8: white noise, then quantization and full-scale clipping."""
-    g_std, a_std = p.noise_std(rate)
-    f = p.flags
-    quant = p.gyro_lsb > 0 or p.acc_lsb > 0
-    clip = math.isfinite(p.gyro_range) or math.isfinite(p.acc_range)
-    if not (f["gyro_noise"] or f["acc_noise"] or quant or clip):
+    """Effects 7-8: white noise, then quantization and full-scale clipping; returns (acc, gyro)."""
+    if all(x is None for x in p.finishing(rate)):
         return acc, gyro
-    both = np.stack([gyro, acc], axis=2)  # (T, K, 2, 3)
-    if f["gyro_noise"] or f["acc_noise"]:
-        # one time-major draw: the noise of sample i does not depend on how samples are chunked
-        both += rng.standard_normal(both.shape) * np.stack([g_std, a_std])
-    if clip:
-        rng_ = np.array([[p.gyro_range], [p.acc_range]])
-        np.clip(both, -rng_, rng_, out=both)
-    if quant:
-        lsb = np.array([[p.gyro_lsb], [p.acc_lsb]])
-        if np.all(lsb > 0):
-            both = np.round(both / lsb) * lsb  # fx.quantize, without its zero-step handling
-        else:
-            both = fx.quantize(both, lsb)
+    both = _finish(p, _stack(np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64)),
+                   rate, rng)
     return both[:, :, 1], both[:, :, 0]
 
 
@@ -484,14 +532,10 @@ class ImuStream:
         self.world_gravity = np.asarray(world_gravity, dtype=np.float64)
         self.history = math.ceil(float(np.max(np.abs(params.time_offset), initial=0.0)) * rate) + 2
         self._t = np.empty(0)
-        self._acc = np.empty((0, len(params.imu_names), 3))
-        self._gyro = np.empty((0, len(params.imu_names), 3))
+        self._hist = np.empty((0, len(params.imu_names), 2, 3))
         self.dead: dict[int, str] = {}
-        self._last_acc = np.zeros((len(params.imu_names), 3))
-        self._last_gyro = np.zeros((len(params.imu_names), 3))
-        self._frozen: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._pointwise = replace(params, time_offset=np.zeros_like(params.time_offset))
-        self._shift_only = replace(ImuParams.identity(params.imu_names), time_offset=params.time_offset)
+        self._last = np.zeros((len(params.imu_names), 2, 3))
+        self._frozen: dict[int, np.ndarray] = {}
 
     @property
     def needs_poses(self) -> bool:
@@ -503,7 +547,7 @@ class ImuStream:
         if mode not in ("frozen", "zero"):
             raise ValueError("mode must be 'frozen' or 'zero'")
         self.dead[index] = mode
-        self._frozen[index] = (self._last_acc[index].copy(), self._last_gyro[index].copy())
+        self._frozen[index] = self._last[index].copy()
 
     def process(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, rng: np.random.Generator, *,
                 gyro_dot: np.ndarray | None = None,
@@ -513,27 +557,21 @@ class ImuStream:
         if T == 0:
             return acc.copy(), gyro.copy()
         # pointwise effects first (they need R / gyro_dot of these very samples) ...
-        a, g = distort(self._pointwise, t, acc, gyro, gyro_dot=gyro_dot, R=R,
-                       world_gravity=self.world_gravity)
+        a, g = _pointwise(p, t, acc, gyro, gyro_dot, R, self.world_gravity)
+        both = _sensitivity(p, _stack(a, g))
         # ... then the time shift over history + chunk
         if p.flags["time_offset"]:
             ht = np.concatenate([self._t, t])
-            ha = np.concatenate([self._acc, a])
-            hg = np.concatenate([self._gyro, g])
-            sa, sg = distort(self._shift_only, ht, ha, hg)
-            self._t, self._acc, self._gyro = ht[-self.history:], ha[-self.history:], hg[-self.history:]
-            a, g = sa[-T:], sg[-T:]
-        a, g = finish(p, a, g, self.rate, rng)
-        for k, mode in self.dead.items():
-            if mode == "zero":
-                a[:, k] = 0.0
-                g[:, k] = 0.0
-            else:
-                fa, fg = self._frozen[k]
-                a[:, k] = fa
-                g[:, k] = fg
-        self._last_acc, self._last_gyro = a[-1].copy(), g[-1].copy()
-        return a, g
+            hb = np.concatenate([self._hist, both])
+            both = _shift(p, ht, hb)[-T:]
+            self._t, self._hist = ht[-self.history:], hb[-self.history:]
+        both = _finish(p, both, self.rate, rng)
+        if self.dead:
+            both = both.copy() if not both.flags.writeable else both
+            for k, mode in self.dead.items():
+                both[:, k] = 0.0 if mode == "zero" else self._frozen[k]
+        self._last = both[-1].copy()
+        return both[:, :, 1], both[:, :, 0]
 
 
 # ------------------------------------------------------------------------------- presets and files

@@ -315,25 +315,33 @@ class Robot:
         integrate, rest = self._integrate, self.substeps - 1
         forward, step = mujoco.mj_forward, mujoco.mj_step
         opt = m.opt
-        off = int(opt.disableflags)
-        on = off & ~int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
-        for i in range(T):
-            d.ctrl[:] = ctrl[i]
-            # sensors only at the sampling instant: evaluating them every timestep costs more
-            # than the physics of a small robot
-            opt.disableflags = on
-            forward(m, d)
+        on = int(opt.disableflags) & ~int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        off = on | int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        # sensors only at the sampling instants: evaluating them at every timestep costs more than
+        # the physics of a small robot (with one step per sample they simply stay on)
+        opt.disableflags = on
+        # views into MjData, bound once (each attribute access builds a new array object)
+        d_ctrl, d_qpos, d_qvel, d_sens, d_xmat, d_cacc = (
+            d.ctrl, d.qpos, d.qvel, d.sensordata, d.site_xmat, d.cacc)
+        t0 = d.time
+        try:
+            for i in range(T):
+                d_ctrl[:] = ctrl[i]
+                forward(m, d)
+                qpos[i] = d_qpos
+                qvel[i] = d_qvel
+                sens[i] = d_sens
+                if poses:
+                    xmat[i] = d_xmat  # type: ignore[index]
+                    cacc[i] = d_cacc  # type: ignore[index]
+                integrate(m, d)
+                if rest:
+                    opt.disableflags = off
+                    step(m, d, nstep=rest)
+                    opt.disableflags = on
+        finally:
             opt.disableflags = off
-            t[i] = d.time
-            qpos[i] = d.qpos
-            qvel[i] = d.qvel
-            sens[i] = d.sensordata
-            if poses:
-                xmat[i] = d.site_xmat  # type: ignore[index]
-                cacc[i] = d.cacc  # type: ignore[index]
-            integrate(m, d)
-            if rest:
-                step(m, d, nstep=rest)
+        t[:] = t0 + np.arange(T) * (self.substeps * m.opt.timestep)
         K = len(self.site_ids)
         if poses:
             R = xmat[:, self.site_ids].reshape(T, K, 3, 3)  # type: ignore[index]

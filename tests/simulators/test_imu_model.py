@@ -213,3 +213,11 @@ def test_identity_params_change_nothing(rng: np.random.Generator) -> None:
     x = rng.normal(size=(5, 1, 3))
     a, g = apply(p, np.arange(5) * 0.01, x, x, rate=100.0, rng=rng)
     assert np.array_equal(a, x) and np.array_equal(g, x)
+
+
+def test_sample_rate_effect_sets_the_recording_rate(seed: int) -> None:
+    model = ImuModel("fast", (("sample_rate", {"hz": 250.0}),))
+    sim = Simulation("ur5e", seed=seed, imu_model=model)
+    rec = sim.advance(seconds=0.2)
+    assert rec.n_samples == 50 and rec.sample_rate == pytest.approx(250.0)
+    assert sim.robot.model.opt.timestep == pytest.approx(1 / 250.0)
