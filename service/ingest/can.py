@@ -171,7 +171,8 @@ class CanSource(Source):
     """A :class:`~service.ingest.base.Source` decoding CAN frames from ``bus_factory()``.
 
     ``bus_factory`` opens the bus (called again on every reconnect); ``horizon`` is how many samples a
-    frame may lag the newest before its sample is released without it; ``idle_flush_s`` releases pending
+    frame may lag the newest before its sample is released without it; ``incomplete`` is the policy for
+    such samples (``"drop"`` or ``"partial"``, see :mod:`can_regroup`); ``idle_flush_s`` releases pending
     samples when the bus has been silent that long (measured on the host clock, used for nothing else);
     ``backoff`` is (first, max) seconds between reopen attempts.
     """
@@ -183,6 +184,7 @@ class CanSource(Source):
         *,
         signal_map: SignalMap | None = None,
         horizon: int = 4,
+        incomplete: str = "drop",
         idle_flush_s: float = 0.5,
         backoff: tuple[float, float] = (0.05, 2.0),
         name: str | None = None,
@@ -190,7 +192,7 @@ class CanSource(Source):
         super().__init__(name or f"can:{config.robot}")
         self.config = config
         self.signal_map = signal_map or SignalMap.for_config(config)
-        self._asm = SampleAssembler(self.signal_map, horizon=horizon)
+        self._asm = SampleAssembler(self.signal_map, horizon=horizon, incomplete=incomplete)
         self._cond = threading.Condition()
         self._frames: list[tuple[int, bytearray]] = []
         #: queued frames that wake the reader before ``batch_s`` is up; batches amortise the numpy decode
@@ -309,7 +311,9 @@ class CanSource(Source):
 
 
 def open_from_spec(rest: str) -> Source:
-    """``can:INTERFACE:CHANNEL?config=PATH[&bitrate=N][&horizon=N]`` (the part after ``can:``).
+    """``can:INTERFACE:CHANNEL?config=PATH[&bitrate=N][&horizon=N][&incomplete=drop|partial]``.
+
+    (The part after ``can:``.)
 
     Examples: ``virtual:bench?config=ur5e.json``, ``slcan:/dev/pts/7?config=ur5e.json``,
     ``socketcan:can0?config=robot.json``. Instead of ``config`` the names may be inline
@@ -336,5 +340,7 @@ def open_from_spec(rest: str) -> Source:
     if "sleep_after_open" in params:
         kwargs["sleep_after_open"] = float(params["sleep_after_open"])
     signal_map = SignalMap.for_config(config, load_dbc(config.extra.get("can", {}).get("dbc")))
+    can_section = config.extra.get("can", {})
     return CanSource(config, lambda: open_bus(interface, channel, **kwargs), signal_map=signal_map,
-                     horizon=int(params.get("horizon", 4)))
+                     horizon=int(params.get("horizon", can_section.get("horizon", 4))),
+                     incomplete=params.get("incomplete", can_section.get("incomplete", "drop")))

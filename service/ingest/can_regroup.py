@@ -4,12 +4,14 @@ Frames of one sampling instant share a counter value. A sample is released when 
 arrived, or when the newest counter seen is ``horizon`` samples ahead of it (its missing frames are taken
 as lost), always in counter order so time never goes backwards.
 
-What happens to an incomplete sample (documented policy):
+What happens to an incomplete sample is the ``incomplete`` policy:
 
-- every joint frame present, some IMU frames missing: the sample is **used** without the IMUs that miss
-  an accelerometer or gyroscope frame (``samples_incomplete``); the other IMUs and the joints are kept;
-- a joint frame missing: the sample is **dropped** (``samples_dropped``), since a joint position cannot
-  be left out of a sample.
+- ``"drop"`` (default): the sample is dropped (``samples_dropped``). The store leaves an IMU out of a
+  whole window when it is missing from part of it, so using a sample without one IMU would make that
+  IMU vanish from the window; a missing sample costs nothing of the kind (time stamps keep the gap).
+- ``"partial"``: with every joint frame present, the sample is **used** without the IMUs that miss an
+  accelerometer or gyroscope frame (``samples_incomplete``); with a joint frame missing it is dropped
+  (``samples_dropped``), since a joint position cannot be left out of a sample.
 
 ``frames_missing`` counts the frames that never came. A frame for a sample already released is
 ``late_frames``; a repeat of a frame already held is ``duplicate_frames``; a frame shorter than its DBC
@@ -29,7 +31,7 @@ Example
 >>> from service.ingest.can_mapping import SignalMap
 >>> from service.ingest.device import DeviceConfig
 >>> cfg = DeviceConfig("r1", 0.01, ("j1",), ("imu0",))
->>> asm = SampleAssembler(SignalMap.for_config(cfg))
+>>> asm = SampleAssembler(SignalMap.for_config(cfg), incomplete="partial")
 >>> ids, data = encode_samples(np.array([5, 6]), np.array([[0.1], [0.2]]), np.ones((2, 1, 3)),
 ...                            np.zeros((2, 1, 3)))
 >>> for t in range(2):
@@ -106,9 +108,13 @@ class SampleAssembler:
 
     Not thread-safe: one thread feeds and takes (the CAN source's reader thread)."""
 
-    def __init__(self, signal_map: SignalMap, horizon: int = 4, reset_after: int = 256) -> None:
+    def __init__(self, signal_map: SignalMap, horizon: int = 4, reset_after: int = 256,
+                 incomplete: str = "drop") -> None:
         if horizon < 1:
             raise ValueError("horizon must be >= 1")
+        if incomplete not in ("drop", "partial"):
+            raise ValueError(f"incomplete must be 'drop' or 'partial', got {incomplete!r}")
+        self.incomplete = incomplete
         self.map = signal_map
         self.horizon = horizon
         self.clock = DeviceClock(bits=signal_map.counter_bits, reset_after=reset_after)
@@ -293,7 +299,7 @@ class SampleAssembler:
                 self._ready.append((idx, vals, self._all_imus))
                 continue
             self.counts["frames_missing"] += int(self._nf - seen.sum())
-            if not seen[self._joint_pos].all():
+            if self.incomplete == "drop" or not seen[self._joint_pos].all():
                 self.counts["samples_dropped"] += 1
                 continue
             present = tuple(bool(seen[p].all()) for p in self._imu_pos)

@@ -137,13 +137,15 @@ BO_ 1281 ImuAll: 8 DEV
     assert batches[0].robot == "rover"
 
 
-@pytest.mark.parametrize("channel", ["faults"])
-def test_faults_are_counted_and_never_stored(rng, channel):
+@pytest.mark.parametrize("policy", ["partial", "drop"])
+def test_faults_are_counted_and_never_stored(rng, policy):
+    channel = f"faults-{policy}"
     T = 600
     q, acc, gyro = _data(rng, T)
     ids, data = encode_samples(np.arange(T) + 1000, q, acc, gyro)
     F = len(ids)
-    src = CanSource(CFG, lambda: can.Bus(interface="virtual", channel=channel), idle_flush_s=0.2)
+    src = CanSource(CFG, lambda: can.Bus(interface="virtual", channel=channel), idle_flush_s=0.2,
+                    incomplete=policy)
     tx = can.Bus(interface="virtual", channel=channel)
     lost = rng.random((T, F)) < 0.01          # 1 % of frames never arrive
     short = (rng.random((T, F)) < 0.003) & ~lost  # these arrive with a short DLC instead
@@ -167,7 +169,7 @@ def test_faults_are_counted_and_never_stored(rng, channel):
             tx.send(can.Message(arbitration_id=int(ids[f]), data=payload, is_extended_id=False))
     missing = lost | short
     joint_cols = np.flatnonzero(ids < IMU_ACC_BASE)
-    dropped = missing[:, joint_cols].any(axis=1)
+    dropped = missing[:, joint_cols].any(axis=1) if policy == "partial" else missing.any(axis=1)
     imu_missing = np.stack([missing[:, [np.flatnonzero(ids == IMU_ACC_BASE + k)[0],
                                         np.flatnonzero(ids == 0x180 + k)[0]]].any(axis=1)
                             for k in range(N_I)], axis=1)
@@ -186,7 +188,8 @@ def test_faults_are_counted_and_never_stored(rng, channel):
     assert c["decode_errors"] == int(short.sum())
     assert c["frames_missing"] == int(missing.sum())
     assert c["samples_dropped"] == int(dropped.sum())
-    assert c["samples_incomplete"] == int(incomplete.sum())
+    assert c.get("samples_incomplete", 0) == int(incomplete.sum())
+    assert (policy == "drop") == (c.get("samples_incomplete", 0) == 0)
     assert c.get("late_frames", 0) == 0 and c.get("bus_errors", 0) == 0
     assert c["frames"] == T * F - int(missing.sum())
     # what was stored is exactly the intact data, sample by sample, IMU by IMU

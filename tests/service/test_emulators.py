@@ -30,6 +30,7 @@ def test_slcan_adapter_answers_commands_and_streams_only_when_open(rng):
     port = serial.Serial(em.port.name, timeout=0.3)
     time.sleep(0.2)
     assert port.read(100) == b""  # channel closed: nothing on the line
+    port.timeout = 3.0
     port.write(b"S6\rV\rN\rXYZ\r")
     assert port.read(1 + 6 + 6 + 1) == b"\rV1013\rNBH01\r\a"
     port.write(b"O\r")
