@@ -225,6 +225,7 @@ def inject(sim: Simulation, kind: str, **kwargs: Any) -> Diff:
     """Apply damage ``kind`` to ``sim`` now; return its ground-truth diff (also kept by ``sim``)."""
     if kind not in _HANDLERS:
         raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")
+    sim.sync()  # act at the last returned sample, not at the end of any read-ahead
     sim.last_kwargs = dict(kwargs)
     try:
         finding = _HANDLERS[kind](sim, **kwargs)

@@ -41,7 +41,12 @@ __all__ = ["Farm"]
 
 class Farm:
     """Robots by name -> catalog name (or model file). All share ``imu_model``, ``excitation`` and
-    ``rate`` unless ``overrides[name]`` gives ``imu_model``/``excitation``/``rate`` for one robot."""
+    ``rate`` unless ``overrides[name]`` gives ``imu_model``/``excitation``/``rate`` for one robot.
+
+    Each robot simulates at least ``readahead`` seconds per physics call and serves smaller chunks
+    from that buffer (damage rewinds to the last returned sample first), so small chunks cost little
+    more than large ones; the data are the same with any ``readahead``.
+    """
 
     def __init__(
         self,
@@ -52,6 +57,7 @@ class Farm:
         excitation: str = "observable",
         rate: float = 100.0,
         overrides: Mapping[str, Mapping[str, Any]] | None = None,
+        readahead: float = 1.0,
     ) -> None:
         if not robots:
             raise ValueError("a farm needs at least one robot")
@@ -70,7 +76,7 @@ class Farm:
             ss = np.random.SeedSequence([self.seed, zlib.crc32(name.encode("utf-8"))])
             exc: str | Excitation = kw["excitation"]
             self._sims[name] = Simulation(source, seed=ss, imu_model=kw["imu_model"], excitation=exc,
-                                          rate=float(kw["rate"]))
+                                          rate=float(kw["rate"]), readahead=readahead)
             self._catalog[name] = source
         self._elapsed = 0.0
 

@@ -74,3 +74,21 @@ def test_rejects_bad_configuration() -> None:
         Farm({"a": "not-a-robot"}, seed=0)
     with pytest.raises(ValueError):
         Farm({"a": "ur5e"}, seed=0, excitation="dance")
+
+
+def test_readahead_changes_nothing_even_around_damage(seed: int) -> None:
+    robots = {"u": "ur5e", "p": "paper-5"}
+    runs = []
+    for readahead in (0.0, 0.45):
+        farm = Farm(robots, seed=seed, readahead=readahead)
+        chunks = [farm.advance(0.1) for _ in range(3)]
+        diff = farm.inject("p", "imu_moved")  # parts picked by the damage generator
+        farm.inject("u", "joint_locked", joint="elbow")
+        chunks += [farm.advance(0.1) for _ in range(4)]
+        runs.append((chunks, diff, farm.simulation("p").diff.findings[0].to))
+    (a, da, _), (b, db, _) = runs
+    assert da == db
+    for name in robots:
+        for field in ("t", "q", "qd", "acc", "gyro"):
+            assert np.array_equal(_cat(a, name, field), _cat(b, name, field)), (name, field)
+    assert np.allclose(a[-1]["p"].extra["damage_time"], [0.3])
