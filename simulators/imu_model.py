@@ -455,14 +455,19 @@ def _shift(p: ImuParams, t: np.ndarray, both: np.ndarray) -> np.ndarray:
 def _finish(p: ImuParams, both: np.ndarray, rate: float, rng: np.random.Generator) -> np.ndarray:
     """Effects 7-8: white noise, then full-scale clipping and quantization."""
     std, full_scale, lsb = p.finishing(rate)
+    both = np.array(both, dtype=np.float64)  # a fresh array: the steps below work in place
     if std is not None:
         # one time-major draw: the noise of sample i does not depend on how samples are chunked
-        both = both + rng.standard_normal(both.shape, dtype=np.float32) * std
+        noise = rng.standard_normal(both.shape, dtype=np.float32)
+        noise *= std.astype(np.float32)
+        both += noise
     if full_scale is not None:
-        both = np.clip(both, -full_scale, full_scale)
+        np.clip(both, -full_scale, full_scale, out=both)
     if lsb is not None:
-        if np.all(lsb > 0):
-            both = np.rint(both * (1.0 / lsb)) * lsb  # fx.quantize, without its zero-step handling
+        if np.all(lsb > 0):  # fx.quantize, in place (no zero-step handling needed)
+            both *= 1.0 / lsb
+            np.rint(both, out=both)
+            both *= lsb
         else:
             both = fx.quantize(both, lsb)
     return both

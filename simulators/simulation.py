@@ -170,7 +170,7 @@ class Simulation:
         if self.findings:
             extra["truth_diff"] = np.array(json.dumps(self.diff.to_json()))
             extra["damage_time"] = np.array(self.damage_times, dtype=np.float64)
-            extra["truth_imu_detached"] = detached.copy()
+            extra["truth_imu_detached"] = _detached_json(r.imu_names, detached)
         return Recording(
             t=cat["t"], joint_names=r.joint_names, q=cat["q"], qd=cat["qd"], imu_names=r.imu_names,
             acc=cat["acc"], gyro=cat["gyro"], gravity=np.array(r.model.opt.gravity, dtype=np.float64),
@@ -232,6 +232,11 @@ class Simulation:
             self._produce(off)
 
 
+def _detached_json(names: tuple[str, ...], mask: np.ndarray) -> np.ndarray:
+    # a 0-d JSON string: an (K,) array could be mistaken for a time series by Recording.select
+    return np.array(json.dumps([n for n, d in zip(names, mask, strict=True) if d]))
+
+
 def _concat(chunks: list[Recording], sim: Simulation) -> Recording:
     if len(chunks) == 1:
         rec = chunks[0]
@@ -251,7 +256,7 @@ def _concat(chunks: list[Recording], sim: Simulation) -> Recording:
     if sim.findings:
         extra["truth_diff"] = np.array(json.dumps(sim.diff.to_json()))
         extra["damage_time"] = np.array(sim.damage_times, dtype=np.float64)
-        extra["truth_imu_detached"] = sim.robot.truth_arrays()[2]
+        extra["truth_imu_detached"] = _detached_json(sim.robot.imu_names, sim.robot.truth_arrays()[2])
     return Recording(**{**{f: getattr(rec, f) for f in rec.__dataclass_fields__}, "extra": extra})
 
 
@@ -269,8 +274,9 @@ def simulate(
     ``damage`` is one ``KIND[:key=value,...]`` string or a list of them (or ``(kind, kwargs)``
     pairs); ``at=SECONDS`` injects mid-run (default 0: the whole recording is damaged). The
     recording's ``extra`` holds ``excitation`` (RMS joint velocity per joint), ``imu_model`` (the drawn
-    IMU parameters as JSON), and with damage ``truth_diff`` (DESIGN §2 diff JSON), ``damage_time`` and
-    ``truth_imu_detached``. ``truth_*`` describe the body at the end of the run.
+    IMU parameters as JSON), and with damage ``truth_diff`` (DESIGN §2 diff JSON), ``damage_time`` (s)
+    and ``truth_imu_detached`` (JSON list of the IMUs that follow no joint). ``truth_*`` describe
+    the body at the end of the run.
     """
     from simulators.damage import parse_damage
 
