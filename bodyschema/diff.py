@@ -21,7 +21,8 @@ estimate below it), so one broken joint gives one finding.
 7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
    that depend on it are not judged.
 
-Identical inputs give no finding. Everything here is pure.
+Identical inputs give no finding. A current estimate that is not unique gives only the signal-level
+findings (1, 3, 4): where it puts a part is not evidence. Everything here is pure.
 
 Example
 -------
@@ -94,6 +95,10 @@ def diff_bodies(
     claimed_joints: set[str] = set()
     order = _order(baseline)
 
+    # An estimate that is not unique (several trees fit the data) says nothing reliable about where
+    # a part hangs: only the signal-level findings are made from it.
+    structural = current.unique and not current.candidates
+
     def conf(key: str) -> float:
         return float(current.confidence.get(key, 1.0))
 
@@ -132,7 +137,7 @@ def diff_bodies(
             if jh.state not in ("moving", "flat"):
                 judged.add(j)  # the IMUs on its link were judged: no structure-only verdict on it
             live, lost = lost_below(j)
-            all_lost = bool(live) and len(lost) == len(live)
+            all_lost = structural and bool(live) and len(lost) == len(live)
             if jh.state in ("wrong_encoder", "unfollowed") and all_lost:
                 # the encoder turns, but nothing below follows it: the link broke off
                 findings.append(
@@ -187,7 +192,7 @@ def diff_bodies(
 
     # structure-only lost links (joints whose child link no IMU health could judge) ------------------
     for j in order:
-        if j in claimed_joints or j in undecided or j in judged:
+        if not structural or j in claimed_joints or j in undecided or j in judged:
             continue
         live, lost = lost_below(j)
         if live and len(lost) == len(live) and len(live) >= th.min_link_imus:
@@ -218,7 +223,7 @@ def diff_bodies(
 
     # 5. single IMUs -------------------------------------------------------------------------------
     for imu, b in baseline.imu_joint.items():
-        if imu in claimed_imus or imu not in current.imu_joint:
+        if not structural or imu in claimed_imus or imu not in current.imu_joint:
             continue
         c = current.imu_joint[imu]
         if c == b or conf(f"imu:{imu}") < th.min_confidence:
@@ -235,7 +240,7 @@ def diff_bodies(
 
     # 6. re-parented joints ------------------------------------------------------------------------
     for j in order:
-        if j in claimed_joints or j not in current.joint_parent:
+        if not structural or j in claimed_joints or j not in current.joint_parent:
             continue
         b, c = baseline.joint_parent[j], current.joint_parent[j]
         if b == c or conf(f"joint:{j}") < th.min_confidence:

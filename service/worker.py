@@ -237,7 +237,8 @@ class Worker:
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)
         if base is None:
-            res.baseline_set = self._maybe_baseline(robot, fast, res.health, window_end)
+            full = rec.duration >= 0.8 * self.settings.window_seconds
+            res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
         res.transitions = self.tracker.update(robot, res.diff.findings)
@@ -261,7 +262,12 @@ class Worker:
         """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""
         k = self.settings.baseline_repeat_k
         recent = self._recent.setdefault(robot, deque(maxlen=k))
-        if health.dead_imus:
+        # Only a trustworthy body becomes the reference: every IMU alive, one tree that fits (unique),
+        # every joint placed and moving in this window (a still joint cannot be told from a locked
+        # one later).
+        still = [j for j, h in health.joints.items() if not (h.encoder_moving or h.link_moving)]
+        ambiguous = not topo.unique or bool(topo.candidates)
+        if health.dead_imus or topo.undetermined or still or ambiguous or not topo.joint_parent:
             recent.clear()
             return False
         if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):

@@ -122,7 +122,11 @@ class DamageIn(BaseModel):
     imu: str | None = Field(None, max_length=200)
     joint: str | None = Field(None, max_length=200)
     to: str | None = Field(None, max_length=200, description="imu_moved: the joint the IMU moves to")
-    value: float | None = Field(None, description="kind-specific magnitude (e.g. encoder offset, rad)")
+    value: float | None = Field(None, description="encoder_fault offset, rad (with mode 'offset')")
+    mode: Literal["frozen", "zero", "stuck", "offset"] | None = Field(
+        None, description="imu_dead: frozen|zero; encoder_fault: stuck|offset"
+    )
+    tether: float | None = Field(None, gt=0, le=1.0, description="imu_detached: tether length, m")
 
 
 class DamageOut(BaseModel):

@@ -221,3 +221,14 @@ def test_locked_without_health_uses_excitation() -> None:
         excitation={**EXC, "j2": 0.0},
     )
     assert kinds(diff_bodies(BASE, cur)) == [("joint_locked", "joint:j2")]
+
+
+def test_ambiguous_estimate_gives_only_signal_findings() -> None:
+    # several trees fit: the estimate parks everything on the base; only the dead IMU is reported
+    cur = topo(
+        joints={j: None for j in JOINTS}, imus={i: None for i in IMUS}, unique=False, candidates=(BASE,)
+    )
+    d = diff_bodies(BASE, cur, health(imus={"e1": "zero"}))
+    assert kinds(d) == [("imu_dead", "imu:e1")]
+    d = diff_bodies(BASE, cur, health(joints={"j3": "frozen_encoder"}, excitation={"j3": 0.0}))
+    assert kinds(d) == [("encoder_fault", "joint:j3")]

@@ -6,6 +6,7 @@ worker's own logic; signal health and the diff run for real on the frames in the
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -42,11 +43,8 @@ class Scripted:
     def __call__(self, rec: Recording, method: str) -> Topology:
         self.calls.append((method, rec.n_samples))
         t = self.next
-        return Topology(
-            t.joint_parent,
-            {k: v for k, v in t.imu_joint.items() if k in rec.imu_names},
-            method=method,
-            excitation=t.excitation,
+        return dataclasses.replace(
+            t, imu_joint={k: v for k, v in t.imu_joint.items() if k in rec.imu_names}, method=method
         )
 
 
@@ -252,3 +250,20 @@ def test_failing_estimator_does_not_stop_the_thread(
     assert w.metrics.cycle_errors._value.get() >= 3
     assert not w.running
     assert sqlite_store.last_heartbeat("worker") is not None
+
+
+def test_no_baseline_from_an_ambiguous_or_short_window(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    feed(sqlite_store, synth(rng, seconds=12))
+    ambiguous = Topology(
+        dict(GOOD.joint_parent), dict(GOOD.imu_joint), unique=False, candidates=(GOOD,), method="fast"
+    )
+    w = Worker(sqlite_store, settings, estimator=Scripted(ambiguous))
+    for _ in range(4):
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is None
+    short = Settings(database_url="sqlite://", window_seconds=30.0, baseline_repeat_k=1)
+    w2 = Worker(sqlite_store, short, estimator=Scripted(GOOD))
+    w2.run_cycle()  # 12 s of data in a 30 s window: too short to trust
+    assert sqlite_store.baseline("arm") is None

@@ -1,0 +1,152 @@
+"""The whole service as a process: ``bodyhealth serve --demo`` at 20× real time on a temporary SQLite.
+
+Baselines are learned for every robot; then each damage kind is injected in turn into ``paper-3-1``
+over the REST API, and within 3 worker cycles an active alert must name the kind and the part. The
+other robots stay undamaged and must not raise a single alert during the whole run. SIGTERM ends it
+with exit code 0.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+DAMAGED = "paper-3-1"
+HEALTHY = ("ur5e-1", "quadruped-1")
+#: (kind, request body, expected part). paper-3: j1 -> j2 -> {j3, j4, j5}, 12 IMUs per link
+#: (imu0-11 on j1's link, imu12-23 on j2's, ...); the joint damages hit three sibling leaves so no
+#: damage hides another.
+DAMAGES: list[tuple[str, dict[str, Any], str]] = [
+    ("imu_moved", {"imu": "imu0", "to": "j2"}, "imu:imu0"),
+    ("imu_detached", {"imu": "imu13"}, "imu:imu13"),
+    ("imu_dead", {"imu": "imu14"}, "imu:imu14"),
+    ("encoder_fault", {"joint": "j3"}, "joint:j3"),
+    ("joint_locked", {"joint": "j4"}, "joint:j4"),
+    ("link_lost", {"joint": "j5"}, "joint:j5"),
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Service:
+    def __init__(self, tmp: Path) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.err_path = tmp / "serve.err"
+        env = {
+            **os.environ,
+            "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
+            "BODYHEALTH_WINDOW_SECONDS": "20",
+            "BODYHEALTH_ALERT_HYSTERESIS_M": "2",
+            "BODYHEALTH_BASELINE_REPEAT_K": "3",
+        }
+        cmd = [sys.executable, "-m", "service", "serve", "--demo", "--speed", "20", "--port", str(self.port),
+               "--database-url", f"sqlite:///{tmp / 'serve.db'}"]
+        self.proc = subprocess.Popen(cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, text=True,
+                                     stderr=self.err_path.open("w"))
+        self.client = httpx.Client(base_url=self.url, timeout=10)
+
+    def log_tail(self) -> str:
+        return self.err_path.read_text()[-4000:]
+
+    def get(self, path: str, **kw: Any) -> Any:
+        r = self.client.get(path, **kw)
+        r.raise_for_status()
+        return r.json()
+
+    def cycles(self) -> int:
+        text = self.client.get("/metrics").text
+        m = re.search(r"^bodyhealth_worker_cycles_total (\S+)$", text, re.M)
+        return int(float(m.group(1))) if m else 0
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Iterator[Service]:
+    svc = Service(tmp_path)
+    try:
+        yield svc
+    finally:
+        if svc.proc.poll() is None:
+            svc.proc.send_signal(signal.SIGKILL)
+            svc.proc.wait(30)
+        svc.client.close()
+
+
+def wait_for(cond, timeout: float, what: str, svc: Service, every: float = 0.3) -> Any:  # noqa: ANN001
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert svc.proc.poll() is None, f"service died while waiting for {what}:\n{svc.log_tail()}"
+        try:
+            got = cond()
+        except httpx.HTTPError:
+            got = None
+        if got:
+            return got
+        time.sleep(every)
+    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}\n{svc.log_tail()}")
+
+
+def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> None:
+    line = service.proc.stdout.readline()  # the announced dashboard URL
+    assert f"http://127.0.0.1:{service.port}/" in line
+    wait_for(lambda: service.get("/readyz"), 90, "readiness", service)
+    robots = wait_for(
+        lambda: (rs := service.get("/api/v1/robots")) and len(rs) == 3 and all(r["has_baseline"] for r in rs)
+        and rs,
+        180, "baselines of all three robots", service,
+    )
+    assert {r["name"] for r in robots} == {DAMAGED, *HEALTHY}
+    assert all(r["simulated"] for r in robots)
+    for r in robots:  # the learned baseline is the true body: same joints, every IMU placed
+        topo = service.get(f"/api/v1/robots/{r['name']}/topology")
+        assert set(topo["baseline"]["joints"]) == set(r["joints"])
+        assert set(topo["baseline"]["imus"]) == set(r["imus"])
+
+    def no_alert_on_healthy() -> None:
+        bad = [a for a in service.get("/api/v1/alerts") if a["robot"] in HEALTHY]
+        assert bad == [], f"alerts on undamaged robots: {bad}"
+
+    report = []
+    for kind, body, part in DAMAGES:
+        no_alert_on_healthy()
+        r = service.client.post(f"/api/v1/robots/{DAMAGED}/simulate/damage", json={"kind": kind, **body})
+        assert r.status_code == 201, r.text
+        truth = r.json()["truth"]["findings"][0]
+        assert truth["kind"] == kind
+        c0 = service.cycles()
+
+        def alerted(kind: str = kind, part: str = part) -> bool:
+            no_alert_on_healthy()
+            return any(a["kind"] == kind and a["part"] == part
+                       for a in service.get(f"/api/v1/robots/{DAMAGED}/alerts", params={"active": "true"}))
+
+        wait_for(alerted, 120, f"an active {kind} alert on {part}", service)
+        took = service.cycles() - c0
+        report.append((kind, part, took))
+        assert took <= 3, f"{kind} on {part} took {took} worker cycles"
+    print("cycles to alert:", report)
+    no_alert_on_healthy()
+    # the alerts are served the same way across robots, with the part split out
+    active = service.get("/api/v1/alerts", params={"active": "true"})
+    assert {(a["kind"], a["part"]) for a in active} >= {(k, p) for k, _, p in DAMAGES[:3]}
+    assert all(a["robot"] == DAMAGED for a in active)
+    service.proc.send_signal(signal.SIGTERM)
+    assert service.proc.wait(60) == 0, service.log_tail()
+    assert '"msg": "service stopped"' in service.err_path.read_text()
