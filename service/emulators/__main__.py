@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0, help="1 = real time, 0 = as fast as the reader takes")
     p.add_argument("--link", help="keep a symlink to the current pty here (stable across replugs)")
     p.add_argument("--config-out", help="where to write the device config JSON (default: a temp file)")
+    p.add_argument("--can-fd", action="store_true", help="CAN: send the CAN FD variant of the layout")
     p.add_argument("--linger", type=float, default=5.0, help="seconds to keep the pty open after the end")
     return p
 
@@ -54,8 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     rec = _recording(args)
-    cls = SlcanEmulator if args.kind == "can" else SerialEmulator
-    em = cls(rec, robot=args.robot, speed=args.speed, link=args.link)
+    if args.kind == "can":
+        em: SlcanEmulator | SerialEmulator = SlcanEmulator(rec, fd=args.can_fd, robot=args.robot,
+                                                           speed=args.speed, link=args.link)
+    else:
+        em = SerialEmulator(rec, robot=args.robot, speed=args.speed, link=args.link)
     cfg_path = Path(args.config_out or os.path.join(tempfile.mkdtemp(prefix="bodyhealth-emu-"),
                                                     f"{args.robot}.json"))
     em.device_config().save(cfg_path)

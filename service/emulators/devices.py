@@ -38,10 +38,11 @@ import threading
 import time
 
 import numpy as np
+from can.util import len2dlc
 
 from bodyschema.recording import Recording
 from service.emulators.pty_port import PtyPort
-from service.ingest.can_layout import encode_samples
+from service.ingest.can_layout import encode_samples, encode_samples_fd
 from service.ingest.device import DeviceConfig
 from service.ingest.serial_frame import FrameEncoder
 
@@ -202,27 +203,46 @@ class SerialEmulator(_PtyEmulator):
 
 
 class SlcanEmulator(_PtyEmulator):
-    """An slcan adapter on a bus carrying the project CAN layout."""
+    """An slcan adapter on a bus carrying the project CAN layout (``fd=True``: its CAN FD variant, sent
+    as ``dIIIL..`` lines with the FD length code, as CANable 2.0 firmware does)."""
 
     VERSION = b"V1013\r"
     SERIAL = b"NBH01\r"
 
+    def __init__(self, rec: Recording, *, fd: bool = False, **kw: object) -> None:
+        self.fd = fd
+        super().__init__(rec, **kw)  # type: ignore[arg-type]
+
     def _streams_at_once(self) -> bool:
         return False
+
+    def device_config(self) -> DeviceConfig:
+        cfg = super().device_config()
+        if self.fd:
+            return DeviceConfig(cfg.robot, cfg.period_s, cfg.joints, cfg.imus, {"can": {"layout": "fd"}})
+        return cfg
 
     def _encode(self) -> list[bytes]:
         rec = self.rec
         q = rec.q if rec.q is not None else np.zeros((rec.n_samples, 0))
-        ids, data = encode_samples(self.counters, q, rec.acc, rec.gyro)
-        prefixes = [f"t{int(i):03X}8".encode() for i in ids]
+        self._cmd = b""
+        if self.fd:
+            ids, lengths, data = encode_samples_fd(self.counters, q, rec.acc, rec.gyro)
+        else:
+            ids, data = encode_samples(self.counters, q, rec.acc, rec.gyro)
+            lengths = np.full(len(ids), 8)
+        kind = "d" if self.fd else "t"
+        prefixes = [f"{kind}{int(i):03X}{len2dlc(int(n)):X}".encode()
+                    for i, n in zip(ids, lengths, strict=True)]
+        width = data.shape[2]
         hexed = data.reshape(-1).tobytes().hex().upper().encode()
+        spans = [(f * width * 2, f * width * 2 + int(n) * 2) for f, n in enumerate(lengths)]
         F = len(ids)
         chunks = []
         for s in range(rec.n_samples):
-            base = s * F * 16
-            chunks.append(b"".join(prefixes[f] + hexed[base + 16 * f:base + 16 * f + 16] + b"\r"
-                                   for f in range(F)))
-        self._cmd = b""
+            base = s * F * width * 2
+            chunks.append(b"".join(prefixes[f] + hexed[base + a:base + b] + b"\r"
+                                   for f, (a, b) in enumerate(spans)))
         return chunks
 
     def _on_input(self, data: bytes) -> None:

@@ -48,6 +48,7 @@ import can
 import serial
 from can.exceptions import error_check
 from can.interfaces.slcan import slcanBus
+from can.util import CAN_FD_DLC
 
 from service.ingest.base import FrameBatch, Source
 from service.ingest.can_mapping import SignalMap, load_dbc
@@ -101,21 +102,23 @@ class BufferedSlcanBus(slcanBus):
                     return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        # Standard data frames ("tIIIL<data>") are most of the traffic: parse them here in one step;
-        # everything else (extended, remote, FD, replies) goes through python-can's parser unchanged.
+        # Standard data frames ("tIIIL<data>", FD "dIIIL<data>") are most of the traffic: parse them here in
+        # one step; everything else (extended, remote, replies) goes through python-can's parser unchanged.
         if self._queue.qsize():
             return super()._recv_internal(timeout)
         line = self._read(timeout)
         if line is None:
             return None, False
-        if line[0] == "t" and len(line) >= 6:
+        kind = line[0]
+        if kind in "td" and len(line) >= 6:
             try:
-                dlc = int(line[4])
-                data = bytearray.fromhex(line[5:5 + 2 * dlc])
-                if len(data) == dlc:
-                    return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, dlc=dlc,
-                                       data=data, timestamp=time.time(), check=False), False
-            except ValueError:
+                fd = kind == "d"
+                n = CAN_FD_DLC[int(line[4], 16)] if fd else int(line[4])
+                data = bytearray.fromhex(line[5:5 + 2 * n])
+                if len(data) == n:
+                    return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, dlc=n,
+                                       data=data, is_fd=fd, timestamp=time.time(), check=False), False
+            except (ValueError, IndexError):
                 pass
         self._queue.put_nowait(line)
         return super()._recv_internal(0)

@@ -13,8 +13,8 @@ A robot integrator with their own DBC writes a device config like this (``docs/w
 
 ``units`` multiplies the DBC's physical value into the contract units (rad, m/s², rad/s); here the
 DBC speaks degrees and g. Every mapped message must carry the counter signal. Without ``joints``/``imus``
-in the ``can`` section the project layout (:mod:`can_layout`) is used, in config order; without ``dbc``
-the project DBC.
+in the ``can`` section the project layout (:mod:`can_layout`) is used, in config order (``"layout":
+"fd"`` picks its CAN FD variant); without ``dbc`` the project DBC.
 
 Example
 -------
@@ -135,6 +135,6 @@ class SignalMap:
         if db is None:
             db = load_dbc(section.get("dbc"))
         if "joints" not in section and "imus" not in section:
-            layout = project_signal_map(config.joints, config.imus)
+            layout = project_signal_map(config.joints, config.imus, str(section.get("layout", "classic")))
             section = {**layout, **{k: v for k, v in section.items() if k not in layout}}
         return cls(db, config, section)

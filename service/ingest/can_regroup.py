@@ -61,13 +61,17 @@ __all__ = ["SampleAssembler", "compile_layout"]
 
 log = logging.getLogger(__name__)
 
-#: (start bit, length, big-endian, signed, scale, offset) of one signal.
-Spec = tuple[int, int, bool, bool, float, float]
+#: (64-bit word, shift within it, length, big-endian, signed, scale, offset) of one signal.
+Spec = tuple[int, int, int, bool, bool, float, float]
 
 
 def compile_layout(msg: Message, names: Sequence[str]) -> tuple[Spec, ...] | None:
-    """Bit specs of ``names`` in ``msg`` for the vectorised decoder, or None when it cannot take them."""
-    if msg.length > 8 or msg.is_multiplexed():
+    """Bit specs of ``names`` in ``msg`` for the vectorised decoder, or None when it cannot take them.
+
+    A signal qualifies when it is an integer of at most 63 bits that does not straddle a 64-bit word of
+    the payload (true of any byte-aligned layout); the message must not be multiplexed.
+    """
+    if msg.length > 64 or msg.is_multiplexed():
         return None
     specs = []
     for name in names:
@@ -75,19 +79,25 @@ def compile_layout(msg: Message, names: Sequence[str]) -> tuple[Spec, ...] | Non
         if s.is_float or s.length > 63 or s.is_multiplexer or s.multiplexer_ids:
             return None
         big = s.byte_order == "big_endian"
-        specs.append((int(s.start), int(s.length), big, bool(s.is_signed), float(s.scale), float(s.offset)))
+        if big:
+            lin = (s.start // 8) * 8 + (7 - s.start % 8)  # MSB position counted from byte 0's MSB
+            word, off = divmod(lin, 64)
+            if off + s.length > 64:
+                return None
+            shift = 64 - off - s.length
+        else:
+            word, shift = divmod(int(s.start), 64)
+            if shift + s.length > 64:
+                return None
+        specs.append((word, shift, int(s.length), big, bool(s.is_signed), float(s.scale), float(s.offset)))
     return tuple(specs)
 
 
 def _extract(u_le: np.ndarray, u_be: np.ndarray | None, spec: Spec) -> np.ndarray:
-    start, length, big, signed, scale, offset = spec
-    mask = np.uint64((1 << length) - 1)
-    if big:
-        assert u_be is not None
-        lin = (start // 8) * 8 + (7 - start % 8)  # position of the MSB counted from byte 0's MSB
-        raw = (u_be >> np.uint64(64 - lin - length)) & mask
-    else:
-        raw = (u_le >> np.uint64(start)) & mask
+    word, shift, length, big, signed, scale, offset = spec
+    src = u_be if big else u_le
+    assert src is not None
+    raw = (src[:, word] >> np.uint64(shift)) & np.uint64((1 << length) - 1)
     v = raw.astype(np.int64)
     if signed:
         v = np.where(v >= (1 << (length - 1)), v - (1 << length), v)
@@ -97,8 +107,10 @@ def _extract(u_le: np.ndarray, u_be: np.ndarray | None, spec: Spec) -> np.ndarra
 class _Group:
     """Frame ids sharing one compiled layout: where each of their signals goes."""
 
-    def __init__(self, specs: tuple[Spec, ...] | None, message: Message | None, names: tuple[str, ...]):
+    def __init__(self, specs: tuple[Spec, ...] | None, message: Message, names: tuple[str, ...]):
         self.specs, self.message, self.names = specs, message, names
+        self.nbytes = 8 * -(-message.length // 8)
+        self.big = specs is not None and any(sp[3] for sp in specs)
         self.dest: list[np.ndarray] = []
         self.factor: list[np.ndarray] = []
 
@@ -134,10 +146,10 @@ class SampleAssembler:
             route = signal_map.by_id[fid]
             names = (signal_map.counter_signal, *[t[0] for t in route.targets])
             specs = compile_layout(route.message, names)
-            key: object = specs if specs is not None else ("cantools", fid)
+            key: object = (specs, -(-route.message.length // 8)) if specs is not None else ("cantools", fid)
             if key not in keys:
                 keys[key] = len(self._groups)
-                self._groups.append(_Group(specs, None if specs is not None else route.message, names))
+                self._groups.append(_Group(specs, route.message, names))
             g = self._groups[keys[key]]
             dest = [-1]  # the counter goes nowhere
             factor = [1.0]
@@ -193,12 +205,6 @@ class SampleAssembler:
             m = len(keep)
             if m == 0:
                 return
-        if (lens == 8).all():
-            buf = b"".join(datas)
-        else:
-            buf = b"".join(bytes(d[:8]).ljust(8, b"\0") for d in datas)
-        u_le = np.frombuffer(buf, dtype="<u8")
-        u_be: np.ndarray | None = None
         group = self._group_of[pos]
         counter = np.zeros(m, dtype=np.int64)
         good = np.ones(m, dtype=bool)
@@ -208,10 +214,15 @@ class SampleAssembler:
             rows = np.flatnonzero(group == g_i)
             gr = self._row_in_group[pos[rows]]
             if g.specs is not None:
-                if u_be is None and any(s[2] for s in g.specs):
-                    u_be = u_le.byteswap()
-                cols = [_extract(u_le[rows], None if u_be is None else u_be[rows], s) for s in g.specs]
-                vals = np.stack(cols, axis=1)
+                nb = g.nbytes
+                sub = [datas[r] for r in rows.tolist()]
+                if (lens[rows] == nb).all():
+                    buf = b"".join(sub)
+                else:  # pad short payloads (DLC 4, FD 12...), cut excess bytes
+                    buf = b"".join(bytes(d[:nb]).ljust(nb, b"\0") for d in sub)
+                u_le = np.frombuffer(buf, dtype="<u8").reshape(len(rows), nb // 8)
+                u_be = u_le.byteswap() if g.big else None
+                vals = np.stack([_extract(u_le, u_be, sp) for sp in g.specs], axis=1)
             else:
                 vals = np.zeros((len(rows), len(g.names)))
                 for r, row in enumerate(rows.tolist()):
@@ -326,8 +337,9 @@ class SampleAssembler:
             t = np.array([r[0] for r in run], dtype=np.float64) * cfg.period_s
             V = np.stack([r[1] for r in run])
             sel = np.flatnonzero(mask)
-            acc = V[:, N:N + 3 * K].reshape(-1, K, 3)[:, sel]
-            gyro = V[:, N + 3 * K:].reshape(-1, K, 3)[:, sel]
+            T = len(run)
+            acc = V[:, N:N + 3 * K].reshape(T, K, 3)[:, sel]
+            gyro = V[:, N + 3 * K:].reshape(T, K, 3)[:, sel]
             names = tuple(cfg.imus[s] for s in sel)
             out.append(FrameBatch(cfg.robot, t, cfg.joints, V[:, :N].copy(), names, acc, gyro))
             i = j

@@ -102,3 +102,24 @@ def test_command_line_prints_a_usable_source_spec(tmp_path, rng):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_can_fd_over_slcan_pty(rng):
+    T = 400
+    rec = _rec(rng, T, n=20, k=7)
+    em = SlcanEmulator(rec, fd=True, robot="fd-arm")
+    cfg = em.device_config()
+    assert cfg.extra["can"]["layout"] == "fd"
+    src = CanSource(cfg, lambda: open_bus("slcan", em.port.name), idle_flush_s=0.3)
+    em.start()
+    got = []
+    t0 = time.monotonic()
+    while sum(b.n_samples for b in got) < T and time.monotonic() - t0 < 20:
+        got += src.read(0.2)
+    src.close()
+    em.stop()
+    assert src.counters.extra["frames"] == T * (2 + 7)  # 2 joint frames of 64 B, 7 IMU frames of 16 B
+    t = np.concatenate([b.t for b in got])
+    np.testing.assert_allclose(t, rec.t, atol=1e-9)
+    np.testing.assert_allclose(np.concatenate([b.q for b in got]), rec.q, atol=Q_LSB)
+    np.testing.assert_allclose(np.concatenate([b.acc for b in got]), rec.acc, atol=ACC_LSB)
