@@ -196,18 +196,20 @@ class SineVelocity(_Tracking):
 
 class Observable(_Tracking):
     """Every joint follows its own random smooth target: ``components`` sinusoids with frequencies in
-    ``band`` (Hz) and a total amplitude of ``amplitude`` rad (less where the joint's range is tighter),
-    starting at the initial pose. Gravity-compensated PD, so heavy subtrees move as much as light ones.
+    ``band`` (Hz) and a total amplitude of ``amplitude`` rad (less where the joint's range is tighter)
+    about a centre inside the range, reached from the initial pose over the first ``ramp`` seconds.
+    Gravity-compensated PD, so heavy subtrees move as much as light ones.
     """
 
     name = "observable"
 
     def __init__(self, amplitude: float = 0.7, band: tuple[float, float] = (0.1, 0.5), components: int = 3,
-                 bandwidth: float = 4.0) -> None:
+                 bandwidth: float = 4.0, ramp: float = 1.0) -> None:
         super().__init__(bandwidth=bandwidth)
         self.amplitude = amplitude
         self.band = band
         self.components = components
+        self.ramp = ramp
 
     def _bind(self, robot: Robot, rng: np.random.Generator) -> None:
         n, c = robot.n_joints, self.components
@@ -219,10 +221,13 @@ class Observable(_Tracking):
             if m.jnt_limited[j]:
                 lo[i], hi[i] = m.jnt_range[j]
                 amp[i] = min(amp[i], 0.45 * (hi[i] - lo[i]))
-        # start from the middle of the range when the initial pose sits at a limit
+        # move about a centre inside the range (the start pose may sit near a limit)
         self.center_ = np.clip(self.q0_, lo + amp, hi - amp)
         self.lo_, self.hi_ = lo + 0.02, hi - 0.02
-        self.f_ = rng.uniform(*self.band, size=(n, c))
+        # one frequency in each of ``components`` equal slices of the band: every joint gets a fast
+        # component too, so none is left barely moving by an unlucky draw
+        width = (self.band[1] - self.band[0]) / c
+        self.f_ = self.band[0] + width * (np.arange(c) + rng.uniform(0.0, 1.0, size=(n, c)))
         self.phi_ = rng.uniform(0.0, 2.0 * math.pi, size=(n, c))
         wts = rng.uniform(0.5, 1.0, size=(n, c))
         self.a_ = amp[:, None] * wts / wts.sum(axis=1, keepdims=True)
@@ -230,8 +235,14 @@ class Observable(_Tracking):
     def targets(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         w = 2.0 * math.pi * self.f_  # (N, C)
         arg = t[:, None, None] * w + self.phi_  # (T, N, C)
-        pos = self.center_ + np.sum(self.a_ * (np.sin(arg) - np.sin(self.phi_)), axis=2)
-        vel = np.sum(self.a_ * w * np.cos(arg), axis=2)
+        # from the start pose to the centre of the motion over the first ``ramp`` seconds (smoothly:
+        # a jump would kick the robot)
+        u = np.clip(t / self.ramp, 0.0, 1.0)[:, None]
+        shift = self.center_ - self.q0_
+        pos = self.q0_ + shift * (0.5 - 0.5 * np.cos(np.pi * u))
+        pos = pos + np.sum(self.a_ * (np.sin(arg) - np.sin(self.phi_)), axis=2)
+        vel = shift * np.where(u < 1.0, 0.5 * np.pi / self.ramp * np.sin(np.pi * u), 0.0)
+        vel = vel + np.sum(self.a_ * w * np.cos(arg), axis=2)
         clipped = (pos < self.lo_) | (pos > self.hi_)
         pos = np.clip(pos, self.lo_, self.hi_)
         vel = np.where(clipped, 0.0, vel)

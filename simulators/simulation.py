@@ -284,7 +284,9 @@ def simulate(
         raise ValueError("seconds must be > 0")
     sim = Simulation(robot, seed=seed, imu_model=imu_model, excitation=excitation, rate=rate)
     todo: list[tuple[float, str, dict[str, Any]]] = []
-    for d in ([damage] if isinstance(damage, str | tuple) else list(damage or [])):
+    single = isinstance(damage, str) or (
+        isinstance(damage, tuple) and len(damage) == 2 and isinstance(damage[1], dict))
+    for d in ([damage] if single else list(damage or [])):
         kind, kw = parse_damage(d) if isinstance(d, str) else (d[0], dict(d[1]))
         at = float(kw.pop("at", 0.0))
         if not 0.0 <= at < seconds:

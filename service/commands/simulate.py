@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imu-model", default="mpu6050", metavar="ideal|mpu6050|FILE.json",
                    help="IMU error model: a preset or a JSON file (default mpu6050)")
     p.add_argument("--excitation", default="observable",
-                   choices=("random-torque", "sine", "observable", "hold"))
+                   choices=("random-torque", "sine", "observable", "poses", "hold"),
+                   help="how the robot moves (default observable: every joint moves)")
     p.add_argument("--damage", action="append", default=[], metavar="KIND[:key=value,...]",
                    help="damage to inject, e.g. imu_moved:imu=imu3,to=j4,at=5 (repeatable; at= seconds "
                    "into the run, default 0). Kinds: imu_moved, imu_detached, imu_dead, joint_locked, "

@@ -144,3 +144,10 @@ def test_bad_damage_is_a_clear_error(text: str, seed: int) -> None:
     with pytest.raises(ValueError):
         kind, kw = parse_damage(text)
         _sim(seed).inject(kind, **kw)
+
+
+def test_damage_as_a_tuple_of_strings_or_one_pair(seed: int) -> None:
+    a = simulate("paper-1", 0.2, seed, imu_model="ideal", damage=("imu_dead:imu=imu1", "imu_dead:imu=imu2"))
+    b = simulate("paper-1", 0.2, seed, imu_model="ideal", damage=("imu_dead", {"imu": "imu1"}))
+    assert len(json.loads(str(a.extra["truth_diff"]))["findings"]) == 2
+    assert json.loads(str(b.extra["truth_diff"]))["findings"][0]["imu"] == "imu1"
