@@ -63,21 +63,24 @@ log = logging.getLogger(__name__)
 #: Error-class bit for bus-off in an error frame's id (linux/can/error.h).
 CAN_ERR_BUSOFF = 0x00000040
 
-_LINE = re.compile(rb"[^\r\a]*[\r\a]")
+_LINE = re.compile(r"[^\r\a]*[\r\a]")
 
 
 class BufferedSlcanBus(slcanBus):
     """python-can's slcan bus, reading whatever the port holds at once.
 
     The stock ``slcanBus._read`` calls ``serial.read(1)`` per byte (a ``select`` and a system call each,
-    about 30 per frame), which caps it near ten thousand frames a second; this override reads the waiting
-    bytes in one call and splits them on the slcan terminators (CR, BEL). Everything else - commands,
-    frame parsing, ``send`` - is python-can's.
+    about 25 per frame), which caps it near ten thousand frames a second; this override reads the waiting
+    bytes in one call and splits them on the slcan terminators (CR, BEL). Standard data frames (``t``,
+    and CAN FD ``d``) are parsed in one step, and while lines are buffered and no filters are set,
+    :meth:`recv` hands them out without the generic receive loop; everything else - commands, replies,
+    extended and remote frames, ``send`` - is python-can's.
     """
 
     def __init__(self, channel: str, **kwargs: Any) -> None:
         self._lines: deque[str] = deque()
-        self._rest = b""
+        self._rest = ""
+        self.garbled_lines = 0
         super().__init__(channel, **kwargs)
 
     def _read(self, timeout: float | None) -> str | None:
@@ -90,25 +93,19 @@ class BufferedSlcanBus(slcanBus):
                 waiting = port.in_waiting
                 data = port.read(waiting if waiting else 1)
                 if data:
-                    buf = self._rest + data
+                    buf = self._rest + data.decode("ascii", "replace")
                     lines = _LINE.findall(buf)
                     if lines:
-                        used = sum(len(x) for x in lines)
-                        self._rest = buf[used:]
-                        self._lines.extend(x.decode("ascii", "replace") for x in lines)
+                        self._rest = buf[max(buf.rfind("\r"), buf.rfind("\a")) + 1:]
+                        self._lines.extend(lines)
                         return self._lines.popleft()
                     self._rest = buf
                 if deadline.expired():
                     return None
 
-    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        # Standard data frames ("tIIIL<data>", FD "dIIIL<data>") are most of the traffic: parse them here in
-        # one step; everything else (extended, remote, replies) goes through python-can's parser unchanged.
-        if self._queue.qsize():
-            return super()._recv_internal(timeout)
-        line = self._read(timeout)
-        if line is None:
-            return None, False
+    @staticmethod
+    def _parse(line: str) -> can.Message | None:
+        """A standard data frame line as a Message, or None for anything else."""
         kind = line[0]
         if kind in "td" and len(line) >= 6:
             try:
@@ -117,15 +114,39 @@ class BufferedSlcanBus(slcanBus):
                 data = bytearray.fromhex(line[5:5 + 2 * n])
                 if len(data) == n:
                     return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, dlc=n,
-                                       data=data, is_fd=fd, timestamp=time.time(), check=False), False
+                                       data=data, is_fd=fd, timestamp=time.time(), check=False)
             except (ValueError, IndexError):
                 pass
-        self._queue.put_nowait(line)
-        return super()._recv_internal(0)
+        return None
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if self._lines and self._filters is None and not self._queue.qsize():
+            line = self._lines.popleft()
+            msg = self._parse(line)
+            if msg is not None:
+                return msg
+            self._queue.put_nowait(line)
+        return super().recv(timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if not self._queue.qsize():
+            line = self._read(timeout)
+            if line is None:
+                return None, False
+            msg = self._parse(line)
+            if msg is not None:
+                return msg, False
+            self._queue.put_nowait(line)
+        try:
+            return super()._recv_internal(0)
+        except (ValueError, IndexError) as err:  # a garbled line (line noise): skip it, keep the bus
+            self.garbled_lines += 1
+            log.debug("slcan: skipped a garbled line: %s", err)
+            return None, False
 
     def flush(self) -> None:
         self._lines.clear()
-        self._rest = b""
+        self._rest = ""
         super().flush()
 
 
@@ -156,14 +177,16 @@ class _RegroupListener(can.Listener):
             if msg.is_remote_frame:
                 src.counters.add("remote_frames")
                 return
-            with src._cond:
-                src._frames.append((msg.arbitration_id, msg.data))
-                n = len(src._frames)
-                if n == 1 or n == src.wake_frames:  # first frame starts the batch clock; a full batch ends it
+            frames = src._frames
+            frames.append((msg.arbitration_id, msg.data))  # deque.append is atomic: no lock per frame
+            if len(frames) == src.wake_frames:
+                with src._cond:
                     src._cond.notify()
         except Exception:  # one bad frame must never stop the receive thread
             src.counters.add("listener_errors")
             log.exception("CAN listener: frame 0x%x dropped", getattr(msg, "arbitration_id", -1))
+
+    __call__ = on_message_received  # the notifier calls listeners: skip one indirection per frame
 
     def on_error(self, exc: Exception) -> None:
         self.source._fail(f"bus error: {exc}")
@@ -197,7 +220,7 @@ class CanSource(Source):
         self.signal_map = signal_map or SignalMap.for_config(config)
         self._asm = SampleAssembler(self.signal_map, horizon=horizon, incomplete=incomplete)
         self._cond = threading.Condition()
-        self._frames: list[tuple[int, bytearray]] = []
+        self._frames: deque[tuple[int, bytearray]] = deque()
         #: queued frames that wake the reader before ``batch_s`` is up; batches amortise the numpy decode
         self.wake_frames = max(16 * self.signal_map.n_frames, 1024)
         #: longest a frame waits in the queue before the reader decodes it (latency bound)
@@ -264,8 +287,7 @@ class CanSource(Source):
             self._stop_bus()
             self._next_attempt = time.monotonic() + self._delay
             self._delay = min(self._delay * 2, self.backoff[1])
-            with self._cond:
-                frames, self._frames = self._frames, []
+            frames = self._drain()
             if frames:
                 ids, datas = zip(*frames, strict=True)
                 self._asm.add_many(ids, datas)
@@ -286,8 +308,8 @@ class CanSource(Source):
                 if len(self._frames) < self.wake_frames and self._failed is None:
                     left = deadline - time.monotonic()
                     if left > 0:
-                        self._cond.wait(min(left, self.batch_s) if self._frames else left)
-                frames, self._frames = self._frames, []
+                        self._cond.wait(min(left, self.batch_s))
+            frames = self._drain()
             if frames:
                 self._last_frame = time.monotonic()
                 ids, datas = zip(*frames, strict=True)
@@ -298,6 +320,10 @@ class CanSource(Source):
         batches = self._asm.take(flush=bool(idle))
         self._sync_counters()
         return batches
+
+    def _drain(self) -> list[tuple[int, bytearray]]:
+        q = self._frames
+        return [q.popleft() for _ in range(len(q))]
 
     def _sync_counters(self) -> None:
         now = dict(self._asm.counts)

@@ -350,3 +350,34 @@ def test_bus_off_and_bus_error_reconnect(rng):
     t = np.rint(np.concatenate([b.t for b in got]) / 0.01).astype(int)
     assert t.tolist() == list(range(300))
     np.testing.assert_allclose(np.concatenate([b.q for b in got]), q, atol=Q_LSB)
+
+
+def test_buffered_slcan_parses_every_line_kind_and_survives_garbage():
+    from service.ingest.can import BufferedSlcanBus
+
+    bus = BufferedSlcanBus("loop://", sleep_after_open=0)
+    try:
+        while bus.recv(0.05) is not None:  # the loop echoes the open commands back; drain them
+            pass
+        fd_data = bytes(range(16))
+        bus.serialPortOrig.write(
+            b"t1232AABB\r" + b"T1ABCDEF03112233\r" + b"r1230\r" + b"\a" + b"t12\r" + b"tZZZ8\r"
+            + b"d123A" + fd_data.hex().upper().encode() + b"\r" + b"t7FF0\r")
+        got: list[can.Message] = []
+        for _ in range(20):
+            m = bus.recv(0.1)
+            if m is not None:
+                got.append(m)
+            elif len(got) >= 5:
+                break
+        seen = [(m.arbitration_id, m.is_extended_id, m.is_remote_frame, m.is_fd, bytes(m.data)) for m in got]
+        assert seen == [
+            (0x123, False, False, False, b"\xaa\xbb"),
+            (0x1ABCDEF0, True, False, False, b"\x11\x22\x33"),
+            (0x123, False, True, False, b""),
+            (0x123, False, False, True, fd_data),
+            (0x7FF, False, False, False, b""),
+        ]
+        assert bus.garbled_lines == 2
+    finally:
+        bus.shutdown()
