@@ -44,7 +44,15 @@ from bodyschema.findings import Diff, Finding
 from bodyschema.health import SignalHealth
 from bodyschema.topology import Topology
 
-__all__ = ["DiffThresholds", "diff_bodies"]
+__all__ = ["STRUCTURAL_KINDS", "DiffThresholds", "diff_bodies", "is_ambiguous"]
+
+#: Kinds read from where the estimate places parts; an ambiguous estimate cannot make them.
+STRUCTURAL_KINDS: tuple[str, ...] = ("imu_moved", "imu_detached", "joint_reparented", "link_lost")
+
+
+def is_ambiguous(topo: Topology) -> bool:
+    """True when several trees fit the data (not unique, or alternatives given)."""
+    return not topo.unique or bool(topo.candidates)
 
 
 @dataclass(frozen=True)
@@ -97,7 +105,7 @@ def diff_bodies(
 
     # An estimate that is not unique (several trees fit the data) says nothing reliable about where
     # a part hangs: only the signal-level findings are made from it.
-    structural = current.unique and not current.candidates
+    structural = not is_ambiguous(current)
 
     def conf(key: str) -> float:
         return float(current.confidence.get(key, 1.0))

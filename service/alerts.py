@@ -77,8 +77,13 @@ class AlertTracker:
             for f in findings:
                 self._tracks[(robot, f.kind, f.part)] = _Track(f, seen=self.m, active=True)
 
-    def update(self, robot: str, findings: Iterable[Finding]) -> list[Transition]:
-        """Feed one cycle's findings for ``robot``; return the alerts raised or resolved by it."""
+    def update(self, robot: str, findings: Iterable[Finding], hold: Iterable[str] = ()) -> list[Transition]:
+        """Feed one cycle's findings for ``robot``; return the alerts raised or resolved by it.
+
+        ``hold`` names kinds this cycle could not judge (e.g. placement findings from an ambiguous
+        estimate): their tracks are left as they are instead of counting the cycle as "gone".
+        """
+        held = set(hold)
         now = {(robot, f.kind, f.part): f for f in findings if f.kind in DAMAGE_KINDS}
         out: list[Transition] = []
         with self._lock:
@@ -90,7 +95,7 @@ class AlertTracker:
                 if not tr.active and tr.seen >= self.m:
                     tr.active = True
                     out.append(Transition(*key, "active", f))
-            for key in [k for k in self._tracks if k[0] == robot and k not in now]:
+            for key in [k for k in self._tracks if k[0] == robot and k not in now and k[1] not in held]:
                 tr = self._tracks[key]
                 if not tr.active:
                     del self._tracks[key]  # a pending finding that misses a cycle starts over

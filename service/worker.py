@@ -27,9 +27,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from bodyschema.diff import diff_bodies
+from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
 from bodyschema.findings import Diff, Finding
-from bodyschema.health import SignalHealth, signal_health
+from bodyschema.health import SignalHealth, drop_impacts, signal_health
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
@@ -223,9 +223,10 @@ class Worker:
         res.health = signal_health(rec, layout, expected_imus)
         window_end = float(rec.t[-1])
         fast: Topology | None = None
+        learn = drop_impacts(rec)  # velocity jumps at stops read as contradictions to the estimators
         for method in self._methods(robot):
             t0 = time.perf_counter()
-            topo = self.estimator(rec, method)
+            topo = self.estimator(learn, method)
             self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)
             self.store.save_topology(robot, topo, self.clock(), window_end)
             res.methods.append(method)
@@ -241,7 +242,8 @@ class Worker:
             res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
-        res.transitions = self.tracker.update(robot, res.diff.findings)
+        hold = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
+        res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
         for tr in res.transitions:
             rec_ = self.store.upsert_alert(robot, tr.kind, tr.part, tr.finding.to_json(), tr.state, now)
@@ -266,8 +268,9 @@ class Worker:
         # every joint placed and moving in this window (a still joint cannot be told from a locked
         # one later).
         still = [j for j, h in health.joints.items() if not (h.encoder_moving or h.link_moving)]
-        ambiguous = not topo.unique or bool(topo.candidates)
-        if health.dead_imus or topo.undetermined or still or ambiguous or not topo.joint_parent:
+        if is_ambiguous(topo):
+            return False  # no information either way: the streak neither grows nor breaks
+        if health.dead_imus or topo.undetermined or still or not topo.joint_parent:
             recent.clear()
             return False
         if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):

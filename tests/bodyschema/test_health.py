@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bodyschema.health import HealthThresholds, imu_health, relative_motion, signal_health
+from bodyschema.health import HealthThresholds, drop_impacts, imu_health, relative_motion, signal_health
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
@@ -181,3 +181,20 @@ def test_to_json_round_numbers(rng: np.random.Generator) -> None:
     js = signal_health(synth(rng), LAYOUT).to_json()
     assert set(js["joints"]) == {"j1", "j2", "j3"}
     assert js["imus"]["a1"]["state"] == "ok"
+
+
+def test_drop_impacts_removes_only_the_jump(rng: np.random.Generator) -> None:
+    rec = synth(rng, seconds=10)
+    assert drop_impacts(rec).n_samples == rec.n_samples  # smooth motion: nothing dropped
+    q = rec.q.copy()
+    q[500:, 1] += 0.4  # a stop: the position jumps within one sample
+    hit = Recording(
+        t=rec.t, joint_names=rec.joint_names, q=q, imu_names=rec.imu_names, acc=rec.acc, gyro=rec.gyro
+    )
+    kept = drop_impacts(hit)
+    assert 0 < rec.n_samples - kept.n_samples <= 8
+    assert not np.any((kept.t > 4.97) & (kept.t < 5.02))
+    # velocities come from the full window: away from the jump they equal the clean derivative
+    clean = rec.derived().qd
+    far = np.abs(rec.t - 5.0) > 0.1
+    np.testing.assert_allclose(kept.qd[np.abs(kept.t - 5.0) > 0.1], clean[far], atol=1e-9)

@@ -38,6 +38,7 @@ SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "dashboard.png"
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.slow,
     pytest.mark.skipif(
         not Path(CHROMIUM).exists() and shutil.which("chromium") is None,
         reason="Debian's chromium is not installed (make setup-browser installs it)",
@@ -180,3 +181,81 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
     assert [a.acked for a in store.alerts("arm", active=True) if a.kind == "imu_dead"] == [True]
     assert errors == []
     page.close()
+
+
+@pytest.mark.slow
+def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(browser: Any, tmp_path: Path) -> None:
+    """The real thing: ``serve --demo`` at 20×, the page draws each learned tree with one node per joint,
+    a damage injected from the page becomes an alert row. Leaves docs/dashboard.png."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    import httpx
+
+    port = free_port()
+    env = {
+        **os.environ,
+        "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
+        "BODYHEALTH_WINDOW_SECONDS": "20",
+        "BODYHEALTH_BASELINE_REPEAT_K": "2",
+    }
+    err = (tmp_path / "serve.err").open("w")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service",
+            "serve",
+            "--demo",
+            "--speed",
+            "20",
+            "--port",
+            str(port),
+            "--database-url",
+            f"sqlite:///{tmp_path / 'demo.db'}",
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=err,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 240
+        robots: list[dict] = []
+        while time.monotonic() < deadline:
+            assert proc.poll() is None, (tmp_path / "serve.err").read_text()[-3000:]
+            try:
+                robots = httpx.get(url + "/api/v1/robots", timeout=5).json()
+            except httpx.HTTPError:
+                robots = []
+            if len(robots) == 3 and all(r["has_baseline"] for r in robots):
+                break
+            time.sleep(0.5)
+        assert len(robots) == 3 and all(r["has_baseline"] for r in robots), robots
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.goto(url + "/")
+        for r in robots:
+            sel = f"article[data-robot='{r['name']}'] svg[data-tree='current'] circle.joint-node"
+            page.wait_for_function(f'document.querySelectorAll("{sel}").length > 0', timeout=30_000)
+            assert page.locator(sel).count() == len(r["joints"]), r["name"]
+            base_sel = sel.replace("'current'", "'baseline'")
+            assert page.locator(base_sel).count() == len(r["joints"]), r["name"]
+        form = page.locator("article[data-robot='paper-3-1'] form.damage")
+        form.locator("select").select_option("imu_dead")
+        form.locator("input").fill("imu30")
+        form.locator("button").click()
+        page.wait_for_selector("#alerts tr[data-kind='imu_dead'][data-part='imu:imu30']", timeout=120_000)
+        page.wait_for_selector(
+            "article[data-robot='paper-3-1'] rect.imu-node.changed[data-imu='imu30']", timeout=10_000
+        )
+        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(SCREENSHOT), full_page=True)
+        page.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(60)
+        err.close()
+    assert rc == 0

@@ -95,3 +95,16 @@ def test_forget_and_bad_m() -> None:
     assert tr.active() == []
     with pytest.raises(ValueError, match="m must be"):
         AlertTracker(m=0)
+
+
+def test_held_kinds_are_neither_seen_nor_gone() -> None:
+    moved = Finding("imu_moved", imu="imu1", from_="j1", to="j2")
+    tr = AlertTracker(m=2)
+    assert tr.update("r", [moved]) == []
+    assert tr.update("r", [], hold=["imu_moved"]) == []  # an ambiguous cycle: no information
+    assert [t.state for t in tr.update("r", [moved])] == ["active"]
+    for _ in range(5):
+        assert tr.update("r", [], hold=["imu_moved"]) == []
+    assert tr.active("r") == [("r", "imu_moved", "imu:imu1")]
+    tr.update("r", [])
+    assert [t.state for t in tr.update("r", [])] == ["resolved"]

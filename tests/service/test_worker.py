@@ -267,3 +267,18 @@ def test_no_baseline_from_an_ambiguous_or_short_window(
     w2 = Worker(sqlite_store, short, estimator=Scripted(GOOD))
     w2.run_cycle()  # 12 s of data in a 30 s window: too short to trust
     assert sqlite_store.baseline("arm") is None
+
+
+def test_ambiguous_cycles_neither_count_nor_break_the_streak(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    feed(sqlite_store, synth(rng, seconds=12))
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, settings, estimator=est)
+    ambiguous = dataclasses.replace(GOOD, unique=False, candidates=(GOOD,))
+    for topo in (GOOD, ambiguous, GOOD, ambiguous):
+        est.next = topo
+        w.run_cycle()
+        assert sqlite_store.baseline("arm") is None
+    est.next = GOOD
+    assert w.run_cycle()["arm"].baseline_set
