@@ -34,8 +34,9 @@ def test_slcan_adapter_answers_commands_and_streams_only_when_open(rng):
     port.write(b"S6\rV\rN\rXYZ\r")
     assert port.read(1 + 6 + 6 + 1) == b"\rV1013\rNBH01\r\a"
     port.write(b"O\r")
-    lines = port.read_until(b"t1803", 400)  # OK, then the 5 samples: joint, acc, gyro frames each
-    assert lines.startswith(b"\rt0808") and lines.count(b"\r") >= 1 + 3 * 4
+    lines = port.read(1 + 5 * 3 * 22)  # OK, then 5 samples of a joint, an acc and a gyro frame
+    assert lines.startswith(b"\rt0808") and lines.count(b"\r") == 1 + 5 * 3
+    assert [x[:5] for x in lines.split(b"\r")[1:4]] == [b"t0808", b"t1008", b"t1808"]
     port.close()
     em.stop()
 
