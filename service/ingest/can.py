@@ -294,6 +294,8 @@ class CanSource(Source):
             batches = self._asm.take(flush=True)
             self._sync_counters()
             return batches
+        if self._closed:
+            return []
         if self.bus is None:
             wait = self._next_attempt - time.monotonic()
             if wait > 0:
@@ -302,7 +304,6 @@ class CanSource(Source):
                     return []
             if not self._start():
                 return []
-        batches: list[FrameBatch] = []
         while True:
             with self._cond:
                 if len(self._frames) < self.wake_frames and self._failed is None:

@@ -75,6 +75,7 @@ class SerialSource(Source):
         self._delay = backoff[0]
         self._next_attempt = 0.0
         self._synced: dict[str, int] = {}
+        self._closed = False
         self.port: serial.SerialBase | None = None
         self._connect(first=True)
 
@@ -96,6 +97,9 @@ class SerialSource(Source):
         return True
 
     def _lost(self, err: Exception) -> None:
+        if self._closed:  # closed under a read in progress: not a fault
+            self.port = None
+            return
         log.warning("%s: port lost (%s); reconnecting", self.name, err)
         self.counters.add("disconnects")
         try:
@@ -115,6 +119,8 @@ class SerialSource(Source):
     # ------------------------------------------------------------------ reading
     def _read_raw(self, timeout: float) -> Iterable[FrameBatch]:
         deadline = time.monotonic() + timeout
+        if self._closed:
+            return []
         if self.port is None:
             wait = self._next_attempt - time.monotonic()
             if wait > 0:
@@ -178,6 +184,7 @@ class SerialSource(Source):
             self._synced[k] = v
 
     def close(self) -> None:
+        self._closed = True
         if self.port is not None:
             try:
                 self.port.close()
