@@ -36,6 +36,9 @@ from service.ingest.replay import recording_batch
 
 __all__ = ["FarmSource", "farm_robot_names"]
 
+#: Wall seconds within which a step counts as due.
+_SLACK = 1e-6
+
 
 def farm_robot_names(catalog_names: list[str]) -> dict[str, str]:
     """Robot names for catalog models: ``["ur5e", "ur5e", "paper-3"]`` ->
@@ -101,14 +104,18 @@ class FarmSource(Source):
         assert self._wall0 is not None
         return (self._clock() - self._wall0) * self.speed - self.sim_seconds
 
+    def _step_due(self) -> bool:
+        # The slack keeps float rounding of the clock from leaving a step "almost due" forever.
+        return self._behind() >= self.step_seconds - _SLACK * self.speed
+
     def _read_raw(self, timeout: float) -> list[FrameBatch]:
         if self._wall0 is None:
             self._wall0 = self._clock() - self.step_seconds / self.speed  # the first step is due now
         if math.isfinite(self.speed):
             wait = (self.step_seconds - self._behind()) / self.speed
-            if wait > 0:
+            if wait > _SLACK:
                 self._sleep(min(wait, timeout))
-                if self._behind() < self.step_seconds:
+                if not self._step_due():
                     return []
         out: list[FrameBatch] = []
         for _ in range(self.max_steps_per_read):
@@ -116,6 +123,6 @@ class FarmSource(Source):
                 chunks = self.farm.advance(seconds=self.step_seconds)
             self.sim_seconds += self.step_seconds
             out.extend(recording_batch(name, rec) for name, rec in chunks.items() if rec.n_samples)
-            if math.isfinite(self.speed) and self._behind() < self.step_seconds:
+            if math.isfinite(self.speed) and not self._step_due():
                 break
         return out

@@ -87,10 +87,13 @@ class ReplaySource(Source):
         self.max_batches_per_read = int(max_batches_per_read)
         self._clock, self._sleep = clock, sleep
         t = rec.t
-        edges = np.arange(t[0], t[-1] + chunk_seconds, chunk_seconds)
-        bounds = np.unique(np.concatenate([[0], np.searchsorted(t, edges[1:], side="left"), [t.shape[0]]]))
-        self._bounds = [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
         dt = float(np.median(np.diff(t))) if t.shape[0] > 1 else chunk_seconds
+        # Chunk k holds t0 + k*chunk <= t < t0 + (k+1)*chunk; the slack keeps a sample that sits on an
+        # edge (up to float rounding) at the start of the next chunk.
+        edges = t[0] + chunk_seconds * np.arange(1, int(np.ceil((t[-1] - t[0]) / chunk_seconds)) + 2)
+        cuts = np.searchsorted(t, edges - 1e-6 * dt, side="left")
+        bounds = np.unique(np.concatenate([[0], cuts, [t.shape[0]]]))
+        self._bounds = [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
         self._period = float(t[-1] - t[0]) + dt  # device-time shift per loop
         self._next = 0  # index into _bounds
         self._offset = 0.0  # device-time shift of the current pass
