@@ -9,8 +9,9 @@ Time stamps are ``counter × period`` from the device counter in each frame (nev
 Frames whose counter does not advance (duplicates, a late retransmission) are dropped and counted.
 
 Counters (``source.counters.extra``): ``crc_errors``, ``bad_headers``, ``bytes_discarded``,
-``sequence_gaps`` (frames lost between accepted ones), ``stale_frames``, ``counter_resets``,
-``disconnects``, ``reconnects``, ``clipped`` is the device side's business and not counted here.
+``sequence_gaps`` (frames lost between accepted ones), ``sequence_resets`` (the sequence number jumped
+back: the device restarted), ``stale_frames``, ``counter_resets``, ``disconnects``, ``reconnects``
+(every successful open after the first attempt, including a port that was absent at start).
 
 Example
 -------
