@@ -311,12 +311,14 @@ def signal_health(
             parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in healthy)
             if child and (parent or parent_joint is None):
                 # Several references and subjects (a few each, to bound the cost): one moved or loose
-                # IMU on either link must not decide the joint. Per subject the best-explained fit wins.
+                # IMU on either link must not decide the joint. Per subject the reference that leaves
+                # the least unexplained motion (full model residual) wins: a swinging reference fits
+                # nothing, a rigid one fits a locked joint and a turning one alike.
                 refs = [rec.gyro[:, present[p], :] for p in parent[: th.max_pairs]] or [None]
                 fits = [
-                    max(
+                    min(
                         (relative_motion(rec.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for pg in refs),
-                        key=lambda f: f[1],
+                        key=lambda f: f[0] * np.sqrt(max(0.0, 1.0 - f[1])),
                     )
                     for c in child[: th.max_pairs]
                 ]

@@ -198,3 +198,17 @@ def test_drop_impacts_removes_only_the_jump(rng: np.random.Generator) -> None:
     clean = rec.derived().qd
     far = np.abs(rec.t - 5.0) > 0.1
     np.testing.assert_allclose(kept.qd[np.abs(kept.t - 5.0) > 0.1], clean[far], atol=1e-9)
+
+
+def test_locked_joint_with_a_loose_reference_imu_is_still(rng: np.random.Generator) -> None:
+    rec = synth(rng, locked="j2")
+    gyro = rec.gyro.copy()
+    gyro[:, 0] = rng.normal(0, 1.0, gyro[:, 0].shape)  # a1 on the parent link swings on a tether
+    h = signal_health(
+        Recording(
+            t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=rec.imu_names, acc=rec.acc, gyro=gyro
+        ),
+        LAYOUT,
+    )
+    assert h.joints["j2"].state == "still"
+    assert h.joints["j3"].state == "ok"
