@@ -1,0 +1,14 @@
+"""Device emulators: a recording or a simulated robot played onto a pty as a real device would send it.
+
+- :class:`~service.emulators.devices.SlcanEmulator`: an slcan USB-CAN adapter on a bus carrying the
+  project CAN layout (classic or CAN FD);
+- :class:`~service.emulators.devices.SerialEmulator`: a device streaming serial frames;
+- :class:`~service.emulators.pty_port.PtyPort`: the pty underneath, with a stable link and unplug/replug.
+
+Command line: ``python -m service.emulators can|serial --robot ur5e --seconds 30 --seed 0``.
+"""
+
+from service.emulators.devices import SerialEmulator, SlcanEmulator
+from service.emulators.pty_port import PtyPort
+
+__all__ = ["PtyPort", "SerialEmulator", "SlcanEmulator"]
