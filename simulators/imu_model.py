@@ -323,16 +323,6 @@ class ImuParams:
             "acc_noise": bool(np.any(self.acc_noise)),
         }
 
-    @functools.cached_property
-    def stacked_matrix(self) -> np.ndarray:
-        """(2K, 3, 3): gyro and accelerometer sensitivity of each IMU, interleaved."""
-        return np.stack([self.gyro_matrix, self.acc_matrix], axis=1).reshape(-1, 3, 3)
-
-    @functools.cached_property
-    def stacked_bias(self) -> np.ndarray:
-        """(2K, 3): gyro and accelerometer bias of each IMU, interleaved."""
-        return np.stack([self.gyro_bias, self.acc_bias], axis=1).reshape(-1, 3)
-
     @classmethod
     def identity(cls, imu_names: tuple[str, ...]) -> ImuParams:
         K = len(imu_names)
@@ -341,16 +331,16 @@ class ImuParams:
         return cls(imu_names, np.zeros(K), eye, eye.copy(), z, z.copy(), z.copy(), z.copy())
 
     def finishing(self, rate: float) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-        """Noise std (2, 3), full scale (2, 1) and resolution (2, 1) for stacked (gyro, acc), or None
+        """Noise std (2, 3), full scale (2,) and resolution (2,) for stacked (gyro, acc), or None
         where the effect is absent; cached per rate (the farm asks every chunk)."""
         cache = self.__dict__.setdefault("_finishing", {})
         if rate not in cache:
             g, a = self.noise_std(rate)
             f = self.flags
             std = np.stack([g, a]) if (f["gyro_noise"] or f["acc_noise"]) else None
-            full = (np.array([[self.gyro_range], [self.acc_range]])
+            full = (np.array([self.gyro_range, self.acc_range])
                     if math.isfinite(self.gyro_range) or math.isfinite(self.acc_range) else None)
-            lsb = (np.array([[self.gyro_lsb], [self.acc_lsb]])
+            lsb = (np.array([self.gyro_lsb, self.acc_lsb])
                    if self.gyro_lsb > 0 or self.acc_lsb > 0 else None)
             cache[rate] = (std, full, lsb)
         return cache[rate]
@@ -427,20 +417,27 @@ def _pointwise(
     return acc, gyro
 
 
-# The remaining effects work on both triads of every IMU stacked as (T, K, 2, 3) (gyro first): one
-# numpy call per effect instead of two.
-def _sensitivity(p: ImuParams, both: np.ndarray) -> np.ndarray:
-    """Effects 4-5: sensitivity matrix and bias."""
+# The remaining effects work on both triads of every IMU stacked as (2, T, K, 3), gyro first: each
+# triad is one contiguous block, so per-sensor constants apply as scalars at full numpy speed.
+def _sensitivity(p: ImuParams, acc: np.ndarray, gyro: np.ndarray) -> np.ndarray:
+    """Effects 4-5 (sensitivity matrix and bias); returns the stacked triads."""
     f = p.flags
-    if not (f["gyro_matrix"] or f["gyro_bias"] or f["acc_matrix"] or f["acc_bias"]):
-        return both
-    T, K = both.shape[:2]
-    out = fx.affine(both.reshape(T, 2 * K, 3), p.stacked_matrix, p.stacked_bias)
-    return out.reshape(T, K, 2, 3)
+    out = np.empty((2, *gyro.shape))
+    if f["gyro_matrix"] or f["gyro_bias"]:
+        out[0] = fx.affine(gyro, p.gyro_matrix if f["gyro_matrix"] else None,
+                           p.gyro_bias if f["gyro_bias"] else None)
+    else:
+        out[0] = gyro
+    if f["acc_matrix"] or f["acc_bias"]:
+        out[1] = fx.affine(acc, p.acc_matrix if f["acc_matrix"] else None,
+                           p.acc_bias if f["acc_bias"] else None)
+    else:
+        out[1] = acc
+    return out
 
 
 def _shift(p: ImuParams, t: np.ndarray, both: np.ndarray) -> np.ndarray:
-    """Effect 6: time offset (per IMU)."""
+    """Effect 6: time offset (per IMU), on stacked triads."""
     if not p.flags["time_offset"] or len(t) < 2:
         return both
     both = both.copy()
@@ -448,33 +445,29 @@ def _shift(p: ImuParams, t: np.ndarray, both: np.ndarray) -> np.ndarray:
         if off == 0.0:
             continue
         k = p.time_offset == off
-        both[:, k] = fx.time_shift(t, both[:, k], float(off))
+        for s in (0, 1):
+            both[s][:, k] = fx.time_shift(t, both[s][:, k], float(off))
     return both
 
 
 def _finish(p: ImuParams, both: np.ndarray, rate: float, rng: np.random.Generator) -> np.ndarray:
-    """Effects 7-8: white noise, then full-scale clipping and quantization."""
+    """Effects 7-8 on stacked triads, in place: white noise, then full-scale clipping and quantization."""
     std, full_scale, lsb = p.finishing(rate)
-    both = np.array(both, dtype=np.float64)  # a fresh array: the steps below work in place
+    _, T, K, _ = both.shape
     if std is not None:
         # one time-major draw: the noise of sample i does not depend on how samples are chunked
-        noise = rng.standard_normal(both.shape, dtype=np.float32)
-        noise *= std.astype(np.float32)
-        both += noise
-    if full_scale is not None:
-        np.clip(both, -full_scale, full_scale, out=both)
-    if lsb is not None:
-        if np.all(lsb > 0):  # fx.quantize, in place (no zero-step handling needed)
-            both *= 1.0 / lsb
-            np.rint(both, out=both)
-            both *= lsb
-        else:
-            both = fx.quantize(both, lsb)
+        noise = rng.standard_normal((T, 2, K * 3), dtype=np.float32)
+        for s in (0, 1):
+            both[s].reshape(T, K * 3)[:] += noise[:, s] * np.tile(std[s], K)
+    for s in (0, 1):
+        x = both[s]
+        if full_scale is not None and math.isfinite(full_scale[s]):
+            np.clip(x, -full_scale[s], full_scale[s], out=x)
+        if lsb is not None and lsb[s] > 0:  # fx.quantize, in place
+            x *= 1.0 / lsb[s]
+            np.rint(x, out=x)
+            x *= lsb[s]
     return both
-
-
-def _stack(acc: np.ndarray, gyro: np.ndarray) -> np.ndarray:
-    return np.stack([gyro, acc], axis=2)
 
 
 def distort(
@@ -493,8 +486,8 @@ def distort(
     for a lever arm (estimated by central differences of ``gyro`` when absent).
     """
     a, g = _pointwise(p, t, acc, gyro, gyro_dot, R, world_gravity)
-    both = _shift(p, np.asarray(t, dtype=np.float64), _sensitivity(p, _stack(a, g)))
-    return both[:, :, 1], both[:, :, 0]
+    both = _shift(p, np.asarray(t, dtype=np.float64), _sensitivity(p, a, g))
+    return both[1], both[0]
 
 
 def finish(
@@ -503,9 +496,9 @@ def finish(
     """Effects 7-8: white noise, then quantization and full-scale clipping; returns (acc, gyro)."""
     if all(x is None for x in p.finishing(rate)):
         return acc, gyro
-    both = _finish(p, _stack(np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64)),
-                   rate, rng)
-    return both[:, :, 1], both[:, :, 0]
+    both = np.stack([np.asarray(gyro, dtype=np.float64), np.asarray(acc, dtype=np.float64)])
+    both = _finish(p, both, rate, rng)
+    return both[1], both[0]
 
 
 def apply(
@@ -537,9 +530,9 @@ class ImuStream:
         self.world_gravity = np.asarray(world_gravity, dtype=np.float64)
         self.history = math.ceil(float(np.max(np.abs(params.time_offset), initial=0.0)) * rate) + 2
         self._t = np.empty(0)
-        self._hist = np.empty((0, len(params.imu_names), 2, 3))
+        self._hist = np.empty((2, 0, len(params.imu_names), 3))
         self.dead: dict[int, str] = {}
-        self._last = np.zeros((len(params.imu_names), 2, 3))
+        self._last = np.zeros((2, len(params.imu_names), 3))
         self._frozen: dict[int, np.ndarray] = {}
 
     @property
@@ -552,7 +545,7 @@ class ImuStream:
         if mode not in ("frozen", "zero"):
             raise ValueError("mode must be 'frozen' or 'zero'")
         self.dead[index] = mode
-        self._frozen[index] = self._last[index].copy()
+        self._frozen[index] = self._last[:, index].copy()
 
     def process(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, rng: np.random.Generator, *,
                 gyro_dot: np.ndarray | None = None,
@@ -563,20 +556,18 @@ class ImuStream:
             return acc.copy(), gyro.copy()
         # pointwise effects first (they need R / gyro_dot of these very samples) ...
         a, g = _pointwise(p, t, acc, gyro, gyro_dot, R, self.world_gravity)
-        both = _sensitivity(p, _stack(a, g))
+        both = _sensitivity(p, a, g)
         # ... then the time shift over history + chunk
         if p.flags["time_offset"]:
             ht = np.concatenate([self._t, t])
-            hb = np.concatenate([self._hist, both])
-            both = _shift(p, ht, hb)[-T:]
-            self._t, self._hist = ht[-self.history:], hb[-self.history:]
+            hb = np.concatenate([self._hist, both], axis=1)
+            both = np.ascontiguousarray(_shift(p, ht, hb)[:, -T:])
+            self._t, self._hist = ht[-self.history:], hb[:, -self.history:]
         both = _finish(p, both, self.rate, rng)
-        if self.dead:
-            both = both.copy() if not both.flags.writeable else both
-            for k, mode in self.dead.items():
-                both[:, k] = 0.0 if mode == "zero" else self._frozen[k]
-        self._last = both[-1].copy()
-        return both[:, :, 1], both[:, :, 0]
+        for k, mode in self.dead.items():
+            both[:, :, k] = 0.0 if mode == "zero" else self._frozen[k][:, None, :]
+        self._last = both[:, -1].copy()
+        return both[1], both[0]
 
 
 # ------------------------------------------------------------------------------- presets and files
