@@ -26,10 +26,13 @@ def _parent_joint_via_bodies(m: mujoco.MjModel) -> dict[str, str | None]:
     return out
 
 
+@pytest.mark.parametrize("excitation", ["random-torque", "sine", "observable", "poses"])
 @pytest.mark.parametrize("name", NAMES)
-def test_compiles_steps_two_seconds_without_warnings(name: str, rng: np.random.Generator) -> None:
+def test_compiles_steps_two_seconds_without_warnings(
+    name: str, excitation: str, rng: np.random.Generator
+) -> None:
     robot = Robot.from_catalog(name)
-    exc = make_excitation("random-torque" if name.startswith("paper") else "observable").bind(robot, rng)
+    exc = make_excitation(excitation).bind(robot, rng)
     t = np.arange(200) / robot.rate
     s = robot.sample(exc.ctrl(robot, t))
     assert robot.warnings() == {}
