@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-__all__ = ["FastEstimator", "FastFit", "fast_fit", "noise_level"]
+__all__ = ["FastEstimator", "FastFit", "fast_fit", "insufficient_excitation", "noise_level"]
 
 _WORLD = -1
 
@@ -72,6 +72,20 @@ def noise_level(x: np.ndarray) -> np.ndarray:
     d3 = np.diff(x, n=3, axis=0)
     mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0)  # (K, 3)
     return np.sqrt(np.mean((1.4826 * mad) ** 2, axis=-1) / 20.0)
+
+
+def insufficient_excitation(
+    qd: np.ndarray, gyro: np.ndarray, min_excitation_snr: float = 15.0, min_excitation: float = 2e-3
+) -> np.ndarray:
+    """(N,) bool: joints whose RMS velocity the gyros cannot tell from noise.
+
+    A joint is undetermined when its RMS velocity is below ``min_excitation_snr`` times the median gyro
+    noise (then its two links move alike within noise) or below ``min_excitation`` rad/s.
+    """
+    sigma = noise_level(np.asarray(gyro, dtype=float))
+    sigma_ref = float(np.median(sigma[np.isfinite(sigma)])) if np.isfinite(sigma).any() else 0.0
+    excitation = np.sqrt(np.mean(np.asarray(qd, dtype=float) ** 2, axis=0))
+    return excitation < max(min_excitation, min_excitation_snr * sigma_ref)
 
 
 @dataclass
@@ -245,8 +259,7 @@ def fast_fit(
     floor = (rel_tol * rms) ** 2 + 1e-12
 
     excitation = np.sqrt(np.mean(qd * qd, axis=0))
-    sigma_ref = float(np.median(sigma)) if K else 0.0
-    undetermined = excitation < max(min_excitation, min_excitation_snr * sigma_ref)
+    undetermined = insufficient_excitation(qd, gyro, min_excitation_snr, min_excitation)
     active = np.flatnonzero(~undetermined)
 
     # ---- same-link and base tests, IMU against IMU

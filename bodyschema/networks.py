@@ -1,0 +1,237 @@
+"""The paper's sensor networks (Sec. III-A, Fig. 2): one SE(3) pose network per IMU, trained together.
+
+Each IMU ``k`` gets ``f_k(θ) -> (R_k(θ), b_k(θ))``: three sigmoid hidden layers, 3 translation outputs and
+3 roll-pitch-yaw outputs turned into ``R = Rz(γ) Ry(β) Rx(α)`` (Eq. 12). All networks of a robot are one
+module with an IMU axis on every weight (``torch.bmm``), so K networks cost one batched matrix product
+per layer rather than a Python loop.
+
+Loss (per IMU, each term divided by the spread of its measurement so metres and radians weigh alike):
+
+* accelerometer, Eq. 11 / Eq. 24: ``|α − Rᵀ (b̈ − g)|²`` with ``b̈ = H θ̇θ̇ + J θ̈`` (Eq. 3). ``b̈`` is the
+  second derivative of ``b(θ(t))`` along the motion, taken by two nested forward-mode derivatives of
+  ``s -> b(θ + s θ̇ + s²/2 θ̈)`` at ``s = 0``. With ``gravity=True`` (the default for data with gravity)
+  the recording's gravity vector enters as a specific force, ``α = Rᵀ(b̈ − g)`` (the sensor reads +9.81
+  up at rest, DESIGN §2; the paper writes the same term with the opposite sign convention for g).
+* gyro: ``|ω − vee(Rᵀ Ṙ)|²`` with ``Ṙ = J_R θ̇`` (forward mode). The paper compares rotations
+  (Eq. 10/11: the trace of ``R1ᵀ R2``, R1 built from the predicted rate over a sample time, R2 from the
+  measured one); to second order in the sample time ``3 − tr(R1ᵀR2) = Ts² |ω1 − ω2|² / 2``, so the
+  squared rate error is the same objective without the arccos/trace numerics or a Ts to pick.
+* a learned constant bias per IMU and axis for both sensors: an MPU-6050 gyro may be off by 20 °/s,
+  which no pose network can produce (``vee(RᵀṘ)`` vanishes at rest).
+
+Example
+-------
+>>> import torch
+>>> net = SensorNetworks(n_imus=2, n_joints=3, hidden=(8, 8, 8), seed=0)
+>>> R, b = net.pose(torch.zeros(5, 3))
+>>> tuple(R.shape), tuple(b.shape)
+((2, 5, 3, 3), (2, 5, 3))
+>>> bool(torch.allclose(R[0, 0] @ R[0, 0].T, torch.eye(3), atol=1e-6))
+True
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+__all__ = ["SensorNetworks", "rpy_to_matrix", "set_torch_threads", "train_sensor_networks"]
+
+log = logging.getLogger(__name__)
+
+
+def set_torch_threads(limit: int | None = None) -> int:
+    """Use ``limit`` CPU threads (default: ``BODYHEALTH_TORCH_THREADS`` or 1); returns it.
+
+    One thread by default: a training step here is a few small batched products, and a second
+    OpenMP thread mostly spin-waits — measured 7x more CPU time per step on a shared 2-core machine.
+    """
+    n = limit or int(os.environ.get("BODYHEALTH_TORCH_THREADS", "1"))
+    n = max(1, min(n, os.cpu_count() or 1))
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)
+    return n
+
+
+def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
+    """Eq. 12: ``Rz(γ) Ry(β) Rx(α)`` for ``rpy = (α, β, γ)`` on the last axis -> (..., 3, 3)."""
+    a, b, g = rpy.unbind(-1)
+    ca, sa, cb, sb, cg, sg = a.cos(), a.sin(), b.cos(), b.sin(), g.cos(), g.sin()
+    row0 = torch.stack([cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa], -1)
+    row1 = torch.stack([sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa], -1)
+    row2 = torch.stack([-sb, cb * sa, cb * ca], -1)
+    return torch.stack([row0, row1, row2], -2)
+
+
+class SensorNetworks(nn.Module):
+    """K pose networks ``θ -> (R, b)`` with batched weights (IMU axis first on every parameter)."""
+
+    def __init__(self, n_imus: int, n_joints: int, hidden: Sequence[int] = (64, 64, 64), seed: int = 0):
+        super().__init__()
+        gen = torch.Generator().manual_seed(int(seed))
+        sizes = [n_joints, *hidden, 6]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for fan_in, fan_out in itertools.pairwise(sizes):
+            bound = 1.0 / math.sqrt(fan_in)
+            w = (torch.rand(n_imus, fan_in, fan_out, generator=gen) * 2 - 1) * bound
+            self.weights.append(nn.Parameter(w))
+            self.biases.append(nn.Parameter(torch.zeros(n_imus, 1, fan_out)))
+        self.gyro_bias = nn.Parameter(torch.zeros(n_imus, 1, 3))
+        # gravity direction in each network's own world frame (the frame is arbitrary, Prop. 1)
+        self.gravity_dir = nn.Parameter(torch.tensor([0.0, 0.0, -1.0]).repeat(n_imus, 1, 1))
+        self.acc_bias = nn.Parameter(torch.zeros(n_imus, 1, 3))
+        self.n_imus = n_imus
+        self.n_joints = n_joints
+
+    def set_input_scaling(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Standardize joint angles inside the model (sigmoid layers train badly on raw radians)."""
+        self.in_mean = mean.reshape(1, -1).to(torch.float32)
+        self.in_std = std.reshape(1, -1).clamp_min(1e-3).to(torch.float32)
+
+    in_mean: torch.Tensor | None = None
+    in_std: torch.Tensor | None = None
+
+    def _scale(self, theta: torch.Tensor) -> torch.Tensor:
+        if self.in_mean is None or self.in_std is None:
+            return theta
+        return (theta - self.in_mean) / self.in_std
+
+    def raw(self, theta: torch.Tensor) -> torch.Tensor:
+        """Network outputs (K, B, 6) for joint angles ``theta`` (B, N)."""
+        x = self._scale(theta).expand(self.n_imus, *theta.shape[-2:])
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            x = torch.baddbmm(b, x, w)
+            if i < last:
+                x = torch.sigmoid(x)
+        return x
+
+    def pose(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(R (K, B, 3, 3), b (K, B, 3))`` — the sensor pose in the (unknown) world frame."""
+        out = self.raw(theta)
+        return rpy_to_matrix(out[..., 3:]), out[..., :3]
+
+    def _along(
+        self, theta: torch.Tensor, theta_d: torch.Tensor, theta_dd: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Outputs and their first and second time derivatives along the motion, (K, B, 6) each.
+
+        Forward-mode by hand (value, first and second derivative through every layer, stacked into
+        one batched product per layer): the same numbers as nested ``torch.func.jvp``, at a fraction
+        of the kernel launches, which is what dominates on a CPU.
+        """
+        K, B = self.n_imus, theta.shape[0]
+        inv = 1.0 if self.in_std is None else 1.0 / self.in_std
+        x = torch.cat([self._scale(theta), theta_d * inv, theta_dd * inv], 0).expand(K, 3 * B, -1)
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            z = torch.bmm(x, w)
+            z0, z1, z2 = z[:, :B] + b, z[:, B : 2 * B], z[:, 2 * B :]
+            if i < last:
+                y = torch.sigmoid(z0)
+                d1 = y * (1 - y)
+                d2 = d1 * (1 - 2 * y)
+                x = torch.cat([y, d1 * z1, d2 * z1 * z1 + d1 * z2], 1)
+            else:
+                return z0, z1, z2
+        raise AssertionError("unreachable")
+
+    def predict(
+        self, theta: torch.Tensor, theta_d: torch.Tensor, theta_dd: torch.Tensor, gravity: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Predicted gyro and accelerometer readings (K, B, 3) from θ, θ̇, θ̈ (B, N)."""
+        out, out_d, out_dd = self._along(theta, theta_d, theta_dd)
+        rpy, rpy_d = out[..., 3:], out_d[..., 3:]
+        R = rpy_to_matrix(rpy)
+        # body rates of Z-Y-X Euler angles: the closed form of vee(Rᵀ Ṙ) for R = Rz(γ) Ry(β) Rx(α)
+        a, bta = rpy[..., 0], rpy[..., 1]
+        da, db, dg = rpy_d.unbind(-1)
+        sa, ca, sb, cb = a.sin(), a.cos(), bta.sin(), bta.cos()
+        omega = torch.stack([da - sb * dg, ca * db + sa * cb * dg, -sa * db + ca * cb * dg], -1)
+        b_dd = out_dd[..., :3]
+        if gravity is not None:
+            g_dir = self.gravity_dir / torch.linalg.vector_norm(self.gravity_dir, dim=-1, keepdim=True)
+            b_dd = b_dd - torch.linalg.vector_norm(gravity) * g_dir
+        acc = (R.transpose(-1, -2) @ b_dd.unsqueeze(-1)).squeeze(-1)
+        return omega + self.gyro_bias, acc + self.acc_bias
+
+
+def train_sensor_networks(
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    gyro: np.ndarray,
+    acc: np.ndarray,
+    gravity: np.ndarray | None,
+    hidden: Sequence[int] = (32, 32, 32),
+    epochs: int = 40,
+    batch_size: int = 512,
+    lr: float = 1e-2,
+    gyro_weight: float = 1.0,
+    seed: int = 0,
+    progress: bool = False,
+) -> tuple[SensorNetworks, list[float]]:
+    """Fit one pose network per IMU on a recording's arrays; returns the model and the loss per epoch.
+
+    ``gravity`` None trains the gravity-free form (Eq. 11) — right only for data without gravity.
+    Threads follow :func:`set_torch_threads`; a tqdm bar is shown when ``progress``, and the loss is
+    logged every 10 epochs either way.
+    """
+    set_torch_threads()
+    torch.manual_seed(int(seed))
+    T, N = q.shape
+    K = gyro.shape[1]
+    f32 = torch.float32
+    th = torch.as_tensor(q, dtype=f32)
+    thd = torch.as_tensor(qd, dtype=f32)
+    thdd = torch.as_tensor(qdd, dtype=f32)
+    w_meas = torch.as_tensor(gyro, dtype=f32).transpose(0, 1)  # (K, T, 3)
+    a_meas = torch.as_tensor(acc, dtype=f32).transpose(0, 1)
+    g = None if gravity is None else torch.as_tensor(gravity, dtype=f32)
+    w_scale = w_meas.std(dim=1, keepdim=True).mean(-1, keepdim=True).clamp_min(1e-3)
+    a_scale = a_meas.std(dim=1, keepdim=True).mean(-1, keepdim=True).clamp_min(1e-2)
+    net = SensorNetworks(K, N, hidden=hidden, seed=seed)
+    net.set_input_scaling(th.mean(0), th.std(0))
+    with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
+        net.gyro_bias.copy_(w_meas.mean(dim=1, keepdim=True))
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    steps = max(1, math.ceil(T / batch_size)) * epochs
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.15)
+    gen = torch.Generator().manual_seed(int(seed))
+    history: list[float] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=epochs, desc=f"sensor networks ({K} IMUs)", unit="epoch", leave=False)
+    for epoch in range(epochs):
+        perm = torch.randperm(T, generator=gen)
+        total = 0.0
+        for start in range(0, T, batch_size):
+            idx = perm[start : start + batch_size]
+            w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)
+            lw = (((w_hat - w_meas[:, idx]) / w_scale) ** 2).mean()
+            la = (((a_hat - a_meas[:, idx]) / a_scale) ** 2).mean()
+            loss = la + gyro_weight * lw
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += float(loss.detach()) * len(idx)
+        history.append(total / T)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{history[-1]:.4f}")
+        if epoch % 10 == 9 or epoch == epochs - 1:
+            log.info("sensor networks: epoch %d/%d loss %.5f", epoch + 1, epochs, history[-1])
+    if bar is not None:
+        bar.close()
+    return net, history
