@@ -10,7 +10,12 @@ model of each effect, :mod:`bodyschema.imu_effects`, in a fixed order:
 2. ``mounting_rotation``: the sensor frame rotated by ``rotvec`` from the body frame;
 3. ``lever_arm``: the accelerometer displaced by ``meters`` (sensor frame) from the body origin;
 4. ``time_offset``: both channels delayed by ``seconds`` (positive = IMU samples lag the reference);
-5. ``gyro_scale``/``gyro_bias`` and ``acc_scale``/``acc_bias``: per-axis gain and offset;
+5. ``gyro_scale``/``gyro_bias`` and ``acc_scale``/``acc_bias``: per-axis gain (``matrix`` holds the
+   three gains, 1 = ideal) and offset (``vector``);
+
+The parameter names are those of the simulator's IMU model JSON (:mod:`simulators.imu_model`), and
+so is every effect's meaning; only the lever arm is expressed in the rotated sensor frame here (the
+simulator applies it before the mounting rotation; the export converts).
 
 ``noise`` (white, std per axis) changes no expected reading and is measured apart
 (:func:`bodyschema.discrepancy.residuals.noise_std`).
@@ -22,7 +27,7 @@ Example
 >>> t = np.arange(4) * 0.01
 >>> ref = ReferenceMotion(t, np.tile(np.eye(3), (4, 1, 1)), np.zeros((4, 3)), np.zeros((4, 3)),
 ...                       np.array([0.0, 0.0, -9.81]))
->>> gyro, acc = predict(ref, {"gyro_bias": {"bias": [0.1, 0.0, 0.0]}})
+>>> gyro, acc = predict(ref, {"gyro_bias": {"vector": [0.1, 0.0, 0.0]}})
 >>> gyro[0].tolist(), acc[0].tolist()
 ([0.1, 0.0, 0.0], [0.0, 0.0, 9.81])
 >>> EFFECTS["lever_arm"].to_params(np.array([0.01, 0.0, 0.02]))
@@ -91,14 +96,14 @@ EFFECTS: dict[str, Effect] = {
         Effect("time_offset", "seconds", 1, "both", 0.005,
                "residual proportional to the derivative of the reading (angular acceleration, jerk)",
                (0.0,)),
-        Effect("gyro_bias", "bias", 3, "gyro", 0.01,
+        Effect("gyro_bias", "vector", 3, "gyro", 0.01,
                "constant gyro residual, present at rest", (0.0, 0.0, 0.0)),
-        Effect("acc_bias", "bias", 3, "acc", 0.05,
+        Effect("acc_bias", "vector", 3, "acc", 0.05,
                "constant accelerometer residual in the sensor frame, whatever the orientation",
                (0.0, 0.0, 0.0)),
-        Effect("gyro_scale", "gain", 3, "gyro", 0.01,
+        Effect("gyro_scale", "matrix", 3, "gyro", 0.01,
                "gyro residual proportional to the angular rate on the same axis", (1.0, 1.0, 1.0)),
-        Effect("acc_scale", "gain", 3, "acc", 0.01,
+        Effect("acc_scale", "matrix", 3, "acc", 0.01,
                "accelerometer residual proportional to the reading on the same axis",
                (1.0, 1.0, 1.0)),
         Effect("mounting_rotation", "rotvec", 3, "both", 0.02,

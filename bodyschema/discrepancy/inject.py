@@ -12,7 +12,7 @@ Example
 >>> RANGES["time_offset"][0] <= p["seconds"] <= RANGES["time_offset"][1]
 True
 >>> t = np.arange(5) * 0.01
->>> g, a = inject("gyro_bias", {"bias": [0.1, 0.0, 0.0]}, t, np.zeros((5, 3)), np.zeros((5, 3)),
+>>> g, a = inject("gyro_bias", {"vector": [0.1, 0.0, 0.0]}, t, np.zeros((5, 3)), np.zeros((5, 3)),
 ...               np.tile([1.0, 0, 0, 0], (5, 1)), rng)
 >>> g[0].tolist()
 [0.1, 0.0, 0.0]
@@ -54,9 +54,9 @@ def draw(effect: str, rng: np.random.Generator) -> dict[str, object]:
     if effect == "time_offset":
         return {"seconds": mag}
     if effect in ("gyro_bias", "acc_bias"):
-        return {"bias": (mag * _unit(rng)).tolist()}
+        return {"vector": (mag * _unit(rng)).tolist()}
     if effect in ("gyro_scale", "acc_scale"):
-        return {"gain": (1.0 + rng.choice([-1.0, 1.0], size=3) * rng.uniform(lo, hi, size=3)).tolist()}
+        return {"matrix": (1.0 + rng.choice([-1.0, 1.0], size=3) * rng.uniform(lo, hi, size=3)).tolist()}
     if effect == "mounting_rotation":
         return {"rotvec": (mag * _unit(rng)).tolist()}
     if effect == "lever_arm":
@@ -86,13 +86,13 @@ def inject(
     if effect == "time_offset":
         return fx.time_shift(t, g, params["seconds"]), fx.time_shift(t, a, params["seconds"])
     if effect == "gyro_bias":
-        return fx.affine(g, bias=params["bias"]), a
+        return fx.affine(g, bias=params["vector"]), a
     if effect == "acc_bias":
-        return g, fx.affine(a, bias=params["bias"])
+        return g, fx.affine(a, bias=params["vector"])
     if effect == "gyro_scale":
-        return fx.affine(g, matrix=params["gain"]), a
+        return fx.affine(g, matrix=params["matrix"]), a
     if effect == "acc_scale":
-        return g, fx.affine(a, matrix=params["gain"])
+        return g, fx.affine(a, matrix=params["matrix"])
     if effect == "mounting_rotation":
         return fx.rotate(g, params["rotvec"]), fx.rotate(a, params["rotvec"])
     if effect == "lever_arm":

@@ -12,13 +12,13 @@ on held-out time blocks only.
 Example
 -------
 >>> r = DiscrepancyReport(residual_before={"gyro_rms": 0.1, "acc_rms": 0.5}, causes=[
-...     Cause("gyro_bias", {"bias": [0.1, 0.0, 0.0]}, {"bias": [0.001, 0.0, 0.0]}, gain=0.9, p_value=1e-6,
+...     Cause("gyro_bias", {"vector": [0.1, 0.0, 0.0]}, {"vector": [0.001, 0.0, 0.0]}, gain=0.9, p_value=1e-6,
 ...           signature="constant gyro residual", explained=0.95)],
 ...     residual_after={"gyro_rms": 0.01, "acc_rms": 0.5}, held_out={"blocks": 6})
 >>> r.names
 ['gyro_bias']
 >>> r.to_json()["causes"][0]["params"]
-{'bias': [0.1, 0.0, 0.0]}
+{'vector': [0.1, 0.0, 0.0]}
 """
 
 from __future__ import annotations
@@ -74,6 +74,8 @@ class DiscrepancyReport:
     screening: list[dict[str, float]] = field(default_factory=list)
     settings: dict[str, object] = field(default_factory=dict)
     meta: dict[str, object] = field(default_factory=dict)
+    #: The prepared data the analysis ran on (for plots; not part of the JSON).
+    problem: object | None = field(default=None, repr=False, compare=False)
 
     @property
     def names(self) -> list[str]:

@@ -22,7 +22,7 @@ Example
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import welch
+from scipy.signal import butter, sosfreqz, welch
 
 from bodyschema.rigid_motion import ReferenceMotion, lowpass
 
@@ -43,16 +43,19 @@ FEATURE_FAMILIES: dict[str, str] = {
 def noise_std(x: np.ndarray, rate: float, index: np.ndarray | None = None, band: float = 0.25) -> np.ndarray:
     """White-noise std per axis (unit of ``x``) from the band above ``band * rate`` Hz.
 
-    The high-passed signal holds ``1 - 2 * band`` of a white noise's variance; dividing by that
-    fraction gives the full-band std (the convention of :func:`bodyschema.imu_effects.white_noise`:
-    ``std = density * sqrt(rate)``). Motion must lie well below ``band * rate``.
+    The residual of the zero-phase low-pass (:func:`~bodyschema.rigid_motion.lowpass`) passes white
+    noise with power gain ``(1 - |H|²)²``; dividing by its mean over the band gives the full-band
+    std (the convention of :func:`bodyschema.imu_effects.white_noise`: ``std = density *
+    sqrt(rate)``). Motion must lie well below ``band * rate``.
     """
     a = np.asarray(x, dtype=np.float64)
     if not 0 < band < 0.5:
         raise ValueError("band must lie in (0, 0.5)")
     hp = a - lowpass(a, rate, band * rate)
     sel = hp if index is None else hp[index]
-    return np.sqrt(np.mean(sel**2, axis=0) / (1.0 - 2.0 * band))
+    _, h = sosfreqz(butter(4, band * rate, fs=rate, output="sos"), worN=4096, fs=rate)
+    passed = float(np.mean((1.0 - np.abs(h) ** 2) ** 2))
+    return np.sqrt(np.mean(sel**2, axis=0) / passed)
 
 
 def explained_fraction(y: np.ndarray, X: np.ndarray) -> float:

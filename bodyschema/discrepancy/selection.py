@@ -29,8 +29,8 @@ Example
 >>> m = smooth_random_motion(30.0, 100.0, np.random.default_rng(3))
 >>> ref = reference_motion(m["t"], m["quat"], m["pos"], cutoff=10.0)
 >>> rep = analyze(ref, m["gyro"] + [0.0, 0.05, 0.0], m["acc"])
->>> rep.names, np.round(rep.params["gyro_bias"]["bias"], 3).tolist()
-(['gyro_bias'], [0.0, 0.05, 0.0])
+>>> rep.names, np.round(rep.params["gyro_bias"]["vector"], 3).tolist()[1]
+(['gyro_bias'], 0.05)
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import ttest_1samp
+from threadpoolctl import threadpool_limits
 
-from bodyschema import imu_effects as fx
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, pack, predict, unpack
 from bodyschema.discrepancy.fit import (
     Problem,
@@ -52,6 +52,7 @@ from bodyschema.discrepancy.fit import (
     jacobian,
     normalized_residual,
     prepare,
+    residual,
     score,
 )
 from bodyschema.discrepancy.report import Cause, DiscrepancyReport
@@ -73,9 +74,9 @@ class _Fold:
 
 
 def _rms(prob: Problem, params: Params, index: np.ndarray) -> dict[str, object]:
-    gp, ap = predict(prob.ref, params)
-    rg = (prob.gyro - gp)[index]
-    ra = (prob.acc - ap)[index]
+    r, _ = residual(prob, params)
+    rg = r[index, :3]
+    ra = r[index, 3:]
     return {
         "gyro_rms": float(np.sqrt(np.mean(rg**2))),
         "acc_rms": float(np.sqrt(np.mean(ra**2))),
@@ -84,28 +85,20 @@ def _rms(prob: Problem, params: Params, index: np.ndarray) -> dict[str, object]:
     }
 
 
-def _raw_residual(prob: Problem, params: Params) -> tuple[np.ndarray, np.ndarray]:
-    gp, ap = predict(prob.ref, params)
-    pred = np.concatenate([gp, ap], axis=1)
-    return np.concatenate([prob.gyro, prob.acc], axis=1) - pred, pred
-
-
 def _init_time_offset(prob: Problem, params: Params, index: np.ndarray) -> Params:
     """Start a time-offset fit at the best of a grid (the cost is not convex in the offset).
 
-    The shift commutes with the per-sample effects applied after it, so the prediction without the
-    offset is computed once and only shifted per grid point.
+    The prediction without the offset is computed once; only the measurement is shifted per grid
+    point (:meth:`~bodyschema.discrepancy.fit.Problem.measured`).
     """
     p0 = {k: v for k, v in params.items() if k != "time_offset"}
     gp, ap = predict(prob.ref, p0)
-    both = np.stack([gp, ap], axis=1)
-    meas = np.stack([prob.gyro, prob.acc], axis=1)[index]
-    w = 1.0 / prob.scale[None, :, None]
+    pred = np.concatenate([gp, ap], axis=1)[index]
+    w = np.repeat(1.0 / prob.scale, 3)
     best, best_s = 0.0, np.inf
     step = 2.0 / prob.rate
     for tau in np.arange(-0.2, 0.2 + step / 2, step):
-        r = (meas - fx.time_shift(prob.ref.t, both, float(tau))[index]) * w
-        s = float(np.mean(r**2))
+        s = float(np.mean(((prob.measured(float(tau))[index] - pred) * w) ** 2))
         if s < best_s:
             best, best_s = float(tau), s
     out = dict(params)
@@ -128,13 +121,17 @@ def _init_mounting(prob: Problem, params: Params, index: np.ndarray) -> Params:
 
 
 def _gauss_newton(
-    J: np.ndarray, base: np.ndarray, names: list[str], cols: list[str], train: np.ndarray
+    JtJ: np.ndarray, Jtr: np.ndarray, names: list[str], cols: list[str]
 ) -> np.ndarray:
-    """One Gauss-Newton step (parameter deltas of ``names``) on the training samples."""
+    """One Gauss-Newton step (parameter deltas of ``names``) from the training normal equations.
+
+    ``JtJ``/``Jtr`` hold every screened column; each candidate solves its own sub-system (a
+    minimum-norm solve, so collinear signatures such as a bias and a gravity tilt without rotation
+    do not blow up).
+    """
     offs = np.cumsum([0] + [EFFECTS[n].size for n in cols])
     idx = np.concatenate([np.arange(offs[i], offs[i + 1]) for i, n in enumerate(cols) if n in names])
-    A = J[train][:, :, idx].reshape(-1, idx.size)
-    delta, *_ = np.linalg.lstsq(A, base[train].ravel(), rcond=None)
+    delta, *_ = np.linalg.lstsq(JtJ[np.ix_(idx, idx)], Jtr[idx], rcond=1e-10)
     return delta
 
 
@@ -160,7 +157,7 @@ def analyze(
     effects: Sequence[str] = FITTED_EFFECTS,
     n_blocks: int = 8,
     alpha: float = 0.01,
-    min_gain: float = 0.002,
+    min_gain: float = 0.0005,
     cutoff: float | None = 10.0,
     analysis_rate: float | None = 100.0,
     margin: float = 0.25,
@@ -179,6 +176,30 @@ def analyze(
     bad = [e for e in effects if e not in FITTED_EFFECTS]
     if bad:
         raise ValueError(f"unknown or unfittable effects {bad}; choose from {list(FITTED_EFFECTS)}")
+    # The matrices here are tall and thin (samples x a few dozen parameters): BLAS threads only
+    # contend, several-fold slower on a busy machine than one thread.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _analyze(ref, gyro, acc, valid, effects, n_blocks, alpha, min_gain, cutoff, analysis_rate,
+                        margin, noise_floor, scale_floor, max_tries, progress)
+
+
+def _analyze(
+    ref: ReferenceMotion,
+    gyro: np.ndarray,
+    acc: np.ndarray,
+    valid: np.ndarray | None,
+    effects: Sequence[str],
+    n_blocks: int,
+    alpha: float,
+    min_gain: float,
+    cutoff: float | None,
+    analysis_rate: float | None,
+    margin: float,
+    noise_floor: tuple[float, float],
+    scale_floor: tuple[float, float],
+    max_tries: int,
+    progress: bool,
+) -> DiscrepancyReport:
     prob = prepare(ref, gyro, acc, valid, cutoff, analysis_rate, margin, scale_floor)
     blocks = block_folds(prob.index, n_blocks)
     folds = [
@@ -205,9 +226,11 @@ def analyze(
         J, _ = jacobian(prob, mean_p, cols)
         for k, f in enumerate(folds):
             base = normalized_residual(prob, f.params)
+            A = J[f.train].reshape(-1, J.shape[2])
+            JtJ, Jtr = A.T @ A, A.T @ base[f.train].ravel()
             for c in cands:
                 names = [n for n in cols if n in selected or n == c]
-                delta = _gauss_newton(J, base, names, cols, f.train)
+                delta = _gauss_newton(JtJ, Jtr, names, cols)
                 p_new = _step_params(f.params, names, delta)
                 gains[c][k] = f.held - score(normalized_residual(prob, p_new), f.test)
                 steps[c].append(p_new)
@@ -274,8 +297,8 @@ def analyze(
         params["noise"] = causes[-1].params
     fitted = {k: v for k, v in params.items() if k != "noise"}
     held_after = float(np.mean([f.held for f in folds]))
-    res_b, pred_b = _raw_residual(prob, {})
-    res_a, pred_a = _raw_residual(prob, fitted)
+    res_b, pred_b = residual(prob, {})
+    res_a, pred_a = residual(prob, fitted)
     held = _held_out_rms(prob, folds)
     return DiscrepancyReport(
         residual_before=_rms(prob, {}, prob.index),
@@ -303,6 +326,7 @@ def analyze(
             "samples_used": int(prob.index.size),
             "effects": list(effects),
         },
+        problem=prob,
     )
 
 
@@ -312,9 +336,9 @@ def _held_out_rms(prob: Problem, folds: list[_Fold]) -> dict[str, float]:
     n = 0
     for f in folds:
         for tag, p in (("before", {}), ("after", {k: v for k, v in f.params.items() if k != "noise"})):
-            gp, ap = predict(prob.ref, p)
-            sq[f"gyro_{tag}"] += float(np.sum((prob.gyro - gp)[f.test] ** 2))
-            sq[f"acc_{tag}"] += float(np.sum((prob.acc - ap)[f.test] ** 2))
+            r, _ = residual(prob, p)
+            sq[f"gyro_{tag}"] += float(np.sum(r[f.test, :3] ** 2))
+            sq[f"acc_{tag}"] += float(np.sum(r[f.test, 3:] ** 2))
         n += f.test.size * 3
     return {f"{k.split('_')[0]}_rms_{k.split('_')[1]}": float(np.sqrt(v / n)) for k, v in sq.items()}
 
@@ -433,7 +457,7 @@ class DiscrepancyAnalyzer:
         effects: Sequence[str] = FITTED_EFFECTS,
         n_blocks: int = 8,
         alpha: float = 0.01,
-        min_gain: float = 0.002,
+        min_gain: float = 0.0005,
         cutoff: float | None = 10.0,
         analysis_rate: float | None = 100.0,
         margin: float = 0.25,

@@ -1,0 +1,103 @@
+"""``bodyhealth sim2real REC.npz``: what the simulation gets wrong about a measured IMU, and why.
+
+Prints the causes in order with parameters, uncertainty and held-out gain (``--json``: the DESIGN §2
+discrepancy JSON), writes the extended IMU model in the simulator's format (``--out``), and a report
+with residual plots before/after (``--report DIR``). ``--transfer OTHER.npz ...`` checks the fitted
+model end to end on recordings that were not used for the fit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sim2real",
+        help="name the effects that make a measured IMU differ from the simulation; fit an IMU model",
+    )
+    p.add_argument("recording", type=Path, help="recording (.npz) with a reference motion (ref_quat/ref_pos)")
+    p.add_argument(
+        "--model",
+        default=None,
+        help="robot (catalog name or MJCF file) for recordings of a robot (q instead of ref_quat)",
+    )
+    p.add_argument("--imu", default=None, help="IMU name (default: every IMU of the recording)")
+    p.add_argument("--json", action="store_true", help="print the discrepancy JSON")
+    p.add_argument("--out", type=Path, default=None, help="write the fitted IMU model (simulator JSON)")
+    p.add_argument("--report", type=Path, default=None, help="write report.md, JSON and PNG plots here")
+    p.add_argument("--transfer", type=Path, nargs="*", default=(), help="recordings to test the fit on")
+    p.add_argument("--cutoff", type=float, default=10.0, help="common low-pass of both sides, Hz")
+    p.add_argument("--blocks", type=int, default=8, help="held-out time blocks")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level of a new effect")
+    p.add_argument("--min-gain", type=float, default=0.0005, help="smallest held-out gain to accept")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from bodyschema.discrepancy import analyze_recording
+    from service.sim2real_report import format_summary, to_imu_model, transfer, write_report
+    from simulators.imu_model import save_imu_model
+    from simulators.recording_io import load_recording
+
+    rec = load_recording(args.recording)
+    if rec.ref_quat is None:
+        if args.model is None:
+            raise ValueError(
+                f"{args.recording}: no reference motion (ref_quat); a robot recording needs --model"
+            )
+        raise ValueError("robot recordings are not supported yet: import a motion-capture reference")
+    imus = [args.imu] if args.imu else list(rec.imu_names)
+    results = {}
+    for imu in imus:
+        rep = analyze_recording(
+            rec,
+            imu,
+            cutoff=args.cutoff,
+            n_blocks=args.blocks,
+            alpha=args.alpha,
+            min_gain=args.min_gain,
+            progress=sys.stderr.isatty(),
+        )
+        model = to_imu_model(rep.params, name=f"{args.recording.stem}:{imu}")
+        transfers = {}
+        for other in args.transfer:
+            orec = load_recording(other)
+            k = orec.imu_names.index(imu) if imu in orec.imu_names else 0
+            transfers[other.stem] = transfer(orec, model, cutoff=args.cutoff, imu=k)
+        results[imu] = (rep, model, transfers)
+        if args.report:
+            out = args.report if len(imus) == 1 else args.report / imu
+            write_report(rep, out, title=f"{args.recording.stem} {imu}", transfers=transfers or None)
+    if args.out:
+        if len(imus) > 1:
+            for imu, (_, model, _) in results.items():
+                save_imu_model(model, args.out.with_name(f"{args.out.stem}_{imu}{args.out.suffix}"))
+        else:
+            save_imu_model(results[imus[0]][1], args.out)
+    if args.json:
+        docs = {}
+        for imu, (rep, _, transfers) in results.items():
+            d = rep.to_json()
+            if transfers:
+                d["transfer"] = transfers
+            docs[imu] = d
+        print(json.dumps(docs[imus[0]] if len(imus) == 1 else docs, indent=2))
+    else:
+        for imu, (rep, _, transfers) in results.items():
+            print(f"== {args.recording.name} {imu}")
+            print(format_summary(rep))
+            for name, tr in transfers.items():
+                print(
+                    f"transfer to {name}: gyro {tr['gyro_rms_default']:.4f} -> {tr['gyro_rms_model']:.4f} "
+                    f"rad/s, acc {tr['acc_rms_default']:.4f} -> {tr['acc_rms_model']:.4f} m/s², "
+                    f"gain {tr['gain']:.3f}"
+                )
+            if rep.meta.get("attribution"):
+                print(f"data: {rep.meta['attribution']}")
+    return 0

@@ -1,0 +1,94 @@
+"""``bodyhealth sim2real`` and the report/model output (service.sim2real_report) on simulated motion."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodyschema.discrepancy import EFFECTS, predict
+from bodyschema.discrepancy.inject import draw, inject
+from bodyschema.recording import Recording
+from bodyschema.rigid_motion import reference_motion, smooth_random_motion
+from service.cli import main
+from service.sim2real_report import simulate_readings, to_imu_model, transfer
+from simulators.imu_model import load_imu_model, save_imu_model
+from simulators.recording_io import save_recording
+
+HIDDEN = {"time_offset": {"seconds": 0.012}, "gyro_bias": {"vector": [0.02, -0.05, 0.01]}}
+
+
+def _recording(rng: np.random.Generator, hidden: dict | None = None, seconds: float = 30.0) -> Recording:
+    # effects injected at 8x the recorded rate (a time shift interpolates), recorded at 100 Hz
+    m = smooth_random_motion(seconds, 800.0, rng, oversample=1)
+    gyro, acc = m["gyro"], m["acc"]
+    for eff, p in (hidden or {}).items():
+        gyro, acc = inject(eff, p, m["t"], gyro, acc, m["quat"], rng)
+    m = {k: (v[::8] if v.ndim and v.shape[0] == m["t"].shape[0] else v) for k, v in m.items()}
+    gyro, acc = gyro[::8], acc[::8]
+    return Recording(
+        t=m["t"], joint_names=(), q=None, imu_names=("imu0",), acc=acc[:, None], gyro=gyro[:, None],
+        ref_quat=m["quat"], ref_pos=m["pos"],
+        extra={"ref_valid": np.ones(m["t"].shape[0], dtype=bool), "attribution": np.array("synthetic")},
+    )
+
+
+def test_exported_model_simulates_exactly_what_the_fit_predicts(
+    rng: np.random.Generator, tmp_path: Path
+) -> None:
+    m = smooth_random_motion(10.0, 100.0, rng)
+    ref = reference_motion(m["t"], m["quat"], m["pos"], cutoff=10.0)
+    params = {e: draw(e, rng) for e in EFFECTS if e != "noise"}
+    path = tmp_path / "model.json"
+    save_imu_model(to_imu_model(params), path)
+    g_sim, a_sim = simulate_readings(ref, load_imu_model(path))
+    g_fit, a_fit = predict(ref, params)
+    # the simulator's effect order differs (lever arm before rotation): the export converts exactly
+    assert np.allclose(g_sim, g_fit, atol=1e-9)
+    assert np.allclose(a_sim, a_fit, atol=1e-9)
+    g_id, _ = simulate_readings(ref, "ideal")
+    assert np.max(np.abs(g_id - g_fit)) > 0.01
+
+
+def test_cli_names_the_causes_writes_model_report_and_transfers(
+    rng: np.random.Generator, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fit_rec, other = _recording(rng, HIDDEN), _recording(rng, HIDDEN)
+    save_recording(fit_rec, tmp_path / "fit.npz")
+    save_recording(other, tmp_path / "other.npz")
+    args = ["sim2real", str(tmp_path / "fit.npz"), "--json", "--out", str(tmp_path / "imu.json"),
+            "--report", str(tmp_path / "rep"), "--transfer", str(tmp_path / "other.npz")]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert {c["effect"] for c in doc["causes"]} == set(HIDDEN)
+    got = {c["effect"]: c for c in doc["causes"]}
+    assert got["time_offset"]["params"]["seconds"] == pytest.approx(0.012, abs=2e-4)
+    assert np.allclose(got["gyro_bias"]["params"]["vector"], HIDDEN["gyro_bias"]["vector"], atol=1e-3)
+    assert all(c["gain"] > 0 and c["p_value"] < 0.01 for c in doc["causes"])
+    assert doc["residual_after"]["gyro_rms"] < 0.1 * doc["residual_before"]["gyro_rms"]
+    assert doc["transfer"]["other"]["gain"] > 0.95  # same sensor, different motion
+    model = load_imu_model(tmp_path / "imu.json")
+    assert dict(model.effects)["time_offset"]["seconds"] == pytest.approx(0.012, abs=2e-4)
+    for name in ("discrepancy.json", "imu_model.json", "report.md", "residuals.png", "structure.png"):
+        assert (tmp_path / "rep" / name).stat().st_size > 100
+    assert (tmp_path / "rep" / "residuals.png").read_bytes()[:4] == b"\x89PNG"
+    assert "synthetic" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_transfer_of_the_ideal_model_gains_nothing(rng: np.random.Generator) -> None:
+    rec = _recording(rng, HIDDEN, seconds=10.0)
+    tr = transfer(rec, "ideal")
+    assert tr["gain"] == pytest.approx(0.0, abs=1e-12)
+    assert tr["gyro_rms_model"] == tr["gyro_rms_default"] > 0.01
+
+
+def test_cli_refuses_a_recording_without_reference(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rec = Recording(t=np.arange(50) * 0.01, joint_names=("j1",), q=np.zeros((50, 1)), imu_names=("imu0",),
+                    acc=np.zeros((50, 1, 3)), gyro=np.zeros((50, 1, 3)))
+    save_recording(rec, tmp_path / "robot.npz")
+    assert main(["sim2real", str(tmp_path / "robot.npz")]) == 1
+    assert "reference motion" in capsys.readouterr().err
