@@ -21,8 +21,8 @@ estimate below it), so one broken joint gives one finding.
 7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
    that depend on it are not judged.
 
-Identical inputs give no finding. A current estimate that is not unique gives only the signal-level
-findings (1, 3, 4): where it puts a part is not evidence. Everything here is pure.
+Identical inputs give no finding. A current estimate that is not unique gives only the findings
+signal health starts (1-4): where it puts a part is no evidence on its own. Everything here is pure.
 
 Example
 -------
@@ -145,7 +145,9 @@ def diff_bodies(
             if jh.state not in ("moving", "flat"):
                 judged.add(j)  # the IMUs on its link were judged: no structure-only verdict on it
             live, lost = lost_below(j)
-            all_lost = structural and bool(live) and len(lost) == len(live)
+            # The encoder already disagrees with the link here; the estimate's placement (even an
+            # ambiguous one) only has to confirm that nothing below follows the joint.
+            all_lost = bool(live) and len(lost) == len(live)
             if jh.state in ("wrong_encoder", "unfollowed") and all_lost:
                 # the encoder turns, but nothing below follows it: the link broke off
                 findings.append(

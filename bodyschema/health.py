@@ -273,12 +273,15 @@ def signal_health(
     layout: Topology | None = None,
     expected_imus: Iterable[str] | None = None,
     thresholds: HealthThresholds | None = None,
+    current: Topology | None = None,
 ) -> SignalHealth:
     """Health of every IMU and joint in ``rec``.
 
     ``layout`` (usually the baseline topology) says which IMUs ride which link; without it joints are
     judged from their encoders alone. ``expected_imus`` (default: the layout's IMUs plus the
-    recording's) names IMUs that should report; those absent from ``rec`` are ``silent``.
+    recording's) names IMUs that should report; those absent from ``rec`` are ``silent``. ``current``
+    (the estimate from the same window) picks the reference IMUs on each parent link: those it still
+    places where the layout does, so a moved or loose IMU does not serve as the parent link.
     """
     th = thresholds or HealthThresholds()
     present = {n: k for k, n in enumerate(rec.imu_names)}
@@ -309,6 +312,9 @@ def signal_health(
             child = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in healthy)
             parent_joint = layout.joint_parent[j]
             parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in healthy)
+            if current is not None:
+                trusted = [i for i in parent if current.imu_joint.get(i, "?") == parent_joint]
+                parent = trusted or parent
             if child and (parent or parent_joint is None):
                 # Several references and subjects (a few each, to bound the cost): one moved or loose
                 # IMU on either link must not decide the joint. Per subject the reference that leaves

@@ -220,7 +220,6 @@ class Worker:
             return res
         base = self.store.baseline(robot)
         layout = base.topology if base is not None else None
-        res.health = signal_health(rec, layout, expected_imus)
         window_end = float(rec.t[-1])
         fast: Topology | None = None
         learn = drop_impacts(rec)  # velocity jumps at stops read as contradictions to the estimators
@@ -234,6 +233,7 @@ class Worker:
                 fast = topo
         if fast is None:
             return res
+        res.health = signal_health(rec, layout, expected_imus, current=fast)
         res.topology = fast
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)

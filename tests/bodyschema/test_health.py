@@ -212,3 +212,15 @@ def test_locked_joint_with_a_loose_reference_imu_is_still(rng: np.random.Generat
     )
     assert h.joints["j2"].state == "still"
     assert h.joints["j3"].state == "ok"
+
+
+def test_moved_reference_imu_is_not_trusted_when_the_estimate_says_so(rng: np.random.Generator) -> None:
+    rec = synth(rng)
+    gyro = rec.gyro.copy()
+    gyro[:, 0] = gyro[:, 2] + 0.05  # a1 (parent link of j2) now sits rigidly on j2's link
+    moved = Recording(
+        t=rec.t, joint_names=rec.joint_names, q=rec.q, imu_names=rec.imu_names, acc=rec.acc, gyro=gyro
+    )
+    current = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "a1": "j2"})
+    h = signal_health(moved, LAYOUT, current=current)
+    assert h.joints["j2"].state == "ok" and h.joints["j2"].explained > 0.95
