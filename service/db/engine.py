@@ -28,6 +28,10 @@ __all__ = ["is_sqlite", "make_engine", "normalize_url", "session_scope"]
 
 #: How long (ms) an SQLite connection waits for another writer before giving up.
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+#: Page size of new SQLite files, bytes.
+SQLITE_PAGE_SIZE = 65536
+#: Page cache per SQLite connection, KiB.
+SQLITE_CACHE_KIB = 65536
 
 
 def normalize_url(url: str) -> str:
@@ -46,6 +50,11 @@ def is_sqlite(url: str) -> bool:
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     cur = dbapi_conn.cursor()
     try:
+        # Frame chunks are blobs of 100 kB and more: 64 KiB pages make their overflow chains 16x shorter
+        # (ingest about twice as fast as with the default 4 KiB, see docs/bench/store.md). It only takes
+        # effect on a new database file, so it must come before WAL mode creates one.
+        cur.execute(f"PRAGMA page_size={SQLITE_PAGE_SIZE}")
+        cur.execute(f"PRAGMA cache_size=-{SQLITE_CACHE_KIB}")
         cur.execute("PRAGMA journal_mode=WAL")
         cur.execute("PRAGMA synchronous=NORMAL")
         cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
