@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import glob
 import os
+import pwd
 import shutil
 import socket
 import subprocess
+import tempfile
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -44,20 +46,28 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _start_cluster(base: Path) -> tuple[str, Callable[[], None]] | str:
+def _start_cluster() -> tuple[str, Callable[[], None]] | str:
     """Start a throwaway cluster; returns (admin URL, stop) or the reason it could not."""
     initdbs = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
     if not initdbs:
         return "no PostgreSQL server answers on 127.0.0.1:5432 and no initdb under /usr/lib/postgresql"
     bindir = Path(initdbs[-1]).parent
+    # Not under pytest's tmp dir: that is private to the user running the tests, and as root the
+    # cluster must run as the postgres user, who needs to reach its data folder.
+    base = Path(tempfile.mkdtemp(prefix="bodyhealth-pg-"))
     data, port = base / "pgdata", _free_port()
     prefix: list[str] = []
     if os.geteuid() == 0:  # initdb refuses to run as root
         runuser = shutil.which("runuser")
         if runuser is None:
             return "running as root without runuser; cannot start a PostgreSQL cluster"
+        try:
+            pw = pwd.getpwnam("postgres")
+        except KeyError:
+            return "running as root and there is no postgres user to run a PostgreSQL cluster"
+        os.chown(base, pw.pw_uid, pw.pw_gid)
         prefix = [runuser, "-u", "postgres", "--"]
-        base.chmod(0o777)
+    pg_ctl = [*prefix, str(bindir / "pg_ctl"), "-D", str(data)]
     try:
         subprocess.run(
             [
@@ -77,10 +87,7 @@ def _start_cluster(base: Path) -> tuple[str, Callable[[], None]] | str:
         )
         subprocess.run(
             [
-                *prefix,
-                str(bindir / "pg_ctl"),
-                "-D",
-                str(data),
+                *pg_ctl,
                 "-l",
                 str(base / "pg.log"),
                 "-w",
@@ -92,27 +99,29 @@ def _start_cluster(base: Path) -> tuple[str, Callable[[], None]] | str:
             capture_output=True,
             timeout=120,
         )
+    except subprocess.CalledProcessError as err:
+        shutil.rmtree(base, ignore_errors=True)
+        why = (err.stderr or b"").decode(errors="replace").strip().splitlines()[-1:] or [str(err)]
+        return f"could not start a throwaway PostgreSQL cluster: {why[0]}"
     except (subprocess.SubprocessError, OSError) as err:
+        shutil.rmtree(base, ignore_errors=True)
         return f"could not start a throwaway PostgreSQL cluster: {err}"
 
     def stop() -> None:
-        subprocess.run(
-            [*prefix, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
-            capture_output=True,
-            timeout=60,
-        )
+        subprocess.run([*pg_ctl, "-m", "immediate", "stop"], capture_output=True, timeout=60)
+        shutil.rmtree(base, ignore_errors=True)
 
     return f"postgresql://postgres@127.0.0.1:{port}/postgres", stop
 
 
 @pytest.fixture(scope="session")
-def postgres_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def postgres_server() -> Iterator[str]:
     """Admin conninfo (libpq URL, database ``postgres``) of a reachable PostgreSQL server."""
     url = os.environ.get(ADMIN_ENV, DEFAULT_ADMIN)
     if _answers(url):
         yield url
         return
-    started = _start_cluster(tmp_path_factory.mktemp("pg"))
+    started = _start_cluster()
     if isinstance(started, str):
         pytest.skip(started)
     url, stop = started
