@@ -60,7 +60,7 @@ from service.ingest.base import Counters, FrameBatch, FrameError, Source
 from service.settings import Settings, get_settings
 from service.store import Store
 
-__all__ = ["CommitCallback", "Pipeline", "main"]
+__all__ = ["CommitCallback", "CommitLog", "Pipeline", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -321,7 +321,7 @@ class Pipeline:
 
 
 # ------------------------------------------------------------------------------------------ program
-class _CommitLog:
+class CommitLog:
     """Appends one JSON line per commit: ``{"robot": .., "t_end": .., "samples": ..}`` per robot, with
     ``samples`` the running total stored for that robot by this process. Flushed after every line so a
     killed process leaves every line it reported."""
@@ -346,6 +346,10 @@ class _CommitLog:
         self._fh.close()
 
 
+#: Former private name, kept for callers that imported it.
+_CommitLog = CommitLog
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Ingest the given source specs into a database until they are exhausted, SIGTERM or SIGINT."""
     from service.ingest.spec import open_source
@@ -360,7 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = get_settings()
     store = Store(args.database_url or settings.database_url, settings=settings)
     sources = [open_source(spec, settings) for spec in args.specs]
-    commit_log = _CommitLog(args.commit_log) if args.commit_log else None
+    commit_log = CommitLog(args.commit_log) if args.commit_log else None
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
