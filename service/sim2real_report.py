@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from bodyschema.discrepancy import DiscrepancyReport, Params, prepare
+from bodyschema.discrepancy import DiscrepancyReport, Params, Problem, prepare
 from bodyschema.imu_effects import rotation_matrix, specific_force
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import ReferenceMotion
@@ -36,6 +36,7 @@ __all__ = [
     "simulate_readings",
     "to_imu_model",
     "transfer",
+    "transfer_problem",
     "write_report",
 ]
 
@@ -101,26 +102,35 @@ def simulate_readings(
     return g[:, 0], a[:, 0]
 
 
+def transfer_problem(
+    rec: Recording, cutoff: float | None = 10.0, analysis_rate: float | None = None, imu: int = 0
+) -> Problem:
+    """The prepared comparison data of a recording for :func:`transfer` (reuse it for many models).
+
+    At the recorded rate by default: the simulator shifts time by linear interpolation, which a
+    coarse grid would blur.
+    """
+    from bodyschema.discrepancy import reference_of
+
+    ref = reference_of(rec, cutoff)
+    return prepare(ref, rec.gyro[:, imu], rec.acc[:, imu], rec.extra.get("ref_valid"), cutoff, analysis_rate)
+
+
 def transfer(
-    rec: Recording,
+    rec: Recording | Problem,
     model: ImuModel | str,
     default: ImuModel | str = "ideal",
     cutoff: float | None = 10.0,
-    analysis_rate: float | None = None,
     imu: int = 0,
 ) -> dict[str, float]:
     """Figure of merit: the fitted model's simulation against a measured recording, vs the default's.
 
     Both simulations and the measurement are low-passed alike and compared on the samples with a
-    valid reference, at the recorded rate by default (the simulator shifts time by linear
-    interpolation, which a coarse grid would blur). ``score`` is the mean over the two channels of
-    MSE(model) / MSE(default): below 1 the model simulates this recording better than the default;
-    ``gain = 1 - score``.
+    valid reference. ``score`` is the mean over the two channels of MSE(model) / MSE(default): below
+    1 the model simulates this recording better than the default; ``gain = 1 - score``. ``rec`` may
+    be a :func:`transfer_problem` already prepared.
     """
-    from bodyschema.discrepancy import reference_of
-
-    ref = reference_of(rec, cutoff)
-    prob = prepare(ref, rec.gyro[:, imu], rec.acc[:, imu], rec.extra.get("ref_valid"), cutoff, analysis_rate)
+    prob = rec if isinstance(rec, Problem) else transfer_problem(rec, cutoff, imu=imu)
     out: dict[str, float] = {}
     mse = {}
     for tag, m in (("default", default), ("model", model)):

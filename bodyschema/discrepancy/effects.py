@@ -147,6 +147,21 @@ def unpack(vec: np.ndarray, names: tuple[str, ...] | list[str]) -> Params:
     return out
 
 
+_MEMO: dict[tuple[str, bytes], tuple[ReferenceMotion, np.ndarray]] = {}
+
+
+def _memo(key: tuple[str, bytes], ref: ReferenceMotion, compute) -> np.ndarray:
+    """The last value of ``compute()`` for ``key`` on this very ``ref`` (fits re-evaluate the model
+    hundreds of times with most effects unchanged; the specific force and the angular acceleration
+    only change with gravity and the mounting rotation). Returned arrays must not be modified."""
+    hit = _MEMO.get(key)
+    if hit is not None and hit[0] is ref:
+        return hit[1]
+    value = compute()
+    _MEMO[key] = (ref, value)
+    return value
+
+
 def predict(
     ref: ReferenceMotion, params: Mapping[str, Mapping[str, object]]
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -157,16 +172,19 @@ def predict(
     unknown = set(params) - set(EFFECTS)
     if unknown:
         raise ValueError(f"unknown effects {sorted(unknown)}; known: {list(EFFECT_NAMES)}")
-    g = EFFECTS["gravity"].from_params(params.get("gravity"))
-    acc = fx.specific_force(ref.R, ref.acc_world, g if "gravity" in params else ref.gravity)
+    g = EFFECTS["gravity"].from_params(params.get("gravity")) if "gravity" in params else ref.gravity
+    acc = _memo(("sf", g.tobytes()), ref, lambda: fx.specific_force(ref.R, ref.acc_world, g))
     gyro = ref.omega
+    rv = None
     if "mounting_rotation" in params:
         rv = EFFECTS["mounting_rotation"].from_params(params["mounting_rotation"])
         both = fx.rotate(np.concatenate([gyro, acc]), rv)  # one call for both triads
         gyro, acc = both[: len(gyro)], both[len(gyro) :]
     if "lever_arm" in params:
         r = EFFECTS["lever_arm"].from_params(params["lever_arm"])
-        acc = fx.lever_arm(acc, gyro, fx.angular_acceleration(ref.t, gyro), r)
+        key = ("wdot", b"" if rv is None else rv.tobytes())
+        wdot = _memo(key, ref, lambda: fx.angular_acceleration(ref.t, gyro))
+        acc = fx.lever_arm(acc, gyro, wdot, r)
     if "time_offset" in params:
         tau = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
         both = fx.time_shift(ref.t, np.stack([gyro, acc], axis=1), tau)
@@ -183,4 +201,4 @@ def predict(
             EFFECTS["acc_scale"].from_params(params.get("acc_scale")),
             EFFECTS["acc_bias"].from_params(params.get("acc_bias")),
         )
-    return np.asarray(gyro, dtype=np.float64), np.asarray(acc, dtype=np.float64)
+    return np.array(gyro, dtype=np.float64), np.array(acc, dtype=np.float64)  # never the memo
