@@ -63,7 +63,7 @@ function layout(topo) {
 function drawTree(topo, changed, cls) {
   const { pos, cols, depth } = layout(topo);
   const dx = 74, dy = 62, pad = 30;
-  const w = Math.max(cols * dx + pad, 220), h = (depth + 1) * dy + pad + 14;
+  const w = Math.max(cols * dx + pad + 60, 260), h = (depth + 1) * dy + pad + 14;
   const X = (p) => pad / 2 + p.x * dx + dx / 2 - 4, Y = (p) => pad / 2 + p.y * dy + 10;
   const root = svg("svg", { class: `tree ${cls}`, viewBox: `0 0 ${w} ${h}`, "data-tree": cls });
   const undetermined = new Set(topo.insufficient_excitation || []);
@@ -193,14 +193,17 @@ async function renderRobot(robot, alerts) {
   } catch (err) {
     return;
   }
-  const changed = changedParts(topo.baseline, topo.current, mine);
+  // An ambiguous estimate (several trees fit) is drawn, but its placements are not called changes.
+  const ambiguous = topo.current && topo.current.unique === false;
+  const changed = changedParts(topo.baseline, ambiguous ? null : topo.current, mine);
   const figs = [];
   for (const [which, t] of [["baseline", topo.baseline], ["current", topo.current]]) {
     const fig = el("figure", {});
     if (t) fig.appendChild(drawTree(t, changed, which));
     else fig.appendChild(el("div", { class: "empty" }, which === "baseline" ? "no baseline yet" : "nothing learned yet"));
     const meta = which === "baseline" ? topo.baseline_meta : topo.current_meta;
-    fig.appendChild(el("figcaption", {}, meta ? `${which} (${meta.method}${meta.source ? ", " + meta.source : ""}, ${fmtTime(meta.wall_time)})` : which));
+    const note = which === "current" && ambiguous ? ", ambiguous: several trees fit" : "";
+    fig.appendChild(el("figcaption", {}, meta ? `${which} (${meta.method}${meta.source ? ", " + meta.source : ""}, ${fmtTime(meta.wall_time)}${note})` : which));
     figs.push(fig);
   }
   card.trees.replaceChildren(...figs);
@@ -211,7 +214,9 @@ function renderAlerts(alerts) {
   const rows = alerts.map((a) => {
     const tr = el("tr", { class: "alert", "data-alert": String(a.id), "data-kind": a.kind, "data-part": a.part });
     const f = a.finding || {};
-    const detail = f.from !== undefined || f.to !== undefined ? `${f.from ?? "base"} → ${f.to ?? "base"}` : (f.detail || "");
+    const moved = a.kind === "imu_moved" || a.kind === "joint_reparented";
+    const detail = moved ? `${f.from ?? "base"} → ${f.to ?? "base"}`
+      : [f.detail, f.from ? `(on ${f.from})` : null].filter(Boolean).join(" ");
     tr.append(el("td", {}, a.robot), el("td", {}, a.kind), el("td", {}, a.part), el("td", {}, detail),
       el("td", {}, fmtTime(a.raised_at)));
     const td = el("td", {});
