@@ -563,9 +563,18 @@ class Store:
 
     def mark_simulated(self, name: str, catalog: str) -> None:
         """Flag a robot as simulated (registering it if new) and record its catalog model."""
-        with self._write_lock, self._sessions() as s, s.begin():
-            known = self._register_robot(s, name)
-            s.execute(update(Robot).where(Robot.id == known.id).values(simulated=True, catalog=catalog))
+        if not name or not isinstance(name, str):
+            raise ValueError("robot name must be a non-empty string")
+        with self._write_lock:
+            try:
+                with self._sessions() as s, s.begin():
+                    known = self._register_robot(s, name)
+                    s.execute(
+                        update(Robot).where(Robot.id == known.id).values(simulated=True, catalog=catalog)
+                    )
+            except SQLAlchemyError:
+                self._known.pop(name, None)  # the registration may have rolled back with it
+                raise
 
     def set_excitation(self, name: str, excitation: dict[str, float]) -> None:
         """Record how well each joint is excited (e.g. the worker's last estimate), 0..1 per joint."""

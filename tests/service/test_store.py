@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -348,3 +349,37 @@ def test_ping_false_when_database_unreachable(tmp_path) -> None:
     assert Store.__new__(Store) is not None
     broken = Store(f"sqlite:///{tmp_path / 'x.db'}", migrate_schema=False)
     assert broken.ping() is False
+
+
+def test_random_batching_and_windows_match_a_plain_slice(rng: np.random.Generator) -> None:
+    """Any batching, chunk size and window gives the same samples as slicing the whole stream."""
+    for _case in range(15):
+        n = int(rng.integers(1, 400))
+        cuts = np.unique(np.concatenate([[0, n], rng.integers(0, n, size=int(rng.integers(0, 30)))]))
+        whole = make_batch(rng, n=n)
+        with Store("sqlite://", chunk_max_samples=int(rng.integers(1, 60))) as store:
+            parts = [
+                FrameBatch(
+                    "r1",
+                    whole.t[a:b],
+                    whole.joint_names,
+                    whole.q[a:b],
+                    whole.imu_names,
+                    whole.acc[a:b],
+                    whole.gyro[a:b],
+                )
+                for a, b in itertools.pairwise(cuts)
+            ]
+            k = 0
+            while k < len(parts):  # transactions of random size
+                step = int(rng.integers(1, 5))
+                store.write_many(parts[k : k + step])
+                k += step
+            for _w in range(5):
+                end_i = int(rng.integers(0, n))
+                width = int(rng.integers(1, n + 1))
+                rec = store.read_window("r1", width / RATE, end=float(whole.t[end_i]))
+                lo = max(end_i - width + 1, 0)
+                np.testing.assert_array_equal(rec.t, whole.t[lo : end_i + 1])
+                np.testing.assert_array_equal(rec.gyro, whole.gyro[lo : end_i + 1])
+                np.testing.assert_array_equal(rec.q, whole.q[lo : end_i + 1])
