@@ -33,6 +33,7 @@ __all__ = [
     "format_summary",
     "plot_residuals",
     "plot_structure",
+    "robot_references",
     "simulate_readings",
     "to_imu_model",
     "transfer",
@@ -145,6 +146,49 @@ def transfer(
     score = 0.5 * (ratios[0] + ratios[1])
     out["score"] = score
     out["gain"] = 1.0 - score
+    return out
+
+
+def robot_references(
+    rec: Recording, robot: str, cutoff: float | None = 10.0
+) -> dict[str, ReferenceMotion]:
+    """The reference motion of every IMU site of ``robot`` (catalog name or MJCF file) driven by ``rec.q``.
+
+    Forward kinematics of each recorded joint configuration gives every IMU site's orientation and
+    position; from there on an IMU on a robot link is a tracked rigid body like any other. Needs a
+    fixed base (a floating base's pose is not in ``q``) and the recording's joints in the model.
+    """
+    import mujoco
+
+    from bodyschema.rigid_motion import reference_motion
+    from simulators.robot import Robot
+
+    if rec.q is None:
+        raise ValueError("the recording has no joint positions q")
+    bot = Robot.from_file(robot) if os.path.exists(robot) else Robot.from_catalog(robot)
+    m = bot.model
+    if np.any(m.jnt_type == mujoco.mjtJoint.mjJNT_FREE):
+        raise ValueError(f"{robot}: a floating base's pose is not in q; fixed-base robots only")
+    missing = [j for j in rec.joint_names if j not in bot.joint_names]
+    if missing:
+        raise ValueError(f"joints {missing} of the recording are not in {robot} ({list(bot.joint_names)})")
+    d = mujoco.MjData(m)
+    d.qpos[:] = bot.data.qpos
+    adr = np.array([bot.qpos_adr[bot.joint_names.index(j)] for j in rec.joint_names], dtype=np.intp)
+    T, K = rec.n_samples, len(bot.imu_names)
+    R = np.empty((T, K, 3, 3))
+    P = np.empty((T, K, 3))
+    for i in range(T):  # one kinematics pass per sample; MuJoCo has no batched call for it
+        d.qpos[adr] = rec.q[i]
+        mujoco.mj_kinematics(m, d)
+        R[i] = d.site_xmat[bot.site_ids].reshape(K, 3, 3)
+        P[i] = d.site_xpos[bot.site_ids]
+    from scipy.spatial.transform import Rotation
+
+    out = {}
+    for k, name in enumerate(bot.imu_names):
+        quat = Rotation.from_matrix(R[:, k]).as_quat(scalar_first=True)
+        out[name] = reference_motion(rec.t, quat, P[:, k], np.asarray(m.opt.gravity), cutoff)
     return out
 
 

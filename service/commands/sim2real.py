@@ -40,33 +40,40 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from bodyschema.discrepancy import analyze_recording
+    from bodyschema.discrepancy import analyze, analyze_recording
     from service.sim2real_report import format_summary, to_imu_model, transfer, write_report
     from simulators.imu_model import save_imu_model
     from simulators.recording_io import load_recording
 
     rec = load_recording(args.recording)
+    refs = None
     if rec.ref_quat is None:
         if args.model is None:
             raise ValueError(
                 f"{args.recording}: no reference motion (ref_quat); a robot recording needs --model"
             )
-        raise ValueError("robot recordings are not supported yet: import a motion-capture reference")
+        from service.sim2real_report import robot_references
+
+        refs = robot_references(rec, args.model, cutoff=args.cutoff)
     imus = [args.imu] if args.imu else list(rec.imu_names)
+    unknown = [i for i in imus if i not in rec.imu_names]
+    if unknown:
+        raise ValueError(f"IMUs {unknown} not in the recording ({list(rec.imu_names)})")
     results = {}
+    kw = {"n_blocks": args.blocks, "alpha": args.alpha, "min_gain": args.min_gain,
+          "progress": sys.stderr.isatty()}
     for imu in imus:
-        rep = analyze_recording(
-            rec,
-            imu,
-            cutoff=args.cutoff,
-            n_blocks=args.blocks,
-            alpha=args.alpha,
-            min_gain=args.min_gain,
-            progress=sys.stderr.isatty(),
-        )
+        if refs is None:
+            rep = analyze_recording(rec, imu, cutoff=args.cutoff, **kw)
+        else:
+            if imu not in refs:
+                raise ValueError(f"IMU {imu!r} is not a site of {args.model}")
+            k = rec.imu_names.index(imu)
+            rep = analyze(refs[imu], rec.gyro[:, k], rec.acc[:, k], cutoff=args.cutoff, **kw)
+            rep.meta.update({"imu": imu, "robot": args.model, "source": str(args.recording)})
         model = to_imu_model(rep.params, name=f"{args.recording.stem}:{imu}")
         transfers = {}
-        for other in args.transfer:
+        for other in args.transfer if refs is None else ():
             orec = load_recording(other)
             k = orec.imu_names.index(imu) if imu in orec.imu_names else 0
             transfers[other.stem] = transfer(orec, model, cutoff=args.cutoff, imu=k)

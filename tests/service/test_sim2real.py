@@ -92,3 +92,20 @@ def test_cli_refuses_a_recording_without_reference(
     save_recording(rec, tmp_path / "robot.npz")
     assert main(["sim2real", str(tmp_path / "robot.npz")]) == 1
     assert "reference motion" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_robot_recording_through_its_model_names_a_gyro_bias(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from simulators.imu_model import ImuModel
+    from simulators.simulation import simulate
+
+    model = ImuModel(name="biased", effects=(("gyro_bias", {"vector": [0.03, -0.02, 0.01]}),))
+    rec = simulate("ur5e", seconds=30.0, seed=3, imu_model=model)
+    save_recording(rec, tmp_path / "ur5e.npz")
+    assert main(["sim2real", str(tmp_path / "ur5e.npz"), "--model", "ur5e", "--imu", "imu11", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    got = {c["effect"]: c for c in doc["causes"]}
+    assert "gyro_bias" in got
+    assert np.allclose(got["gyro_bias"]["params"]["vector"], [0.03, -0.02, 0.01], atol=2e-3)

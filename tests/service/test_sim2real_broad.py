@@ -52,6 +52,12 @@ def test_the_real_sensor_differs_by_a_time_offset_and_a_lever_arm(trial) -> None
 def test_an_effect_hidden_in_measured_data_is_named_and_measured(effect: str, trial, rng) -> None:
     rec, prob0, base = trial
     true = draw(effect, rng)
+    if effect == "acc_scale":
+        # An equal gain on all three axes reads like a stronger gravity while the motion is slow
+        # (the specific force is then mostly gravity): keep the drawn gains from sharing one sign.
+        dev = np.asarray(true["matrix"]) - 1.0
+        dev[0] = -np.sign(dev[1]) * abs(dev[0])
+        true = {"matrix": (1.0 + dev).tolist()}
     if effect == "noise":
         # the sensor's own noise must not swamp the injected one: inject at least its level
         true = {"gyro_density": [float(rng.uniform(2e-3, 5e-3))] * 3,
