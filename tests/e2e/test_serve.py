@@ -173,3 +173,57 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
     service.proc.send_signal(signal.SIGTERM)
     assert service.proc.wait(60) == 0, service.log_tail()
     assert '"msg": "service stopped"' in service.err_path.read_text()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_drains_and_exits_zero(tmp_path: Path, sig: signal.Signals) -> None:
+    import json
+
+    import numpy as np
+
+    from simulators.recording_io import save_recording
+    from tests.bodyschema.test_health import synth
+
+    rec_path = tmp_path / "run.npz"
+    save_recording(synth(np.random.default_rng(0), seconds=60.0), rec_path)
+    port = free_port()
+    log = tmp_path / "commits.jsonl"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service",
+            "serve",
+            "--port",
+            str(port),
+            "--database-url",
+            f"sqlite:///{tmp_path / 'db.sqlite'}",
+            "--source",
+            f"replay:{rec_path}@5?robot=arm",
+            "--commit-log",
+            str(log),
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=(tmp_path / "err.txt").open("w"),
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (log.exists() and log.read_text().count("\n") >= 5):
+            assert proc.poll() is None, (tmp_path / "err.txt").read_text()[-3000:]
+            time.sleep(0.1)
+        r = httpx.get(f"http://127.0.0.1:{port}/livez", timeout=10)
+        assert r.json() == {"status": "ok"}
+        proc.send_signal(sig)
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(30)
+    lines = [json.loads(x) for x in (tmp_path / "err.txt").read_text().splitlines() if x.startswith("{")]
+    drained = [x for x in lines if x["msg"] == "ingest drained"]
+    assert drained and drained[0]["counters"]["stored"] == drained[0]["counters"]["received"]
+    assert drained[0]["counters"]["queue_depth"] == 0
+    assert any(x["msg"] == "service stopped" for x in lines)
+    committed = json.loads(log.read_text().splitlines()[-1])["samples"]
+    assert committed == drained[0]["counters"]["stored"]
