@@ -10,8 +10,8 @@
 4. The threshold δ (Eq. 18) chosen by Eq. 19 over a grid: binarize the features, cluster the rows with
    a Dirichlet-process Gaussian mixture (sklearn ``BayesianGaussianMixture``), and score
    ``|det S| / m − λ Σ p_c log p_c`` (S: distances between cluster means, m: dispersion inside clusters,
-   p_c: cluster shares). Ties (several δ giving the same clean clustering) go to the middle of the
-   tied range, the δ farthest from both edges.
+   p_c: cluster shares). Among the near-best δ (half the best score or more) the one farthest from
+   every feature value wins: Eq. 19 alone cannot see a true 1 that drops out for all IMUs of a link.
 5. Rows of one cluster are IMUs on one link: each IMU gets its cluster's mean binary row, thresholded at
    0.5 (the paper's "sample rows from the DPGMM, filter with 0.5").
 
@@ -103,13 +103,14 @@ def _cluster(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     K = x.shape[0]
     if K == 1:
         return np.zeros(1, dtype=int)
-    n_comp = int(min(K, x.shape[1] + 2))
+    n_comp = int(min(K, 2 * x.shape[1] + 2))
     gm = BayesianGaussianMixture(
         n_components=n_comp,
         weight_concentration_prior_type="dirichlet_process",
-        weight_concentration_prior=1.0,
+        weight_concentration_prior=10.0,  # favour splitting: split clusters are merged back by row
         covariance_type="spherical",
         reg_covar=1e-4,
+        covariance_prior=1e-3,  # expect tight clusters: IMUs of one link have nearly equal rows
         max_iter=300,
         n_init=3,
         init_params="k-means++",
@@ -122,6 +123,15 @@ def _cluster(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def eq19_score(x: np.ndarray, labels: np.ndarray, lam: float = 0.1) -> float:
     """Eq. 19 for binarized rows ``x`` and cluster ``labels``: ``|det S| / m − λ Σ p log p``."""
+    # clusters whose binarized rows coincide are one link (the paper's duplicate-row merge), so an
+    # over-split link does not zero det S
+    means = {c: x[labels == c].mean(axis=0) for c in np.unique(labels)}
+    merged: dict[bytes, int] = {}
+    relabel = labels.copy()
+    for c, mu in means.items():
+        key = np.round(mu, 9).tobytes()
+        relabel[labels == c] = merged.setdefault(key, int(c))
+    labels = relabel
     cs = np.unique(labels)
     mus = np.stack([x[labels == c].mean(axis=0) for c in cs])
     S = np.linalg.norm(mus[:, None, :] - mus[None, :, :], axis=-1)
@@ -142,10 +152,10 @@ def choose_delta(
     The rows are clustered once, on the continuous features (IMUs on one link have similar rows).
     Each δ is scored on the binarized rows with those clusters: a δ that splits a cluster's members
     into different binary rows raises the dispersion m, one that makes two clusters' rows equal makes
-    ``det S`` vanish. Among equal best scores the middle of the longest run of grid points wins.
+    ``det S`` vanish. Among the near-best δ the one with the widest margin to every feature wins.
     """
     rng = np.random.default_rng(0) if rng is None else rng
-    grid = np.linspace(0.02, 0.9, 45) if grid is None else np.asarray(grid)
+    grid = np.linspace(0.02, 0.9, 89) if grid is None else np.asarray(grid)
     moving = feats.any(axis=1)
     labels_full = np.full(len(feats), -1)
     if moving.sum() == 0:
@@ -154,15 +164,15 @@ def choose_delta(
     labels = _cluster(x_all, rng)
     labels_full[moving] = labels
     scores = np.array([eq19_score((x_all > d).astype(float), labels, lam) for d in grid])
-    best = np.flatnonzero(scores >= scores.max() - 1e-9 * max(abs(scores.max()), 1.0))
-    runs: list[list[int]] = []
-    for i in best:
-        if runs and i == runs[-1][-1] + 1:
-            runs[-1].append(int(i))
-        else:
-            runs.append([int(i)])
-    run = max(runs, key=len)
-    return float(grid[run[len(run) // 2]]), labels_full
+    # Eq. 19 rewards clean clusters (m = 0) that are distinct (det S != 0) but, among those, cannot see a
+    # true 1 that drops out for all IMUs of a link at once; so every δ scoring like a clean clustering
+    # (m = 0 puts the score at 1e6 x det S) is a candidate, and the one farthest from any feature
+    # value in log scale wins: the middle of the widest empty band of ratios, a max-margin threshold.
+    clean = np.flatnonzero(scores >= 1e3)
+    near = clean if len(clean) else np.flatnonzero(scores >= scores.max())
+    logx = np.log(np.maximum(x_all, 1e-4))  # ratios: "no dependency" is a noise floor, not a level
+    margin = np.array([np.min(np.abs(logx - np.log(grid[i]))) for i in near])
+    return float(grid[near[int(np.argmax(margin))]]), labels_full
 
 
 @dataclass

@@ -1,0 +1,264 @@
+"""Topology learning: exact-tree rate and CPU cost per catalog robot and method (fast, networks, MLP).
+
+For every robot and seed: simulate ``--seconds`` of data (MPU-6050 preset, observable excitation; cached
+under ``var/bench-topology/``), run each method, and count the runs whose joint parents *and* IMU
+placement equal the truth. Also: the shortest prefix of the recording on which ``fast`` is exact for
+every seed, and each method's CPU seconds as a ratio to ``fast`` measured in the same run. The sensor
+networks are trained once per recording for ``network`` and ``network-paper`` (same networks, two
+statistics); each of the two is charged the full training time.
+
+Per-run results are kept in ``var/bench-topology/results.json`` so that an interrupted run resumes;
+``--fresh`` discards them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.bench import RESULTS_DIR, machine_note
+
+__all__ = ["add_arguments", "run"]
+
+log = logging.getLogger(__name__)
+
+ALL_ROBOTS = ("paper-1", "paper-2", "paper-3", "paper-4", "paper-5", "paper-6", "ur5e", "quadruped",
+              "humanoid", "dual-arm")
+METHODS = ("fast", "network", "network-paper", "mlp")
+CACHE = Path("var/bench-topology")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robots", default=",".join(ALL_ROBOTS), help="comma-separated catalog robots")
+    parser.add_argument("--seeds", type=int, default=5, help="seeds per robot (default 5)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
+    parser.add_argument("--seconds", type=float, default=60.0, help="recording length (default 60)")
+    parser.add_argument("--durations", default="1,1.5,2,3,5,7.5,10,15,20,30,45,60",
+                        help="prefix lengths tried for the shortest exact recording of fast")
+    parser.add_argument("--epochs", type=int, default=40, help="training epochs of network and mlp")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR / "topology.md")
+    parser.add_argument("--fresh", action="store_true", help="ignore per-run results kept from earlier runs")
+    parser.add_argument("--reextract", action="store_true",
+                        help="redo the dependency extraction from the cached trained-network Jacobians")
+
+
+@dataclass
+class _Store:
+    path: Path
+    data: dict[str, Any] = field(default_factory=dict)
+
+    def load(self) -> _Store:
+        if self.path.exists():
+            self.data = json.loads(self.path.read_text())
+        return self
+
+    def get(self, key: str) -> Any:
+        return self.data.get(key)
+
+    def put(self, key: str, value: Any) -> None:
+        self.data[key] = value
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(self.data, indent=1))
+        tmp.replace(self.path)
+
+
+def _recording(robot: str, seconds: float, seed: int) -> Any:
+    from simulators.recording_io import load_recording, save_recording
+    from simulators.simulation import simulate
+
+    path = CACHE / f"{robot}-{seconds:g}s-seed{seed}.npz"
+    if path.exists():
+        return load_recording(path)
+    rec = simulate(robot, seconds=seconds, seed=seed, imu_model="mpu6050", excitation="observable")
+    save_recording(rec, path)
+    return rec
+
+
+def _exact(topo: Any, rec: Any) -> bool:
+    return bool(topo.joint_parent == rec.truth_parent_map and topo.imu_joint == rec.truth_imu_map)
+
+
+def _run_networks(
+    rec: Any, methods: list[str], epochs: int, seed: int, key: str
+) -> dict[str, dict[str, Any]]:
+    """network / network-paper from one training, mlp from its own; CPU seconds and exactness each."""
+    from bodyschema.dependency import dependency_from_jacobian, network_jacobian
+    from bodyschema.estimate import topology_from_dependency
+    from bodyschema.fast import insufficient_excitation
+
+    out: dict[str, dict[str, Any]] = {}
+    derived = rec.derived()
+    und = insufficient_excitation(derived.qd, rec.gyro)
+
+    def finish(name: str, jbar: np.ndarray, statistic: str, train_s: float) -> None:
+        t0 = time.process_time()
+        res = dependency_from_jacobian(jbar, statistic, und, rng=np.random.default_rng(seed + 1))
+        try:
+            topo = topology_from_dependency(res.dependency, rec.imu_names, rec.joint_names,
+                                            undetermined=[rec.joint_names[j] for j in res.undetermined],
+                                            method=name)
+            exact = _exact(topo, rec)
+        except ValueError as err:  # no tree fits the extracted matrix at all
+            log.info("%s: no tree (%s)", name, err)
+            exact = False
+        out[name] = {"exact": exact, "seconds": train_s + time.process_time() - t0,
+                     "delta": res.delta}
+
+    def trained(kind: str) -> tuple[np.ndarray, float]:
+        """Jacobian norms of the trained networks, cached with their training CPU time."""
+        path = CACHE / f"jbar-{key}-{kind}-e{epochs}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                return z["jbar"], float(z["seconds"])
+        t0 = time.process_time()
+        jbar, _ = network_jacobian(rec, kind=kind, epochs=epochs, seed=seed)
+        secs = time.process_time() - t0
+        np.savez_compressed(path, jbar=jbar.astype(np.float32), seconds=secs)
+        return jbar, secs
+
+    if "network" in methods or "network-paper" in methods:
+        jbar, train_s = trained("network")
+        for name, stat in (("network", "moment"), ("network-paper", "variance")):
+            if name in methods:
+                finish(name, jbar, stat, train_s)
+    if "mlp" in methods:
+        jbar, train_s = trained("mlp")
+        finish("mlp", jbar, "moment", train_s)
+    return out
+
+
+def run(args: argparse.Namespace) -> Path:
+    from tqdm import tqdm
+
+    from bodyschema.estimate import estimate_topology
+    from bodyschema.networks import set_torch_threads
+
+    set_torch_threads()
+    robots = [r.strip() for r in args.robots.split(",") if r.strip()]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+    durations = sorted(float(d) for d in args.durations.split(",") if d.strip())
+    store = _Store(CACHE / "results.json")
+    if not args.fresh:
+        store.load()
+    rows: list[dict[str, Any]] = []
+    bar = tqdm(total=len(robots) * args.seeds, desc="bench topology", unit="run")
+    for robot in robots:
+        per: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
+        shortest_ok: dict[float, int] = {d: 0 for d in durations}
+        n_joints = n_imus = 0
+        for seed in range(args.seeds):
+            rec = _recording(robot, args.seconds, seed)
+            n_joints, n_imus = rec.n_joints, rec.n_imus
+            key = f"{robot}|{args.seconds:g}|{seed}"
+            fast = store.get(f"{key}|fast")
+            if "fast" in methods and fast is None:
+                topo = estimate_topology(rec, method="fast")
+                fast = {"exact": _exact(topo, rec), "seconds": topo.seconds}
+                store.put(f"{key}|fast", fast)
+            if fast is not None and "fast" in methods:
+                per["fast"].append(fast)
+            for d in durations:
+                dk = f"{key}|fast-prefix|{d:g}"
+                ok = store.get(dk)
+                if ok is None:
+                    part = rec.select(slice(0, round(d * rec.sample_rate)))
+                    try:
+                        ok = _exact(estimate_topology(part, method="fast"), part)
+                    except ValueError:
+                        ok = False
+                    store.put(dk, ok)
+                shortest_ok[d] += int(bool(ok))
+            net_methods = [m for m in methods if m != "fast"]
+            todo = [m for m in net_methods
+                    if args.reextract or store.get(f"{key}|{m}|e{args.epochs}") is None]
+            if todo:
+                for m, res in _run_networks(rec, todo, args.epochs, seed, f"{robot}-{seed}").items():
+                    store.put(f"{key}|{m}|e{args.epochs}", res)
+            for m in net_methods:
+                per[m].append(store.get(f"{key}|{m}|e{args.epochs}"))
+            bar.update(1)
+        shortest = next((d for d in durations if shortest_ok[d] == args.seeds), None)
+        row: dict[str, Any] = {"robot": robot, "joints": n_joints, "imus": n_imus, "shortest": shortest}
+        for m in methods:
+            runs = per[m]
+            row[m] = {"exact": sum(int(r["exact"]) for r in runs), "runs": len(runs),
+                      "seconds": float(np.median([r["seconds"] for r in runs])) if runs else float("nan")}
+        rows.append(row)
+    bar.close()
+    return _write(rows, methods, args)
+
+
+def _write(rows: list[dict[str, Any]], methods: list[str], args: argparse.Namespace) -> Path:
+    out: Path = args.out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    head = ["robot", "joints", "IMUs"] + [f"{m} exact" for m in methods]
+    head += ["shortest exact `fast` (s)", "`fast` CPU s"]
+    head += [f"{m} CPU ×fast" for m in methods if m != "fast"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [r["robot"], str(r["joints"]), str(r["imus"])]
+        cells += [f"{r[m]['exact']}/{r[m]['runs']}" for m in methods]
+        cells.append("—" if r["shortest"] is None else f"{r['shortest']:g}")
+        fast_s = r["fast"]["seconds"] if "fast" in methods else float("nan")
+        cells.append(f"{fast_s:.2f}")
+        for m in methods:
+            if m != "fast":
+                cells.append(f"{r[m]['seconds'] / fast_s:.0f}× ({r[m]['seconds']:.0f} s)")
+        lines.append("| " + " | ".join(cells) + " |")
+    table = "\n".join(lines)
+    png = out.with_suffix(".png")
+    _plot(rows, methods, png)
+    text = f"""# Benchmark: topology learning
+
+`bodyhealth bench topology --robots {args.robots} --seeds {args.seeds} --methods {",".join(methods)} \
+--seconds {args.seconds:g} --epochs {args.epochs}`
+
+Machine: {machine_note()}. CPU seconds are process time (all threads), medians over seeds; ratios are
+to `fast` on the same recordings in the same run. Data: `mpu6050` IMU preset (bias, scale, cross-axis,
+noise), observable excitation, {args.seconds:g} s at 100 Hz. *Exact* = every joint's parent and every
+IMU's joint equal the truth. *Shortest exact*: the shortest prefix (of {args.durations} s) on which
+`fast` is exact for all {args.seeds} seeds.
+
+{table}
+
+![exact rate and CPU time per method]({png.name})
+"""
+    out.write_text(text)
+    (out.with_suffix(".json")).write_text(json.dumps(rows, indent=1))
+    return out
+
+
+def _plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 4.5))
+    x = np.arange(len(rows))
+    w = 0.8 / max(len(methods), 1)
+    for i, m in enumerate(methods):
+        rate = [r[m]["exact"] / max(r[m]["runs"], 1) for r in rows]
+        secs = [r[m]["seconds"] for r in rows]
+        a1.bar(x + i * w, rate, w, label=m)
+        a2.bar(x + i * w, secs, w, label=m)
+    for ax in (a1, a2):
+        ax.set_xticks(x + 0.4 - w / 2, [r["robot"] for r in rows], rotation=30, ha="right")
+    a1.set_ylabel("exact trees (share of seeds)")
+    a2.set_ylabel("CPU seconds (median)")
+    a2.set_yscale("log")
+    a1.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,87 @@
+"""Sensor networks: derivatives by hand equal autodiff; a short training recovers a small robot."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch.func import jvp
+
+from bodyschema.dependency import dependency_from_jacobian, invariant_jacobian, network_jacobian
+from bodyschema.networks import SensorNetworks, rpy_to_matrix, set_torch_threads, train_sensor_networks
+
+from .kinematic_fixtures import random_robot_recording
+from .test_fast import truth_dependency
+
+
+def _net(seed: int) -> SensorNetworks:
+    net = SensorNetworks(3, 4, hidden=(8, 8, 8), seed=seed).double()
+    net.set_input_scaling(torch.zeros(4), torch.full((4,), 0.7))
+    net.in_mean, net.in_std = net.in_mean.double(), net.in_std.double()
+    return net
+
+
+def test_rpy_matrix_is_a_rotation(rng):
+    R = rpy_to_matrix(torch.as_tensor(rng.uniform(-3, 3, size=(50, 3))))
+    eye = torch.eye(3, dtype=R.dtype).expand_as(R)
+    assert torch.allclose(R @ R.transpose(-1, -2), eye, atol=1e-12)
+    assert torch.allclose(torch.linalg.det(R), torch.ones(50, dtype=R.dtype))
+
+
+def test_hand_rolled_time_derivatives_equal_nested_autodiff(seed):
+    net = _net(seed)
+    g = torch.Generator().manual_seed(seed)
+    th, thd, thdd = (torch.randn(6, 4, generator=g, dtype=torch.float64) for _ in range(3))
+
+    def along(s):
+        return net.raw(th + s * thd + 0.5 * s * s * thdd)
+
+    def first(s):
+        return jvp(along, (s,), (torch.ones_like(s),))
+
+    z = torch.zeros((), dtype=torch.float64)
+    (o, o1), (_, o2) = jvp(first, (z,), (torch.ones_like(z),))
+    m0, m1, m2 = net._along(th, thd, thdd)
+    for a, b in ((o, m0), (o1, m1), (o2, m2)):
+        assert torch.allclose(a, b, atol=1e-12)
+    # the closed-form Euler body rates equal vee(Rᵀ Ṙ)
+    w, _ = net.predict(th, thd, thdd, None)
+    R = rpy_to_matrix(o[..., 3:])
+    Rd = jvp(rpy_to_matrix, (o[..., 3:],), (o1[..., 3:],))[1]
+    W = R.transpose(-1, -2) @ Rd
+    omega = torch.stack([W[..., 2, 1], W[..., 0, 2], W[..., 1, 0]], -1)
+    assert torch.allclose(omega + net.gyro_bias, w, atol=1e-12)
+
+
+def test_threads_default_to_one(monkeypatch):
+    monkeypatch.delenv("BODYHEALTH_TORCH_THREADS", raising=False)
+    before = torch.get_num_threads()
+    try:
+        assert set_torch_threads() == 1
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_training_lowers_the_loss(rng):
+    rec = random_robot_recording(rng, n_joints=2, seconds=5.0).derived()
+    _, hist = train_sensor_networks(rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, rec.gravity,
+                                    hidden=(16, 16, 16), epochs=8, seed=1)
+    assert hist[-1] < 0.2 * hist[0]
+
+
+@pytest.mark.slow
+def test_networks_recover_a_small_robot_exactly(rng):
+    """A 3-joint branching robot, 2 IMUs per link, 20 s: the second-moment matrix is exact."""
+    rec = random_robot_recording(rng, n_joints=3, seconds=20.0, imus_per_link=(2, 2), base_imus=0,
+                                 parent=[-1, 0, 0])
+    jbar, _ = network_jacobian(rec, kind="network", epochs=40, seed=0)
+    res = dependency_from_jacobian(jbar, "moment", rng=np.random.default_rng(0))
+    np.testing.assert_array_equal(res.dependency, truth_dependency(rec))
+
+
+def test_invariant_jacobian_shape(rng):
+    net = SensorNetworks(2, 3, hidden=(4, 4, 4), seed=0)
+    jb = invariant_jacobian(net, torch.as_tensor(rng.normal(size=(7, 3)), dtype=torch.float32))
+    assert tuple(jb.shape) == (2, 7, 4, 3)
+    assert bool((jb >= 0).all())
