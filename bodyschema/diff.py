@@ -9,7 +9,7 @@ reported again:
 2. ``link_lost`` — the joint's encoder turns but no live IMU of its subtree depends on it any more
    (where no IMU health could judge the joint: all of at least two subtree IMUs lost it).
 3. ``encoder_fault`` — the joint's child link turns against its parent but the encoder is flat or does
-   not agree (signal health).
+   not agree, or agrees differently than on the baseline (a constant offset; signal health).
 4. ``joint_locked`` — the joint no longer moves (encoder flat, child link rigid with its parent) while
    other joints do, and it did move in the baseline.
 
@@ -159,13 +159,17 @@ def diff_bodies(
                     )
                 )
                 claim_subtree(j)
-            elif jh.state in ("frozen_encoder", "wrong_encoder"):
-                detail = (
-                    "encoder flat while its link turns"
-                    if jh.state == "frozen_encoder"
-                    else "encoder disagrees with its link's motion"
+            elif jh.state in ("frozen_encoder", "wrong_encoder", "shifted_encoder"):
+                detail = {
+                    "frozen_encoder": "encoder flat while its link turns",
+                    "wrong_encoder": "encoder disagrees with its link's motion",
+                    "shifted_encoder": "encoder reads shifted against the baseline",
+                }[jh.state]
+                c = (
+                    1.0
+                    if jh.explained is None or jh.state == "shifted_encoder"
+                    else max(0.5, 1.0 - jh.explained)
                 )
-                c = 1.0 if jh.explained is None else max(0.5, 1.0 - jh.explained)
                 findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
                 claim_subtree(j)
             elif jh.state in ("still", "flat"):

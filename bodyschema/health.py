@@ -52,9 +52,11 @@ __all__ = [
     "JOINT_STATES",
     "HealthThresholds",
     "ImuHealth",
+    "JointFingerprint",
     "JointHealth",
     "SignalHealth",
     "drop_impacts",
+    "fingerprints",
     "imu_health",
     "relative_motion",
     "signal_health",
@@ -65,13 +67,16 @@ IMU_STATES: tuple[str, ...] = ("ok", "silent", "zero", "frozen")
 
 #: ``ok``: encoder and link agree and move; ``still``: neither moves; ``frozen_encoder``: the link turns
 #: but the encoder is flat; ``wrong_encoder``: both move but the encoder does not explain the link;
-#: ``unfollowed``: the encoder moves but the link does not turn with it; ``moving``/``flat``: only the
+#: ``shifted_encoder``: both agree within the window but no longer as they did on the baseline (a
+#: constant offset, with a :class:`JointFingerprint`); ``unfollowed``: the encoder moves but the link
+#: does not turn with it; ``moving``/``flat``: only the
 #: encoder could be judged (no healthy IMU on the child link).
 JOINT_STATES: tuple[str, ...] = (
     "ok",
     "still",
     "frozen_encoder",
     "wrong_encoder",
+    "shifted_encoder",
     "unfollowed",
     "moving",
     "flat",
@@ -89,6 +94,8 @@ class HealthThresholds:
     ``zero_abs``: readings below this magnitude (both acc and gyro) count as zero.
     ``min_samples``: fewer samples than this and nothing is judged.
     ``max_pairs``: IMUs per link used for the relative-motion fits (each side).
+    ``shift_ratio``/``shift_rad_s``: a baseline fingerprint that leaves more than ``shift_ratio`` times
+    the window's own residual, and more than ``shift_rad_s`` RMS, marks a shifted encoder.
     """
 
     excitation_rad_s: float = 0.05
@@ -98,6 +105,8 @@ class HealthThresholds:
     zero_abs: float = 1e-6
     min_samples: int = 20
     max_pairs: int = 3
+    shift_ratio: float = 3.0
+    shift_rad_s: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -131,13 +140,13 @@ class JointHealth:
 
     @property
     def encoder_moving(self) -> bool:
-        return self.state in ("ok", "wrong_encoder", "unfollowed", "moving")
+        return self.state in ("ok", "wrong_encoder", "shifted_encoder", "unfollowed", "moving")
 
     @property
     def link_moving(self) -> bool | None:
         if self.relative_motion is None:
             return None
-        return self.state in ("ok", "frozen_encoder", "wrong_encoder")
+        return self.state in ("ok", "frozen_encoder", "wrong_encoder", "shifted_encoder")
 
 
 @dataclass(frozen=True)
@@ -218,6 +227,91 @@ def _lstsq_residual(X: np.ndarray, Y: np.ndarray) -> float:
     return float(np.sum(res**2))
 
 
+def _design(parent_gyro: np.ndarray | None, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Regressors of the exact revolute-joint gyro model (see :func:`relative_motion`)."""
+    ones = np.ones((q.shape[0], 1))
+    if parent_gyro is None:
+        return np.c_[qd, ones]
+    c, s = np.cos(q)[:, None], np.sin(q)[:, None]
+    return np.c_[parent_gyro, parent_gyro * c, parent_gyro * s, qd, ones]
+
+
+def _fit(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients (unscaled) of Y ≈ X B via the scaled normal equations."""
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    scale[scale < 1e-12] = 1.0
+    Xs = X / scale
+    coef = np.linalg.pinv(Xs.T @ Xs, rcond=1e-10, hermitian=True) @ (Xs.T @ Y)
+    return coef / scale[:, None]
+
+
+@dataclass(frozen=True)
+class JointFingerprint:
+    """How one joint's encoder related to its child IMU's gyro on a healthy window.
+
+    ``coef`` maps the regressors ``[ω_ref, ω_ref·cos q, ω_ref·sin q, q̇, 1]`` (``ref`` None: the parent
+    link is the fixed base, ``[q̇, 1]``) to the gyro of IMU ``child``. Within one window a constant
+    encoder offset is invisible (``cos(q + c)`` is a mix of ``cos q`` and ``sin q``); against the
+    fingerprint it is not.
+    """
+
+    joint: str
+    child: str
+    ref: str | None
+    coef: np.ndarray
+
+
+def fingerprints(
+    rec: Recording,
+    layout: Topology,
+    current: Topology | None = None,
+    thresholds: HealthThresholds | None = None,
+) -> dict[str, JointFingerprint]:
+    """Fingerprints of the joints of ``rec`` whose encoder and child link agree (state ``ok``), each
+    from the best-fitting child/reference IMU pair; learn them on the window the baseline came from."""
+    health = signal_health(rec, layout, current=current, thresholds=thresholds)
+    th = thresholds or HealthThresholds()
+    d = rec.derived()
+    assert d.q is not None and d.qd is not None
+    present = {n: k for k, n in enumerate(rec.imu_names)}
+    out: dict[str, JointFingerprint] = {}
+    for j, jh in health.joints.items():
+        if jh.state != "ok":
+            continue
+        child, parent = _pairs(j, layout, health, present, current, th)
+        k = rec.joint_names.index(j)
+        best: tuple[float, JointFingerprint] | None = None
+        for c in child:
+            Y = rec.gyro[:, present[c], :]
+            for p in parent or [None]:
+                X = _design(None if p is None else rec.gyro[:, present[p], :], d.q[:, k], d.qd[:, k])
+                coef = _fit(X, Y)
+                res = float(np.mean((Y - X @ coef) ** 2))
+                if best is None or res < best[0]:
+                    best = (res, JointFingerprint(j, c, p, coef))
+        if best is not None:
+            out[j] = best[1]
+    return out
+
+
+def _pairs(
+    j: str,
+    layout: Topology,
+    health: SignalHealth,
+    present: dict[str, int],
+    current: Topology | None,
+    th: HealthThresholds,
+) -> tuple[list[str], list[str]]:
+    """Healthy child-link IMUs and trusted parent-link IMUs of joint ``j`` (a few of each)."""
+    healthy = {n for n, h in health.imus.items() if not h.dead and n in present}
+    child = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in healthy)
+    pj = layout.joint_parent[j]
+    parent = sorted(i for i, jj in layout.imu_joint.items() if jj == pj and i in healthy)
+    if current is not None:
+        parent = [i for i in parent if current.imu_joint.get(i, "?") == pj] or parent
+    return child[: th.max_pairs], parent[: th.max_pairs]
+
+
 def relative_motion(
     child_gyro: np.ndarray, parent_gyro: np.ndarray | None, q: np.ndarray, qd: np.ndarray
 ) -> tuple[float, float]:
@@ -277,6 +371,7 @@ def signal_health(
     expected_imus: Iterable[str] | None = None,
     thresholds: HealthThresholds | None = None,
     current: Topology | None = None,
+    fingerprints: dict[str, JointFingerprint] | None = None,
 ) -> SignalHealth:
     """Health of every IMU and joint in ``rec``.
 
@@ -285,6 +380,8 @@ def signal_health(
     recording's) names IMUs that should report; those absent from ``rec`` are ``silent``. ``current``
     (the estimate from the same window) picks the reference IMUs on each parent link: those it still
     places where the layout does, so a moved or loose IMU does not serve as the parent link.
+    ``fingerprints`` (from :func:`fingerprints` on the baseline window) turn an ``ok`` joint whose
+    encoder relates to its link differently than on the baseline into ``shifted_encoder``.
     """
     th = thresholds or HealthThresholds()
     present = {n: k for k, n in enumerate(rec.imu_names)}
@@ -340,7 +437,15 @@ def signal_health(
                     else max(range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
                 )
                 motion, explained = fits[pick]
-                joints[j] = JointHealth(j, states[pick], excitation, motion, explained)
+                state = states[pick]
+                fp = (fingerprints or {}).get(j)
+                if (
+                    state == "ok"
+                    and fp is not None
+                    and _shifted(fp, rec, d, j_idx, present, healthy, layout, current, th)
+                ):
+                    state = "shifted_encoder"
+                joints[j] = JointHealth(j, state, excitation, motion, explained)
                 continue
         joints[j] = JointHealth(j, _joint_state(excitation, motion, explained, th), excitation)
     return SignalHealth(imus, joints)
@@ -376,3 +481,33 @@ def drop_impacts(rec: Recording, factor: float = 24.0) -> Recording:
         return d
     bad = bad | np.roll(bad, 1) | np.roll(bad, -1)
     return d.select(~bad)
+
+
+def _shifted(
+    fp: JointFingerprint,
+    rec: Recording,
+    d: Recording,
+    k: int,
+    present: dict[str, int],
+    healthy: set[str],
+    layout: Topology,
+    current: Topology | None,
+    th: HealthThresholds,
+) -> bool:
+    """Whether the fingerprint's pair, still in place, now needs a different encoder relation."""
+    pair = [fp.child] + ([fp.ref] if fp.ref is not None else [])
+    if any(p not in healthy for p in pair):
+        return False
+    if current is not None and (
+        current.imu_joint.get(fp.child) != fp.joint
+        or (fp.ref is not None and current.imu_joint.get(fp.ref) != layout.joint_parent[fp.joint])
+    ):
+        return False  # the pair moved: a placement finding, not an encoder one
+    assert d.q is not None and d.qd is not None
+    X = _design(None if fp.ref is None else rec.gyro[:, present[fp.ref], :], d.q[:, k], d.qd[:, k])
+    Y = rec.gyro[:, present[fp.child], :]
+    if X.shape[1] != fp.coef.shape[0]:
+        return False
+    old = float(np.sqrt(np.mean((Y - X @ fp.coef) ** 2)))
+    new = float(np.sqrt(np.mean((Y - X @ _fit(X, Y)) ** 2)))
+    return old > max(th.shift_ratio * new, th.shift_rad_s)

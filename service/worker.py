@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
 from bodyschema.findings import Diff, Finding
-from bodyschema.health import SignalHealth, drop_impacts, signal_health
+from bodyschema.health import JointFingerprint, SignalHealth, drop_impacts, fingerprints, signal_health
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
@@ -93,6 +93,10 @@ class Worker:
         self.tracker = AlertTracker(m=self.settings.alert_hysteresis_m)
         self.cycles = 0
         self._recent: dict[str, deque[Topology]] = {}
+        #: Per robot, each joint's encoder-to-gyro relation on the baseline (learned state): set when
+        #: a baseline is adopted, or, after a restart or an operator approval, from the first window
+        #: that matches the baseline.
+        self.fingerprints_: dict[str, dict[str, JointFingerprint]] = {}
         self._requests: dict[str, set[str]] = {}
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
@@ -158,6 +162,7 @@ class Worker:
                 if a.state != "resolved":
                     self.store.update_alert(a.id, state="resolved", updated_at=now)
             self.tracker.forget(robot)
+            self.fingerprints_.pop(robot, None)
         base = self.store.baseline(robot)
         assert base is not None
         log.info("baseline approved", extra={"robot": robot, "source": "operator"})
@@ -233,7 +238,9 @@ class Worker:
                 fast = topo
         if fast is None:
             return res
-        res.health = signal_health(rec, layout, expected_imus, current=fast)
+        res.health = signal_health(
+            rec, layout, expected_imus, current=fast, fingerprints=self.fingerprints_.get(robot)
+        )
         res.topology = fast
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)
@@ -242,6 +249,8 @@ class Worker:
             res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
+        if robot not in self.fingerprints_ and not res.diff.findings:
+            self.fingerprints_[robot] = fingerprints(rec, base.topology, current=fast)
         hold = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
@@ -279,6 +288,7 @@ class Worker:
         if len(recent) < k:
             return False
         self.store.set_baseline(robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end)
+        self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
         recent.clear()
         log.info("baseline learned", extra={"robot": robot, "source": "auto", "repeats": k})
         return True

@@ -56,3 +56,22 @@ def test_each_damage_is_one_finding_on_the_right_part(robot: str, kind: str, arg
     truth = sim.inject(kind, **args).findings[0]
     sim.advance(seconds=2.0)
     assert judge(base, sim.advance(seconds=WINDOW)) == [(kind, truth.part)]
+
+
+@pytest.mark.parametrize(("robot", "joint"), [("ur5e", "wrist_1"), ("quadruped", "fl_hip_flex")])
+def test_encoder_offset_against_the_baseline_fingerprint(robot: str, joint: str, seed: int) -> None:
+    from bodyschema.health import fingerprints
+
+    sim = Simulation(robot, seed=seed % 1000)
+    sim.advance(seconds=10.0)
+    base = estimate_topology(drop_impacts(sim.advance(seconds=WINDOW)))
+    rec = sim.advance(seconds=WINDOW)
+    fps = fingerprints(rec, base, current=estimate_topology(drop_impacts(rec)))
+    assert joint in fps
+    sim.inject("encoder_fault", joint=joint, mode="offset", value=0.3)
+    sim.advance(seconds=2.0)
+    rec = sim.advance(seconds=WINDOW)
+    cur = estimate_topology(drop_impacts(rec))
+    d = diff_bodies(base, cur, signal_health(rec, base, current=cur, fingerprints=fps))
+    assert [(f.kind, f.part) for f in d.findings] == [("encoder_fault", f"joint:{joint}")]
+    assert "shifted" in d.findings[0].detail

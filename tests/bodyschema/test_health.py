@@ -224,3 +224,29 @@ def test_moved_reference_imu_is_not_trusted_when_the_estimate_says_so(rng: np.ra
     current = Topology(dict(LAYOUT.joint_parent), {**LAYOUT.imu_joint, "a1": "j2"})
     h = signal_health(moved, LAYOUT, current=current)
     assert h.joints["j2"].state == "ok" and h.joints["j2"].explained > 0.95
+
+
+def test_fingerprint_catches_a_constant_encoder_offset(rng: np.random.Generator) -> None:
+    from bodyschema.health import fingerprints
+
+    rec = synth(rng, seconds=40)
+    first, second = rec.window(0.0, 20.0), rec.window(20.0, 40.0)
+    fps = fingerprints(first, LAYOUT)
+    assert set(fps) == {"j1", "j2", "j3"}
+    healthy = signal_health(second, LAYOUT, fingerprints=fps)
+    assert {n: j.state for n, j in healthy.joints.items()} == {"j1": "ok", "j2": "ok", "j3": "ok"}
+    q = second.q.copy()
+    q[:, 1] += 0.3  # j2's encoder now reads 0.3 rad high
+    shifted = Recording(
+        t=second.t,
+        joint_names=second.joint_names,
+        q=q,
+        imu_names=second.imu_names,
+        acc=second.acc,
+        gyro=second.gyro,
+    )
+    without = signal_health(shifted, LAYOUT)
+    assert without.joints["j2"].state == "ok"  # invisible within one window
+    h = signal_health(shifted, LAYOUT, fingerprints=fps)
+    assert h.joints["j2"].state == "shifted_encoder"
+    assert h.joints["j1"].state == h.joints["j3"].state == "ok"

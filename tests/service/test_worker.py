@@ -282,3 +282,24 @@ def test_ambiguous_cycles_neither_count_nor_break_the_streak(
         assert sqlite_store.baseline("arm") is None
     est.next = GOOD
     assert w.run_cycle()["arm"].baseline_set
+
+
+def test_encoder_offset_raises_after_the_fingerprint_is_learned(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    rec = synth(rng, seconds=36)
+    w = Worker(sqlite_store, settings, estimator=Scripted(GOOD))
+    feed(sqlite_store, rec.window(0.0, 12.0))
+    for _ in range(3):
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is not None and "arm" not in w.fingerprints_
+    feed(sqlite_store, rec.window(12.0, 24.0))
+    assert w.run_cycle()["arm"].diff.findings == ()
+    assert set(w.fingerprints_["arm"]) == {"j1", "j2", "j3"}
+    late = rec.window(24.0, 36.0)
+    q = late.q.copy()
+    q[:, 1] += 0.3
+    feed(sqlite_store, dataclasses.replace(late, q=q))
+    w.run_cycle()
+    (tr,) = w.run_cycle()["arm"].transitions
+    assert (tr.kind, tr.part, tr.state) == ("encoder_fault", "joint:j2", "active")
