@@ -194,37 +194,37 @@ def _correct(
 ) -> tuple[DependencyMatrix, dict[str, str | None], int]:
     """Nearest valid matrix to a noisy one (paper III-H), with the IMU -> node map carried along.
 
-    A matrix with more distinct rows than joints (noise split one link in two) is first reduced to the
-    rows that best fit the correction: rows are merged greedily by Hamming distance until K <= N.
+    A matrix with more distinct rows than joints (noise split one link in two) is first reduced: the row
+    with the fewest IMUs is merged into its nearest row (Hamming) until K <= N. Returns the matrix, the
+    IMU -> row map and how many entries or rows had to change.
     """
     from bodyschema.correction import correct
 
     rows = list(M.rows)
     vals = M.values.copy()
     mapping = dict(imu_nodes)
+    size = {r: len(groups.get(r, (r,))) for r in rows}
     while len(rows) > M.shape[1]:
-        # merge the two closest rows (keep the one with more IMUs)
-        d = (vals[:, None, :] != vals[None, :, :]).sum(-1) + np.eye(len(rows), dtype=int) * 10**6
-        a, b = np.unravel_index(np.argmin(d), d.shape)
-        size = {r: len(groups.get(r, (r,))) for r in rows}
-        keep, drop = (a, b) if size[rows[a]] >= size[rows[b]] else (b, a)
+        # the row carried by the fewest IMUs is the likeliest noise: merge it into its nearest row
+        # (Hamming; ties go to the row with more IMUs)
+        drop = min(range(len(rows)), key=lambda i: size[rows[i]])
+        dist = (vals != vals[drop]).sum(axis=1)
+        keep = min((i for i in range(len(rows)) if i != drop), key=lambda i: (dist[i], -size[rows[i]]))
+        size[rows[keep]] += size[rows[drop]]
         for imu, node in mapping.items():
             if node == rows[drop]:
                 mapping[imu] = rows[keep]
         rows.pop(drop)
         vals = np.delete(vals, drop, axis=0)
     Mr = DependencyMatrix(vals, rows, M.cols)
+    merged_away = M.shape[0] - len(rows)
     if check_p_minus(Mr).ok:
-        return Mr, mapping, int(np.count_nonzero(M.values.shape[0] - len(rows)))
-    if not Mr.is_square:
-        # pad with hidden-link rows is the completion's job; correction works on square matrices, so
-        # complete the joints without a row by their own column only (a leaf guess) before correcting
-        pad_cols = [c for c in Mr.cols if not Mr.values[:, list(Mr.cols).index(c)].any()]
-        raise ValueError(
-            f"dependency matrix is not an out-tree matrix and has fewer rows than joints "
-            f"({Mr.shape}); columns without any IMU: {pad_cols}"
-        )
+        return Mr, mapping, merged_away
     res = correct(Mr)
-    best = res.candidates[0]
-    best = best.reorder(rows, list(Mr.cols))
-    return best, mapping, int(res.distance)
+    best = res.candidates[0].reorder(rows, list(Mr.cols))
+    # corrected rows may coincide (two rows were one link) or vanish (a row was the base): merge again
+    again = best.merge_rows()
+    node_of = {m: rep for rep, members in again.groups.items() for m in members}
+    node_of.update({b: None for b in again.base_rows})
+    mapping = {imu: (None if node is None else node_of[node]) for imu, node in mapping.items()}
+    return again.matrix, mapping, merged_away + int(res.distance)

@@ -61,3 +61,23 @@ def test_undetermined_joints_are_placeholders_on_the_base():
 def test_dependency_shape_is_checked():
     with pytest.raises(ValueError, match="shape"):
         topology_from_dependency(np.zeros((2, 2), dtype=bool), ["a"], ["j1", "j2"])
+
+
+def test_a_noisy_matrix_is_corrected_to_the_nearest_tree():
+    # chain j1 -> j2 -> j3 with one IMU per link; IMU c's row lost its j2 entry (a false 0)
+    D = np.array([[1, 0, 0], [1, 1, 0], [1, 0, 1]], dtype=bool)
+    topo = topology_from_dependency(D, ["a", "b", "c"], ["j1", "j2", "j3"],
+                                    imu_confidence={"a": 1.0, "b": 1.0, "c": 1.0})
+    # one flip away: either j3 hangs on j2 (c's row was missing j2) or on j1 (a sibling of j2)
+    assert topo.joint_parent["j1"] is None and topo.joint_parent["j2"] == "j1"
+    assert topo.imu_joint == {"a": "j1", "b": "j2", "c": "j3"}
+
+
+def test_more_distinct_rows_than_joints_are_merged_then_corrected():
+    # two links with two IMUs each, and one IMU whose row lost its j1 entry: 3 rows for 2 joints
+    D = np.array([[1, 0], [1, 0], [1, 1], [1, 1], [0, 1]], dtype=bool)
+    names = ["a", "a2", "b", "b2", "x"]
+    topo = topology_from_dependency(D, names, ["j1", "j2"], imu_confidence=dict.fromkeys(names, 1.0))
+    assert topo.joint_parent == {"j1": None, "j2": "j1"}
+    assert topo.imu_joint == {"a": "j1", "a2": "j1", "b": "j2", "b2": "j2", "x": "j2"}
+    assert topo.confidence["imu:x"] < 1.0
