@@ -154,13 +154,17 @@ def robot_references(
 ) -> dict[str, ReferenceMotion]:
     """The reference motion of every IMU site of ``robot`` (catalog name or MJCF file) driven by ``rec.q``.
 
-    Forward kinematics of each recorded joint configuration gives every IMU site's orientation and
-    position; from there on an IMU on a robot link is a tracked rigid body like any other. Needs a
-    fixed base (a floating base's pose is not in ``q``) and the recording's joints in the model.
+    With joint velocities ``qd`` in the recording, each site's angular velocity and acceleration come
+    from the site Jacobians (``mj_jacSite``, ``mj_jacDot``) with ``qdd`` the forward difference of
+    ``qd`` — the acceleration over the interval that starts at each sample, which is what the
+    simulator's accelerometer reports there. Without ``qd``, orientations and positions from forward
+    kinematics are differentiated by splines (poor under torques that switch between samples).
+    Needs a fixed base (a floating base's pose is not in ``q``) and the recording's joints in the model.
     """
     import mujoco
+    from scipy.spatial.transform import Rotation
 
-    from bodyschema.rigid_motion import reference_motion
+    from bodyschema.rigid_motion import lowpass, reference_motion
     from simulators.robot import Robot
 
     if rec.q is None:
@@ -174,21 +178,50 @@ def robot_references(
         raise ValueError(f"joints {missing} of the recording are not in {robot} ({list(bot.joint_names)})")
     d = mujoco.MjData(m)
     d.qpos[:] = bot.data.qpos
-    adr = np.array([bot.qpos_adr[bot.joint_names.index(j)] for j in rec.joint_names], dtype=np.intp)
+    j = [bot.joint_names.index(n) for n in rec.joint_names]
+    adr, dof = bot.qpos_adr[j], bot.dof_adr[j]
     T, K = rec.n_samples, len(bot.imu_names)
     R = np.empty((T, K, 3, 3))
     P = np.empty((T, K, 3))
+    W = np.zeros((T, K, 3))
+    A = np.zeros((T, K, 3))
+    qd = rec.qd
+    if qd is not None:
+        qdd = np.zeros_like(qd)
+        qdd[:-1] = np.diff(qd, axis=0) / np.diff(rec.t)[:, None]
+        qdd[-1] = qdd[-2]
+    jacp, jacr, jdot = np.zeros((3, m.nv)), np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    v, a = np.zeros(m.nv), np.zeros(m.nv)
     for i in range(T):  # one kinematics pass per sample; MuJoCo has no batched call for it
         d.qpos[adr] = rec.q[i]
-        mujoco.mj_kinematics(m, d)
+        if qd is None:
+            mujoco.mj_kinematics(m, d)
+        else:
+            v[dof], a[dof] = qd[i], qdd[i]
+            d.qvel[:] = v
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
         R[i] = d.site_xmat[bot.site_ids].reshape(K, 3, 3)
         P[i] = d.site_xpos[bot.site_ids]
-    from scipy.spatial.transform import Rotation
-
+        if qd is not None:
+            for k, s in enumerate(bot.site_ids):
+                mujoco.mj_jacSite(m, d, jacp, jacr, int(s))
+                mujoco.mj_jacDot(m, d, jdot, None, d.site_xpos[s], int(m.site_bodyid[s]))
+                W[i, k] = jacr @ v
+                A[i, k] = jacp @ a + jdot @ v
+    gravity = np.asarray(m.opt.gravity, dtype=np.float64)
+    rate = float(1.0 / np.median(np.diff(rec.t)))
     out = {}
     for k, name in enumerate(bot.imu_names):
-        quat = Rotation.from_matrix(R[:, k]).as_quat(scalar_first=True)
-        out[name] = reference_motion(rec.t, quat, P[:, k], np.asarray(m.opt.gravity), cutoff)
+        if qd is None:
+            quat = Rotation.from_matrix(R[:, k]).as_quat(scalar_first=True)
+            out[name] = reference_motion(rec.t, quat, P[:, k], gravity, cutoff)
+        else:
+            omega = np.einsum("tji,tj->ti", R[:, k], W[:, k])
+            out[name] = ReferenceMotion(
+                rec.t, R[:, k], lowpass(omega, rate, cutoff), lowpass(A[:, k], rate, cutoff), gravity
+            )
     return out
 
 
