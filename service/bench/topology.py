@@ -45,6 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=40, help="training epochs of network and mlp")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "topology.md")
     parser.add_argument("--fresh", action="store_true", help="ignore per-run results kept from earlier runs")
+    parser.add_argument("--no-train", action="store_true",
+                        help="report network/mlp results only where kept from earlier runs (no training)")
     parser.add_argument("--reextract", action="store_true",
                         help="redo the dependency extraction from the cached trained-network Jacobians")
 
@@ -80,6 +82,12 @@ def _recording(robot: str, seconds: float, seed: int) -> Any:
     rec = simulate(robot, seconds=seconds, seed=seed, imu_model="mpu6050", excitation="observable")
     save_recording(rec, path)
     return rec
+
+
+def _kept(robot: str, seed: int, method: str, epochs: int) -> bool:
+    """Whether trained-network Jacobians for this run are cached (``--no-train`` reports only those)."""
+    kind = "mlp" if method == "mlp" else "network"
+    return (CACHE / f"jbar-{robot}-{seed}-{kind}-e{epochs}.npz").exists()
 
 
 def _exact(topo: Any, rec: Any) -> bool:
@@ -182,11 +190,15 @@ def run(args: argparse.Namespace) -> Path:
             net_methods = [m for m in methods if m != "fast"]
             todo = [m for m in net_methods
                     if args.reextract or store.get(f"{key}|{m}|e{args.epochs}") is None]
+            if todo and args.no_train:
+                todo = [m for m in todo if _kept(robot, seed, m, args.epochs)]
             if todo:
                 for m, res in _run_networks(rec, todo, args.epochs, seed, f"{robot}-{seed}").items():
                     store.put(f"{key}|{m}|e{args.epochs}", res)
             for m in net_methods:
-                per[m].append(store.get(f"{key}|{m}|e{args.epochs}"))
+                got = store.get(f"{key}|{m}|e{args.epochs}")
+                if got is not None:
+                    per[m].append(got)
             bar.update(1)
         shortest = next((d for d in durations if shortest_ok[d] == args.seeds), None)
         row: dict[str, Any] = {"robot": robot, "joints": n_joints, "imus": n_imus, "shortest": shortest}
@@ -208,13 +220,14 @@ def _write(rows: list[dict[str, Any]], methods: list[str], args: argparse.Namesp
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [r["robot"], str(r["joints"]), str(r["imus"])]
-        cells += [f"{r[m]['exact']}/{r[m]['runs']}" for m in methods]
+        cells += [f"{r[m]['exact']}/{r[m]['runs']}" if r[m]["runs"] else "not run" for m in methods]
         cells.append("—" if r["shortest"] is None else f"{r['shortest']:g}")
         fast_s = r["fast"]["seconds"] if "fast" in methods else float("nan")
         cells.append(f"{fast_s:.2f}")
         for m in methods:
             if m != "fast":
-                cells.append(f"{r[m]['seconds'] / fast_s:.0f}× ({r[m]['seconds']:.0f} s)")
+                sec = r[m]["seconds"]
+                cells.append(f"{sec / fast_s:.0f}× ({sec:.0f} s)" if r[m]["runs"] else "—")
         lines.append("| " + " | ".join(cells) + " |")
     table = "\n".join(lines)
     png = out.with_suffix(".png")
@@ -249,7 +262,7 @@ def _plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> None:
     x = np.arange(len(rows))
     w = 0.8 / max(len(methods), 1)
     for i, m in enumerate(methods):
-        rate = [r[m]["exact"] / max(r[m]["runs"], 1) for r in rows]
+        rate = [r[m]["exact"] / r[m]["runs"] if r[m]["runs"] else np.nan for r in rows]
         secs = [r[m]["seconds"] for r in rows]
         a1.bar(x + i * w, rate, w, label=m)
         a2.bar(x + i * w, secs, w, label=m)
