@@ -202,8 +202,12 @@ class Worker:
                     continue
                 self.metrics.alerts_active.labels(robot=info.name).set(n)
             self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
+        seconds = time.perf_counter() - t0
         self.metrics.cycles.inc()
-        self.metrics.cycle_seconds.observe(time.perf_counter() - t0)
+        self.metrics.cycle_seconds.observe(seconds)
+        log.debug(
+            "worker cycle", extra={"cycle": self.cycles, "robots": len(out), "seconds": round(seconds, 3)}
+        )
         return out
 
     def _methods(self, robot: str) -> list[str]:
