@@ -82,6 +82,7 @@ def test_joint_held_still_is_undetermined_and_nothing_false_is_said(rng):
     assert "insufficient_excitation" in topo.to_json()
 
 
+@pytest.mark.slow
 def test_link_without_imus_gives_truth_or_candidates(rng):
     for _ in range(2):
         n = int(rng.integers(5, 20))
