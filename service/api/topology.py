@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query
@@ -83,6 +84,10 @@ def approve_baseline(
         if cur is None:
             raise LookupError(f"no topology learned for {info.name!r} yet")
         store.set_baseline(info.name, cur.topology, "operator")
+        now = time.time()
+        for a in store.alerts(info.name):  # differences to the old baseline are over
+            if a.state != "resolved":
+                store.update_alert(a.id, state="resolved", updated_at=now)
     except LookupError as err:
         raise HTTPException(status_code=409, detail=str(err)) from None
     base = store.baseline(info.name)

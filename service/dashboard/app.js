@@ -136,6 +136,22 @@ function makeCard(robot) {
   const trees = el("div", { class: "trees" });
   root.append(h, meta, trees);
   const card = { root, meta, trees, damage: null };
+  const ops = el("div", { class: "damage ops" });
+  const approve = el("button", { type: "button", class: "approve" }, "Approve current as baseline");
+  const opsResult = el("span", { class: "result" });
+  approve.addEventListener("click", async () => {
+    if (!window.confirm(`Make the latest learned body of ${robot.name} its baseline? Open alerts are resolved.`)) return;
+    opsResult.textContent = "…";
+    try {
+      const r = await getJSON(`${API}/robots/${encodeURIComponent(robot.name)}/baseline`, { method: "POST" });
+      opsResult.textContent = `baseline set (${r.source})`;
+      refresh();
+    } catch (err) {
+      opsResult.textContent = `failed: ${err.message}`;
+    }
+  });
+  ops.append(approve, opsResult);
+  root.appendChild(ops);
   if (robot.simulated) {
     const form = el("form", { class: "damage" });
     const kind = el("select", { name: "kind" });

@@ -166,7 +166,8 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
     form.locator("input").fill("i2")
     form.locator("button").click()
     page.wait_for_function(
-        "document.querySelector(\"article[data-robot='arm'] .result\").textContent.startsWith('injected')",
+        "document.querySelector(\"article[data-robot='arm'] form.damage .result\")"
+        ".textContent.startsWith('injected')",
         timeout=10_000,
     )
     assert inj.calls == [("arm", "imu_dead", {"imu": "i2"})]
@@ -179,6 +180,17 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
         timeout=10_000,
     )
     assert [a.acked for a in store.alerts("arm", active=True) if a.kind == "imu_dead"] == [True]
+    # an operator approves the current body of "arm": its baseline becomes CUR, its alerts resolve
+    page.on("dialog", lambda d: d.accept())
+    page.locator("article[data-robot='arm'] button.approve").click()
+    page.wait_for_function(
+        "document.querySelector(\"article[data-robot='arm'] .ops .result\")"
+        ".textContent.startsWith('baseline set')",
+        timeout=10_000,
+    )
+    assert store.baseline("arm").source == "operator"
+    assert store.baseline("arm").topology.imu_joint["i4"] == "j4"
+    page.wait_for_function("document.querySelectorAll('#alerts tr.alert').length === 0", timeout=10_000)
     assert errors == []
     page.close()
 

@@ -130,9 +130,11 @@ def test_operator_baseline(client: TestClient, sstore: Store) -> None:
     resp = client.post("/api/v1/robots/arm/baseline")
     assert resp.status_code == 409 and "no topology" in resp.json()["detail"]
     sstore.save_topology("arm", MOVED, 100.0, 0.19)
+    sstore.upsert_alert("arm", "imu_moved", "imu:imu1", {"kind": "imu_moved", "imu": "imu1"}, "active", 1.0)
     resp = client.post("/api/v1/robots/arm/baseline")
     assert resp.status_code == 200 and resp.json()["source"] == "operator"
     assert sstore.baseline("arm").topology.same_structure(MOVED)
+    assert [a.state for a in sstore.alerts("arm")] == ["resolved"]
 
 
 def test_operator_baseline_through_worker_resolves_alerts(sstore: Store) -> None:
