@@ -1,0 +1,135 @@
+"""Correction of erroneous matrices (Eq. 22 MILP, Alg. 3 trellis, local search) against brute force."""
+
+from __future__ import annotations
+
+import functools
+import itertools
+
+import numpy as np
+import pytest
+
+from bodyschema.completion import complete
+from bodyschema.conditions import check_p, check_p_minus
+from bodyschema.convert import tree_to_matrix
+from bodyschema.correction import correct, nearest_permutation, trellis
+from bodyschema.counting import iter_parent_maps, random_tree
+from bodyschema.depmatrix import DependencyMatrix, DependencyMatrixError
+
+
+@functools.cache
+def _ancestor_stack(n: int) -> np.ndarray:
+    """(T, n, n) ancestor-or-self matrices of every rooted forest on n nodes: T[t, r, a] = a above r."""
+    nodes = [str(k) for k in range(n)]
+    out = []
+    for jp in iter_parent_maps(nodes):
+        t = np.zeros((n, n), dtype=bool)
+        for r in range(n):
+            cur: str | None = nodes[r]
+            while cur is not None:
+                t[r, int(cur)] = True
+                cur = jp[cur]
+        out.append(t)
+    return np.array(out)
+
+
+def brute_force_distance(D: DependencyMatrix) -> int:
+    """Minimal Hamming distance from square D to any tree matrix: all (n+1)^(n-1) n! trees."""
+    n = D.shape[0]
+    stack = _ancestor_stack(n)
+    v = D.values
+    best = n * n
+    for perm in itertools.permutations(range(n)):
+        # node r carries joint perm[r]: M[r, perm[a]] = T[r, a]
+        best = min(best, int((stack != v[:, list(perm)][None]).sum(axis=(1, 2)).min()))
+    return best
+
+
+def _flip(rng: np.random.Generator, D: DependencyMatrix, k: int) -> DependencyMatrix:
+    v = D.values.copy()
+    idx = rng.choice(v.size, size=k, replace=False)
+    v.reshape(-1)[idx] ^= True
+    return D.with_values(v)
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_distance_equals_brute_force_for_small_n(n: int, rng: np.random.Generator) -> None:
+    for case in range(10 if n < 5 else 6):
+        if case % 2 == 0:  # a tree with up to n/4 (at least 1) flipped bits
+            t = random_tree(n, rng, nodes=[f"s{i}" for i in range(n)])
+            D = _flip(rng, tree_to_matrix(t), max(1, n // 4))
+        else:  # any binary matrix
+            D = DependencyMatrix(rng.random((n, n)) < rng.uniform(0.2, 0.8), [f"s{i}" for i in range(n)],
+                                 [f"j{i}" for i in range(n)])
+        fix = correct(D, beam=16)
+        assert fix.distance == brute_force_distance(D), D
+        assert all(check_p(c).ok and D.hamming(c) == fix.distance for c in fix.candidates)
+
+
+def test_flipped_bits_are_repaired_within_their_number(rng: np.random.Generator) -> None:
+    for _ in range(12):
+        n = int(rng.integers(4, 17))
+        t = random_tree(n, rng, nodes=[f"imu{i}" for i in range(n)])
+        D = tree_to_matrix(t)
+        k = n // 4
+        noisy = _flip(rng, D, k)
+        fix = correct(noisy, beam=16)
+        assert fix.distance <= k, (noisy, D)
+        assert all(check_p(c).ok and noisy.hamming(c) == fix.distance for c in fix.candidates)
+        assert fix.trellis_distance is not None and fix.trellis_distance >= fix.distance
+
+
+def test_valid_input_comes_back_unchanged(rng: np.random.Generator) -> None:
+    t = random_tree(12, rng, nodes=[f"s{i}" for i in range(12)])
+    D = tree_to_matrix(t)
+    fix = correct(D)
+    assert fix.distance == 0 and fix.candidates == [D]
+    assert next(fix.trees()) == t
+
+
+def test_partial_noisy_matrix_gives_completable_candidates(rng: np.random.Generator) -> None:
+    for _ in range(6):
+        n = int(rng.integers(5, 13))
+        t = random_tree(n, rng, nodes=[f"s{i}" for i in range(n)])
+        keep = sorted(rng.choice(n, size=int(rng.integers(2, n)), replace=False).tolist())
+        partial = tree_to_matrix(t, rows=[t.nodes[i] for i in keep])
+        noisy = _flip(rng, partial, max(1, partial.values.size // 16))
+        fix = correct(noisy, beam=8)
+        assert fix.distance <= max(1, partial.values.size // 16)
+        for c in fix.candidates:
+            assert c.shape == noisy.shape and check_p_minus(c).ok
+            assert complete(c).count >= 1
+        trees = list(fix.trees(limit=5))
+        assert trees and all(tree.n == n for tree in trees)
+        assert tree_to_matrix(trees[0], rows=noisy.rows) in fix.candidates
+        # the permutation of a partial matrix: one 1 per row, at most one per column
+        p = fix.permutation.values
+        assert (p.sum(axis=1) == 1).all() and (p.sum(axis=0) <= 1).all()
+
+
+@pytest.mark.parametrize("solver", ["highs", "cbc", "hungarian"])
+def test_nearest_permutation_solvers_agree_on_overlap(solver: str, rng: np.random.Generator) -> None:
+    D = DependencyMatrix(rng.random((7, 7)) < 0.4, [f"s{i}" for i in range(7)], [f"j{i}" for i in range(7)])
+    P = nearest_permutation(D, solver=solver)
+    assert (P.values.sum(axis=0) == 1).all() and (P.values.sum(axis=1) == 1).all()
+    best = max(int(D.values[np.arange(7), list(perm)].sum()) for perm in itertools.permutations(range(7)))
+    assert int((P.values & D.values).sum()) == best
+
+
+def test_trellis_alone_and_beam_cap() -> None:
+    # Appendix Q's mechanism: the trellis starts from the permutation matrix and only dilates
+    D = DependencyMatrix([[1, 0, 0], [1, 1, 0], [1, 1, 1]], ["a", "b", "c"], ["e1", "e2", "e3"])
+    dist, mats = trellis(D)
+    assert dist == 0 and mats == [D]
+    noisy = DependencyMatrix(np.ones((4, 4), dtype=bool), list("abcd"), ["e1", "e2", "e3", "e4"])
+    fix = correct(noisy, beam=3)
+    assert len(fix.candidates) <= 3 and fix.truncated
+    assert fix.distance == brute_force_distance(noisy) == 6
+
+
+def test_bad_input() -> None:
+    with pytest.raises(DependencyMatrixError, match="merge duplicate rows"):
+        correct(DependencyMatrix([[1], [1]], ["a", "b"], ["j"]))
+    with pytest.raises(ValueError, match="solver"):
+        correct(DependencyMatrix([[1, 1], [0, 1]], ["a", "b"], ["j1", "j2"]), solver="gurobi")
+    with pytest.raises(ValueError, match="beam"):
+        correct(DependencyMatrix([[1]], ["a"], ["j"]), beam=0)
