@@ -485,13 +485,16 @@ def _leave_out(pb: _Problem, s: _State, rows: int) -> list[_State]:
     """
     diff = (pb.pad[: pb.r][:, s.col] != s.t[: pb.r]) & pb.mask[:, None]
     bad = diff.sum(axis=1)
-    order = [int(i) for i in np.argsort(-bad, kind="stable")[:rows] if bad[i] > 0]
+    # worst-fitting rows first, but rows that fit perfectly count too: a row whose own flipped bits
+    # pulled the tree its way fits that tree exactly and leaves the mismatches to the others
+    order = [int(i) for i in np.argsort(-bad, kind="stable")[:rows]]
     for i in order:
         pr = pb.without(i)
-        x = _quick(pr, _with(pr, s.parent, s.col, s.t))
-        y = _quick(pb, _with(pb, x.parent, x.col, x.t))
-        if y.cost < s.cost:
-            return [y]
+        for x0 in (_with(pr, s.parent, s.col, s.t), _column_greedy(pr)):
+            x = _quick(pr, x0)
+            y = _quick(pb, _with(pb, x.parent, x.col, x.t))
+            if y.cost < s.cost:
+                return [y]
     return []
 
 
@@ -579,7 +582,7 @@ def _column_greedy(pb: _Problem, rng: np.random.Generator | None = None) -> _Sta
     ``sum over x on k's path of (|S_j| - 2 |S_j and S_x|)``.
     """
     n = pb.n
-    v = pb.v.astype(np.int64)
+    v = pb.vm  # rows switched off by the mask do not vote
     overlap = v.T @ v  # |S_j and S_x|
     size = np.diag(overlap)
     tie = rng.random(n) if rng is not None else np.zeros(n)
