@@ -22,7 +22,7 @@ from typing import Any
 from service.api import create_app
 from service.api.deps import DamageInjector
 from service.ingest.base import Source
-from service.ingest.pipeline import Pipeline, _CommitLog
+from service.ingest.pipeline import CommitLog, Pipeline
 from service.metrics import Metrics
 from service.settings import Settings
 from service.store import Store
@@ -90,7 +90,7 @@ class Daemon:
         self.store = Store(s.database_url, settings=s)
         self.sources = [open_source(spec, s) for spec in self.specs]
         metrics = Metrics()
-        self._commit_log = _CommitLog(self.commit_log) if self.commit_log else None
+        self._commit_log = CommitLog(self.commit_log) if self.commit_log else None
         self.pipeline = Pipeline(self.store, self.sources, settings=s, on_commit=self._commit_log)
         metrics.bind_counters(self.pipeline.totals)
         self.pipeline.start()

@@ -346,10 +346,6 @@ class CommitLog:
         self._fh.close()
 
 
-#: Former private name, kept for callers that imported it.
-_CommitLog = CommitLog
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Ingest the given source specs into a database until they are exhausted, SIGTERM or SIGINT."""
     from service.ingest.spec import open_source
