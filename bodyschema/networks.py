@@ -176,6 +176,7 @@ def train_sensor_networks(
     batch_size: int = 512,
     lr: float = 1e-2,
     gyro_weight: float = 1.0,
+    input_sparsity: float = 0.0,
     seed: int = 0,
     progress: bool = False,
 ) -> tuple[SensorNetworks, list[float]]:
@@ -221,6 +222,8 @@ def train_sensor_networks(
             lw = (((w_hat - w_meas[:, idx]) / w_scale) ** 2).mean()
             la = (((a_hat - a_meas[:, idx]) / a_scale) ** 2).mean()
             loss = la + gyro_weight * lw
+            if input_sparsity > 0:  # group lasso: one group per (IMU, joint) input of the first layer
+                loss = loss + input_sparsity * torch.linalg.vector_norm(net.weights[0], dim=-1).sum() / K
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

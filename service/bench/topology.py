@@ -241,7 +241,7 @@ Machine: {machine_note()}. CPU seconds are process time (all threads), medians o
 to `fast` on the same recordings in the same run. Data: `mpu6050` IMU preset (bias, scale, cross-axis,
 noise), observable excitation, {args.seconds:g} s at 100 Hz. *Exact* = every joint's parent and every
 IMU's joint equal the truth. *Shortest exact*: the shortest prefix (of {args.durations} s) on which
-`fast` is exact for all {args.seeds} seeds.
+`fast` is exact for all {args.seeds} seeds.{_note(args)}
 
 {table}
 
@@ -250,6 +250,13 @@ IMU's joint equal the truth. *Shortest exact*: the shortest prefix (of {args.dur
     out.write_text(text)
     (out.with_suffix(".json")).write_text(json.dumps(rows, indent=1))
     return out
+
+
+def _note(args: argparse.Namespace) -> str:
+    if not getattr(args, "no_train", False):
+        return ""
+    return ("\n\nNetwork and MLP columns count only the runs whose networks were trained in earlier "
+            "(interrupted) runs of this benchmark (`--no-train`); \"not run\" means none was.")
 
 
 def _plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> None:
