@@ -199,7 +199,8 @@ class CanSource(Source):
     ``bus_factory`` opens the bus (called again on every reconnect); ``horizon`` is how many samples a
     frame may lag the newest before its sample is released without it; ``incomplete`` is the policy for
     such samples (``"drop"`` or ``"partial"``, see :mod:`can_regroup`); ``idle_flush_s`` releases pending
-    samples when the bus has been silent that long (measured on the host clock, used for nothing else);
+    samples when the bus has been silent that long (measured on the host clock, used for nothing else;
+    long enough that a sender stalled by a busy host does not get its next frames counted as late);
     ``backoff`` is (first, max) seconds between reopen attempts.
     """
 
@@ -211,7 +212,7 @@ class CanSource(Source):
         signal_map: SignalMap | None = None,
         horizon: int = 4,
         incomplete: str = "drop",
-        idle_flush_s: float = 0.5,
+        idle_flush_s: float = 2.0,
         backoff: tuple[float, float] = (0.05, 2.0),
         name: str | None = None,
     ) -> None:
