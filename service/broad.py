@@ -14,8 +14,7 @@ invalid samples. ``extra["movement"]`` keeps the dataset's movement mask.
 
 Example
 -------
->>> import glob
->>> paths = sorted(glob.glob("/work/shared/data/broad/*.hdf5"))
+>>> paths = sorted(broad_data_dir().glob("*.hdf5"))
 >>> rec = load_broad(paths[0]) if paths else None
 >>> rec is None or (rec.imu_names == ("imu0",) and rec.ref_quat.shape[1] == 4)
 True
@@ -32,12 +31,23 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from bodyschema.recording import GRAVITY, Recording, RecordingError
 
-__all__ = ["BROAD_ATTRIBUTION", "fill_gaps", "gap_runs", "load_broad", "session_of"]
+__all__ = ["BROAD_ATTRIBUTION", "broad_data_dir", "fill_gaps", "gap_runs", "load_broad", "session_of"]
 
 BROAD_ATTRIBUTION = (
     "BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, 'BROAD—A Benchmark for Robust Inertial "
     "Orientation Estimation', Data 6(7), 2021, https://doi.org/10.3390/data6070072, CC BY 4.0"
 )
+
+
+
+def broad_data_dir() -> Path:
+    """Where the shared BROAD trials are: ``$BODYHEALTH_BROAD_DIR``, else ``shared/data/broad`` beside
+    the repository (the layout of a checkout next to the team's shared folder)."""
+    env = os.environ.get("BODYHEALTH_BROAD_DIR")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
+
 
 _REQUIRED = ("imu_acc", "imu_gyr", "opt_quat", "opt_pos", "movement")
 

@@ -19,12 +19,13 @@ import numpy as np
 from tqdm import tqdm
 
 from service.bench import RESULTS_DIR, machine_note
+from service.broad import broad_data_dir
 
 __all__ = ["add_arguments", "run"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DATA = Path("/work/shared/data/broad")
+DEFAULT_DATA = broad_data_dir()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

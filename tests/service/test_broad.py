@@ -10,11 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodyschema.recording import RecordingError
-from service.broad import BROAD_ATTRIBUTION, gap_runs, load_broad, session_of
+from service.broad import BROAD_ATTRIBUTION, broad_data_dir, gap_runs, load_broad, session_of
 from service.cli import main
 from simulators.recording_io import load_recording
 
-DATA = Path("/work/shared/data/broad")
+DATA = broad_data_dir()
 TRIAL = DATA / "07_undisturbed_fast_rotation_B.hdf5"
 
 

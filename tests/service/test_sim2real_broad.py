@@ -9,7 +9,6 @@ same effects on the untouched slice: the difference must be what was injected.
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,9 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from bodyschema.discrepancy import EFFECT_NAMES, analyze_recording, fit_params, prepare, reference_of
 from bodyschema.discrepancy.inject import draw, inject
-from service.broad import load_broad
+from service.broad import broad_data_dir, load_broad
 
-TRIAL = Path("/work/shared/data/broad/02_undisturbed_slow_rotation_B.hdf5")
+TRIAL = broad_data_dir() / "02_undisturbed_slow_rotation_B.hdf5"
 
 pytestmark = [
     pytest.mark.slow,
