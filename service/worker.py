@@ -50,7 +50,7 @@ Estimator = Callable[[Recording, str], Topology]
 def default_estimator(rec: Recording, method: str) -> Topology:
     from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
 
-    return estimate_topology(rec, method=method)
+    return estimate_topology(rec, method=method, timer=time.process_time)
 
 
 @dataclass

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from typing import Any
 
 __all__ = ["format_diff", "register", "run"]
@@ -59,15 +60,15 @@ def format_diff(diff: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bodyschema.diff import diff_bodies  # noqa: I001 - estimate is imported lazily (torch)
+    from bodyschema.diff import diff_bodies
     from bodyschema.estimate import estimate_topology
     from bodyschema.health import signal_health
     from simulators.recording_io import load_recording
 
     base_rec = load_recording(args.baseline)
     cur_rec = load_recording(args.current)
-    base = estimate_topology(base_rec, method=args.method)
-    cur = estimate_topology(cur_rec, method=args.method)
+    base = estimate_topology(base_rec, method=args.method, timer=time.process_time)
+    cur = estimate_topology(cur_rec, method=args.method, timer=time.process_time)
     health = signal_health(cur_rec, base, expected_imus=base_rec.imu_names)
     diff = diff_bodies(base, cur, health)
     out = diff.to_json()

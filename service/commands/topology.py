@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         kw["progress"] = not args.json
         if args.epochs is not None:
             kw["epochs"] = args.epochs
-    topo = estimate_topology(rec, method=args.method, **kw)
+    topo = estimate_topology(rec, method=args.method, timer=time.process_time, **kw)
     if args.json:
         print(json.dumps(topo.to_json(), indent=2))
     else:
