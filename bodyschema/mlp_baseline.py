@@ -18,14 +18,14 @@ Example
 
 from __future__ import annotations
 
-import itertools
 import logging
-import math
 from collections.abc import Sequence
 
 import numpy as np
 import torch
 from torch import nn
+
+from bodyschema.networks import batched_layers, set_torch_threads
 
 __all__ = ["BatchedMLP", "mlp_jacobian", "train_mlp"]
 
@@ -37,15 +37,7 @@ class BatchedMLP(nn.Module):
 
     def __init__(self, n_imus: int, n_in: int, hidden: Sequence[int] = (64, 64, 64), seed: int = 0):
         super().__init__()
-        gen = torch.Generator().manual_seed(int(seed))
-        sizes = [n_in, *hidden, 6]
-        self.weights = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        for fan_in, fan_out in itertools.pairwise(sizes):
-            bound = 1.0 / math.sqrt(fan_in)
-            w = (torch.rand(n_imus, fan_in, fan_out, generator=gen) * 2 - 1) * bound
-            self.weights.append(nn.Parameter(w))
-            self.biases.append(nn.Parameter(torch.zeros(n_imus, 1, fan_out)))
+        self.weights, self.biases = batched_layers(n_imus, [n_in, *hidden, 6], seed)
         self.n_imus = n_imus
         self.register_buffer("in_mean", torch.zeros(1, n_in))
         self.register_buffer("in_std", torch.ones(1, n_in))
@@ -77,8 +69,6 @@ def train_mlp(
     progress: bool = False,
 ) -> tuple[BatchedMLP, list[float]]:
     """Fit the per-IMU MLPs on Eq. 25 (readings standardized per IMU and axis); loss per epoch."""
-    from bodyschema.networks import set_torch_threads
-
     set_torch_threads()
     torch.manual_seed(int(seed))
     f32 = torch.float32

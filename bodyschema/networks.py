@@ -42,7 +42,7 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["SensorNetworks", "rpy_to_matrix", "set_torch_threads", "train_sensor_networks"]
+__all__ = ["SensorNetworks", "batched_layers", "rpy_to_matrix", "set_torch_threads", "train_sensor_networks"]
 
 log = logging.getLogger(__name__)
 
@@ -70,20 +70,27 @@ def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
     return torch.stack([row0, row1, row2], -2)
 
 
+def batched_layers(
+    n_models: int, sizes: Sequence[int], seed: int
+) -> tuple[nn.ParameterList, nn.ParameterList]:
+    """Weights ``(n_models, fan_in, fan_out)`` and biases ``(n_models, 1, fan_out)`` of ``n_models``
+    independent MLPs with layer ``sizes``: one batched product per layer evaluates all of them.
+    Weights are uniform in ±1/sqrt(fan_in) (PyTorch's Linear default), biases zero."""
+    gen = torch.Generator().manual_seed(int(seed))
+    weights, biases = nn.ParameterList(), nn.ParameterList()
+    for fan_in, fan_out in itertools.pairwise(sizes):
+        bound = 1.0 / math.sqrt(fan_in)
+        weights.append(nn.Parameter((torch.rand(n_models, fan_in, fan_out, generator=gen) * 2 - 1) * bound))
+        biases.append(nn.Parameter(torch.zeros(n_models, 1, fan_out)))
+    return weights, biases
+
+
 class SensorNetworks(nn.Module):
     """K pose networks ``θ -> (R, b)`` with batched weights (IMU axis first on every parameter)."""
 
     def __init__(self, n_imus: int, n_joints: int, hidden: Sequence[int] = (64, 64, 64), seed: int = 0):
         super().__init__()
-        gen = torch.Generator().manual_seed(int(seed))
-        sizes = [n_joints, *hidden, 6]
-        self.weights = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        for fan_in, fan_out in itertools.pairwise(sizes):
-            bound = 1.0 / math.sqrt(fan_in)
-            w = (torch.rand(n_imus, fan_in, fan_out, generator=gen) * 2 - 1) * bound
-            self.weights.append(nn.Parameter(w))
-            self.biases.append(nn.Parameter(torch.zeros(n_imus, 1, fan_out)))
+        self.weights, self.biases = batched_layers(n_imus, [n_joints, *hidden, 6], seed)
         self.gyro_bias = nn.Parameter(torch.zeros(n_imus, 1, 3))
         # gravity direction in each network's own world frame (the frame is arbitrary, Prop. 1)
         self.gravity_dir = nn.Parameter(torch.tensor([0.0, 0.0, -1.0]).repeat(n_imus, 1, 1))
