@@ -53,7 +53,7 @@ from can.util import CAN_FD_DLC
 from service.ingest.base import FrameBatch, Source
 from service.ingest.can_mapping import SignalMap, load_dbc
 from service.ingest.can_regroup import SampleAssembler
-from service.ingest.device import DeviceConfig
+from service.ingest.device import Backoff, DeviceConfig
 from service.ingest.serial import config_from_params
 
 __all__ = ["CAN_ERR_BUSOFF", "BufferedSlcanBus", "CanSource", "open_bus", "open_from_spec"]
@@ -229,8 +229,7 @@ class CanSource(Source):
         self._factory = bus_factory
         self.idle_flush_s = idle_flush_s
         self.backoff = backoff
-        self._delay = backoff[0]
-        self._next_attempt = 0.0
+        self._retry = Backoff(*backoff)
         self._listener = _RegroupListener(self)
         self.bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
@@ -245,9 +244,7 @@ class CanSource(Source):
         try:
             bus = self._factory()
         except (can.CanError, OSError, serial.SerialException) as err:
-            log.warning("%s: cannot open bus (%s); retrying in %.2f s", self.name, err, self._delay)
-            self._next_attempt = time.monotonic() + self._delay
-            self._delay = min(self._delay * 2, self.backoff[1])
+            log.warning("%s: cannot open bus (%s); retrying in %.2f s", self.name, err, self._retry.failed())
             return False
         self._failed = None
         self.bus = bus
@@ -255,7 +252,7 @@ class CanSource(Source):
         if not first:
             self.counters.add("reconnects")
             log.info("%s: bus reopened", self.name)
-        self._delay = self.backoff[0]
+        self._retry.succeeded()
         return True
 
     def _fail(self, why: str) -> None:
@@ -286,8 +283,7 @@ class CanSource(Source):
         deadline = time.monotonic() + timeout
         if self._failed is not None and self.bus is not None:
             self._stop_bus()
-            self._next_attempt = time.monotonic() + self._delay
-            self._delay = min(self._delay * 2, self.backoff[1])
+            self._retry.failed()
             frames = self._drain()
             if frames:
                 ids, datas = zip(*frames, strict=True)
@@ -298,12 +294,7 @@ class CanSource(Source):
         if self._closed:
             return []
         if self.bus is None:
-            wait = self._next_attempt - time.monotonic()
-            if wait > 0:
-                time.sleep(min(wait, timeout))
-                if wait > timeout:
-                    return []
-            if not self._start():
+            if not self._retry.wait(timeout) or not self._start():
                 return []
         while True:
             with self._cond:

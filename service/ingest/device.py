@@ -28,13 +28,14 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["DeviceClock", "DeviceConfig", "DeviceConfigError"]
+__all__ = ["Backoff", "DeviceClock", "DeviceConfig", "DeviceConfigError"]
 
 
 class DeviceConfigError(ValueError):
@@ -173,3 +174,39 @@ class DeviceClock:
         if d > 0:
             self._last_raw, self._last_idx = raw, idx
         return idx
+
+
+class Backoff:
+    """Exponential reconnect backoff shared by the transports: ``first`` seconds after the first failure,
+    doubling up to ``maximum``, back to ``first`` after a success.
+
+    >>> b = Backoff(0.05, 0.2)
+    >>> [b.failed() for _ in range(4)]
+    [0.05, 0.1, 0.2, 0.2]
+    >>> b.succeeded(); b.delay
+    0.05
+    """
+
+    def __init__(self, first: float, maximum: float) -> None:
+        self.first, self.maximum = first, maximum
+        self.delay = first
+        self.next_attempt = 0.0
+
+    def failed(self) -> float:
+        """Schedule the next attempt ``delay`` seconds from now and double the delay; returns the wait."""
+        wait = self.delay
+        self.next_attempt = time.monotonic() + wait
+        self.delay = min(self.delay * 2, self.maximum)
+        return wait
+
+    def succeeded(self) -> None:
+        self.delay = self.first
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep until the next attempt is due, at most ``timeout``; True when an attempt is due now."""
+        left = self.next_attempt - time.monotonic()
+        if left > 0:
+            time.sleep(min(left, timeout))
+            if left > timeout:
+                return False
+        return True

@@ -38,7 +38,7 @@ import numpy as np
 import serial
 
 from service.ingest.base import FrameBatch, Source
-from service.ingest.device import DeviceClock, DeviceConfig, DeviceConfigError
+from service.ingest.device import Backoff, DeviceClock, DeviceConfig, DeviceConfigError
 from service.ingest.serial_frame import FrameDecoder, decode_payloads
 
 __all__ = ["SerialSource", "open_from_spec"]
@@ -73,8 +73,7 @@ class SerialSource(Source):
         self._clock = DeviceClock(bits=32)
         self._last_seq: int | None = None
         self._last_idx: int | None = None
-        self._delay = backoff[0]
-        self._next_attempt = 0.0
+        self._retry = Backoff(*backoff)
         self._synced: dict[str, int] = {}
         self._closed = False
         self.port: serial.SerialBase | None = None
@@ -87,10 +86,8 @@ class SerialSource(Source):
         except (serial.SerialException, OSError, ValueError) as err:
             if first and not isinstance(err, serial.SerialException | OSError):
                 raise
-            log.warning("%s: cannot open port (%s); retrying in %.2f s", self.name, err, self._delay)
+            log.warning("%s: cannot open port (%s); retrying in %.2f s", self.name, err, self._retry.failed())
             self.port = None
-            self._next_attempt = time.monotonic() + self._delay
-            self._delay = min(self._delay * 2, self.backoff[1])
             return False
         if not first:
             self.counters.add("reconnects")
@@ -110,8 +107,7 @@ class SerialSource(Source):
             pass
         self.port = None
         self._decoder.reset()
-        self._next_attempt = time.monotonic() + self._delay
-        self._delay = min(self._delay * 2, self.backoff[1])
+        self._retry.failed()
 
     @property
     def connected(self) -> bool:
@@ -123,12 +119,7 @@ class SerialSource(Source):
         if self._closed:
             return []
         if self.port is None:
-            wait = self._next_attempt - time.monotonic()
-            if wait > 0:
-                time.sleep(min(wait, timeout))
-                if wait > timeout:
-                    return []
-            if not self._connect():
+            if not self._retry.wait(timeout) or not self._connect():
                 return []
         port = self.port
         try:
@@ -168,7 +159,7 @@ class SerialSource(Source):
         self._sync_counters()
         if not payloads:
             return []
-        self._delay = self.backoff[0]
+        self._retry.succeeded()
         cfg = self.config
         q, acc, gyro = decode_payloads(payloads, len(cfg.joints), len(cfg.imus))
         t = np.asarray(idxs, dtype=np.float64) * cfg.period_s
