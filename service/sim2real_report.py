@@ -155,9 +155,11 @@ def robot_references(
     """The reference motion of every IMU site of ``robot`` (catalog name or MJCF file) driven by ``rec.q``.
 
     With joint velocities ``qd`` in the recording, each site's angular velocity and acceleration come
-    from the site Jacobians (``mj_jacSite``, ``mj_jacDot``) with ``qdd`` the forward difference of
-    ``qd`` — the acceleration over the interval that starts at each sample, which is what the
-    simulator's accelerometer reports there. Without ``qd``, orientations and positions from forward
+    from the site Jacobians (``mj_jacSite``, ``mj_jacDot``) and the joint accelerations: the recorded
+    ``qdd`` when there is one (the simulator records the ``qacc`` its accelerometers were computed
+    with, so an ideal simulated IMU then matches to rounding), else the forward difference of ``qd``
+    — the mean acceleration over the interval that starts at each sample, which misses what a torque
+    switching inside the interval does. Without ``qd``, orientations and positions from forward
     kinematics are differentiated by splines (poor under torques that switch between samples).
     Needs a fixed base (a floating base's pose is not in ``q``) and the recording's joints in the model.
     """
@@ -186,7 +188,8 @@ def robot_references(
     W = np.zeros((T, K, 3))
     A = np.zeros((T, K, 3))
     qd = rec.qd
-    if qd is not None:
+    qdd = rec.qdd
+    if qd is not None and qdd is None:
         qdd = np.zeros_like(qd)
         qdd[:-1] = np.diff(qd, axis=0) / np.diff(rec.t)[:, None]
         qdd[-1] = qdd[-2]
@@ -197,7 +200,7 @@ def robot_references(
         if qd is None:
             mujoco.mj_kinematics(m, d)
         else:
-            v[dof], a[dof] = qd[i], qdd[i]
+            v[dof], a[dof] = qd[i], qdd[i]  # type: ignore[index]
             d.qvel[:] = v
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)

@@ -38,12 +38,18 @@ _J = mujoco.mjtJoint
 
 @dataclass(frozen=True)
 class Samples:
-    """Ideal readings of one stretch of simulation: ``t`` (T,), ``q``/``qd`` (T,N), ``acc``/``gyro``/
-    ``gyro_dot`` (T,K,3) in each sensor frame, ``R`` (T,K,3,3) sensor-to-world rotations."""
+    """Ideal readings of one stretch of simulation: ``t`` (T,), ``q``/``qd``/``qdd`` (T,N), ``acc``/
+    ``gyro``/``gyro_dot`` (T,K,3) in each sensor frame, ``R`` (T,K,3,3) sensor-to-world rotations.
+
+    ``qdd`` is MuJoCo's ``qacc`` of the same forward pass the accelerometers are read from, so the
+    readings follow exactly from ``q``, ``qd``, ``qdd`` through the site Jacobians (a finite difference
+    of ``qd`` is only the mean acceleration over the interval and misses a torque that switches).
+    """
 
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
+    qdd: np.ndarray
     acc: np.ndarray
     gyro: np.ndarray
     gyro_dot: np.ndarray
@@ -298,8 +304,9 @@ class Robot:
         """Run ``len(ctrl)`` samples, holding ``ctrl[i]`` (nu,) over sample interval i; return readings.
 
         Sample i is taken at the start of its interval (time, state and the acceleration caused by
-        ``ctrl[i]``), then the physics advances ``substeps`` timesteps. ``poses`` also returns the
-        sensor rotations ``R`` and angular accelerations ``gyro_dot`` (else they are empty arrays).
+        ``ctrl[i]``; the accelerometers and ``qdd`` come from the same forward pass), then the physics
+        advances ``substeps`` timesteps. ``poses`` also returns the sensor rotations ``R`` and angular
+        accelerations ``gyro_dot`` (else they are empty arrays).
         """
         m, d = self.model, self.data
         ctrl = np.asarray(ctrl, dtype=np.float64)
@@ -309,6 +316,7 @@ class Robot:
         t = np.empty(T)
         qpos = np.empty((T, m.nq))
         qvel = np.empty((T, m.nv))
+        qacc = np.empty((T, m.nv))
         sens = np.empty((T, m.nsensordata))
         xmat = np.empty((T, m.nsite, 9)) if poses else None
         cacc = np.empty((T, m.nbody, 6)) if poses else None
@@ -321,8 +329,8 @@ class Robot:
         # the physics of a small robot (with one step per sample they simply stay on)
         opt.disableflags = on
         # views into MjData, bound once (each attribute access builds a new array object)
-        d_ctrl, d_qpos, d_qvel, d_sens, d_xmat, d_cacc = (
-            d.ctrl, d.qpos, d.qvel, d.sensordata, d.site_xmat, d.cacc)
+        d_ctrl, d_qpos, d_qvel, d_qacc, d_sens, d_xmat, d_cacc = (
+            d.ctrl, d.qpos, d.qvel, d.qacc, d.sensordata, d.site_xmat, d.cacc)
         t0 = d.time
         try:
             for i in range(T):
@@ -330,6 +338,7 @@ class Robot:
                 forward(m, d)
                 qpos[i] = d_qpos
                 qvel[i] = d_qvel
+                qacc[i] = d_qacc  # before integrating: the qacc the accelerometers were computed with
                 sens[i] = d_sens
                 if poses:
                     xmat[i] = d_xmat  # type: ignore[index]
@@ -353,6 +362,7 @@ class Robot:
             t=t,
             q=qpos[:, self.qpos_adr],
             qd=qvel[:, self.dof_adr],
+            qdd=qacc[:, self.dof_adr],
             acc=sens[:, self.acc_adr],
             gyro=sens[:, self.gyro_adr],
             gyro_dot=gyro_dot,

@@ -172,7 +172,8 @@ class Simulation:
             extra["damage_time"] = np.array(self.damage_times, dtype=np.float64)
             extra["truth_imu_detached"] = _detached_json(r.imu_names, detached)
         return Recording(
-            t=cat["t"], joint_names=r.joint_names, q=cat["q"], qd=cat["qd"], imu_names=r.imu_names,
+            t=cat["t"], joint_names=r.joint_names, q=cat["q"], qd=cat["qd"], qdd=cat["qdd"],
+            imu_names=r.imu_names,
             acc=cat["acc"], gyro=cat["gyro"], gravity=np.array(r.model.opt.gravity, dtype=np.float64),
             truth_joint_parent=jp, truth_imu_joint=ij, extra=extra,
         )
@@ -185,18 +186,19 @@ class Simulation:
         s = r.sample(self._ctrl(self._samples, n), poses=poses)
         acc, gyro = self.stream.process(t, s.acc, s.gyro, self.noise_rng,
                                         gyro_dot=s.gyro_dot if poses else None, R=s.R if poses else None)
-        q, qd = s.q, s.qd
+        q, qd, qdd = s.q, s.qd, s.qdd
         if self.encoder_faults:
-            q, qd = q.copy(), qd.copy()
+            q, qd, qdd = q.copy(), qd.copy(), qdd.copy()
             for joint, (mode, value) in self.encoder_faults.items():
                 j = r.joint_names.index(joint)
                 if mode == "stuck":
                     q[:, j] = value
                     qd[:, j] = 0.0
+                    qdd[:, j] = 0.0
                 else:
                     q[:, j] += value
         self._samples += n
-        return {"t": t, "q": q, "qd": qd, "acc": acc, "gyro": gyro, "qd_body": s.qd}
+        return {"t": t, "q": q, "qd": qd, "qdd": qdd, "acc": acc, "gyro": gyro, "qd_body": s.qd}
 
     # ------------------------------------------------------------------ read-ahead
     def _buffered(self) -> int:
@@ -242,7 +244,8 @@ def _concat(chunks: list[Recording], sim: Simulation) -> Recording:
         rec = chunks[0]
     else:
         last = chunks[-1]
-        cat = {k: np.concatenate([getattr(c, k) for c in chunks]) for k in ("t", "q", "qd", "acc", "gyro")}
+        fields = ("t", "q", "qd", "qdd", "acc", "gyro")
+        cat = {k: np.concatenate([getattr(c, k) for c in chunks]) for k in fields}
         rec = Recording(joint_names=last.joint_names, imu_names=last.imu_names, gravity=last.gravity,
                         truth_joint_parent=last.truth_joint_parent, truth_imu_joint=last.truth_imu_joint,
                         extra=dict(last.extra), **cat)
