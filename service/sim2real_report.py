@@ -6,7 +6,9 @@
   recording's reference motion — "simulate the measured motion";
 * :func:`transfer` is the end-to-end figure of merit: how much closer to a *different* measured
   recording the fitted model's simulation is than the default model's;
-* :func:`write_report` writes the discrepancy JSON, the fitted model, a Markdown summary and PNG plots.
+* :func:`write_report` writes the discrepancy JSON, the fitted model, a Markdown summary and PNG plots;
+* :func:`write_gravity_case` does the same for the robot gravity case (sensor networks without and with
+  gravity, :mod:`bodyschema.discrepancy.network_gravity`).
 
 The measured data this was built on is BROAD (Laidig, Caruso, Cereatti, Seel, "BROAD—A Benchmark for
 Robust Inertial Orientation Estimation", Data 6(7), 2021, CC BY 4.0); reports on it carry the
@@ -18,7 +20,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,8 +31,13 @@ from bodyschema.rigid_motion import ReferenceMotion
 from service.broad import BROAD_ATTRIBUTION
 from simulators.imu_model import ImuModel, distort, resolve_imu_model, save_imu_model
 
+if TYPE_CHECKING:
+    from bodyschema.discrepancy.network_gravity import GravityCase
+
 __all__ = [
+    "format_gravity_case",
     "format_summary",
+    "plot_gravity_case",
     "plot_residuals",
     "plot_structure",
     "robot_references",
@@ -38,6 +45,7 @@ __all__ = [
     "to_imu_model",
     "transfer",
     "transfer_problem",
+    "write_gravity_case",
     "write_report",
 ]
 
@@ -407,4 +415,91 @@ def write_report(
         files.append(plot_structure(report, out / "structure.png", title))
         md += ["![residuals before and after](residuals.png)", "", "![residual structure](structure.png)"]
     files[2].write_text("\n".join(md), encoding="utf-8")
+    return files
+
+
+# ----------------------------------------------------------------------------------- gravity case
+def format_gravity_case(case: GravityCase) -> str:
+    """The gravity case in a few lines: residuals and topology per form, then the named causes."""
+    d = case.to_json()
+    g = np.linalg.norm(case.gravity)
+    lines = [f"sensor networks without gravity (Eq. 11) and with it (Eq. 24), recording |g| = {g:.2f} m/s²"]
+    for form in ("eq11", "eq24"):
+        f = d["forms"][form]
+        acc = f["accuracy"]
+        topo = "no ground truth"
+        if acc:
+            topo = (f"exact {acc['exact']}, joint parents {acc['joint_parent']:.2f}, "
+                    f"IMU joints {acc['imu_joint']:.2f}")
+        lines.append(f"  {form}: residual acc {f['acc_rms']:.4f} m/s², gyro {f['gyro_rms']:.4f} rad/s; "
+                     f"topology {topo}")
+    gain = d["residual_gain"]
+    lines.append(f"  Eq. 24 removes {gain['acc']:.1%} of the accelerometer and {gain['gyro']:.1%} of the "
+                 "gyro residual energy")
+    for name, an in case.analyses.items():
+        lines.append(f"causes of the Eq. 11 residual on the {name} reference ({len(case.imus)} IMUs):")
+        if not an.causes:
+            lines.append("  none named on half of the IMUs")
+        for c in an.causes:
+            text = f"  {c['effect']}: {c['imus']}/{c['of']} IMUs, median held-out gain {c['median_gain']:.3f}"
+            p = c.get("params")
+            if p:
+                lo, hi = p["norm_range"]
+                text += f"; |g| {p['norm']:.2f} m/s² (range {lo:.2f}-{hi:.2f})"
+                for k, other in (("angle_to_recording_deg", "recording"), ("angle_to_eq24_deg", "Eq. 24")):
+                    if k in p:
+                        text += f", {p[k]:.1f}° from the {other} gravity"
+            lines.append(text)
+    return "\n".join(lines)
+
+
+def plot_gravity_case(case: GravityCase, path: str | os.PathLike[str], title: str = "") -> Path:
+    """Accelerometer residual of one IMU under Eq. 11, Eq. 11 plus the named effects, and Eq. 24 (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tr = case.traces
+    fig, axes = plt.subplots(3, 1, figsize=(11, 7), sharex=True)
+    series = [("eq11", "Eq. 11 (no gravity)", "tab:red"),
+              ("eq11_fitted", "Eq. 11 + named effects", "tab:orange"),
+              ("eq24", "Eq. 24 (gravity)", "tab:blue")]
+    for ax_i, ax in enumerate(axes):
+        for key, label, color in series:
+            if key in tr:
+                ax.plot(tr["t"], tr[key][:, ax_i], lw=0.5, color=color, label=label)
+        ax.set_ylabel(f"acc {'xyz'[ax_i]}\nm/s²", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    imu = case.settings.get("trace_imu", "")
+    fig.suptitle(title or f"measured minus sensor-network accelerometer, {imu}", fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+    return out
+
+
+def write_gravity_case(
+    case: GravityCase, out_dir: str | os.PathLike[str], title: str = "", plots: bool = True
+) -> list[Path]:
+    """Write ``gravity_case.json``, ``gravity_case.md`` and (``plots``) ``gravity_case.png`` in ``out_dir``.
+
+    ``.json`` is :meth:`GravityCase.to_json`; the PNG is :func:`plot_gravity_case`.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / "gravity_case.json", out / "gravity_case.md"]
+    files[0].write_text(json.dumps(case.to_json(), indent=2) + "\n", encoding="utf-8")
+    md = [f"# Gravity case{': ' + title if title else ''}", "", "```", format_gravity_case(case), "```", "",
+          "Residuals are in-sample (both forms trained on the same data with the same seed). The causes "
+          "come from the held-out effect selection on the Eq. 11 residual; an effect is listed when it "
+          "was named on at least half of the analysed IMUs.", ""]
+    if plots:
+        files.append(plot_gravity_case(case, out / "gravity_case.png", title))
+        md += ["![accelerometer residual before and after](gravity_case.png)", ""]
+    files[1].write_text("\n".join(md), encoding="utf-8")
     return files

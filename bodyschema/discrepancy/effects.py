@@ -50,6 +50,7 @@ __all__ = [
     "FITTED_EFFECTS",
     "Effect",
     "Params",
+    "nominal",
     "pack",
     "predict",
     "unpack",
@@ -128,9 +129,31 @@ EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 FITTED_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n != "noise")
 
 
-def pack(params: Mapping[str, Mapping[str, object]], names: tuple[str, ...] | list[str]) -> np.ndarray:
-    """The concatenated parameter vector of the effects ``names`` (null values where absent)."""
-    parts = [EFFECTS[n].from_params(params.get(n)) for n in names]
+def nominal(name: str, ref: ReferenceMotion | None = None) -> np.ndarray:
+    """The value of effect ``name`` when it is absent: its null, except ``gravity``, whose absence means
+    the reference's own gravity (what :func:`predict` uses without it).
+
+    The two agree for a reference built with the standard gravity; a gravity-free reference (the
+    sensor networks' Eq. 11 prediction, :mod:`bodyschema.discrepancy.network_gravity`) has none, and
+    a fit of the missing gravity must start from there.
+
+    >>> t, z = np.arange(3) * 0.01, np.zeros((3, 3))
+    >>> free = ReferenceMotion(t, np.tile(np.eye(3), (3, 1, 1)), z, z, np.zeros(3))
+    >>> nominal("gravity").tolist(), nominal("gravity", free).tolist()
+    ([0.0, 0.0, -9.81], [0.0, 0.0, 0.0])
+    """
+    if name == "gravity" and ref is not None:
+        return np.asarray(ref.gravity, dtype=np.float64).reshape(3).copy()
+    return np.asarray(EFFECTS[name].null, dtype=np.float64)
+
+
+def pack(
+    params: Mapping[str, Mapping[str, object]],
+    names: tuple[str, ...] | list[str],
+    ref: ReferenceMotion | None = None,
+) -> np.ndarray:
+    """The concatenated parameter vector of the effects ``names`` (:func:`nominal` values where absent)."""
+    parts = [EFFECTS[n].from_params(params[n]) if params.get(n) else nominal(n, ref) for n in names]
     return np.concatenate(parts) if parts else np.zeros(0)
 
 

@@ -77,7 +77,11 @@ def _families(ref: ReferenceMotion, reading: np.ndarray) -> dict[str, np.ndarray
     T = ref.t.shape[0]
     w = ref.omega
     tc = (ref.t - ref.t.mean())[:, None]
-    up = -np.einsum("tji,j->ti", ref.R, ref.gravity / np.linalg.norm(ref.gravity))
+    g = float(np.linalg.norm(ref.gravity))
+    if g > 0:
+        up = -np.einsum("tji,j->ti", ref.R, ref.gravity / g)
+    else:  # a gravity-free reference: any world-fixed direction, i.e. every world axis in the sensor frame
+        up = ref.R.reshape(T, 9)
     prods = np.stack([w[:, i] * w[:, j] for i in range(3) for j in range(i, 3)], axis=1)
     deriv = np.gradient(reading, ref.t, axis=0)
     return {

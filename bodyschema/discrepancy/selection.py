@@ -141,8 +141,8 @@ def _mean_params(params: list[Params], names: list[str]) -> Params:
     return unpack(np.mean([pack(p, names) for p in params], axis=0), names)
 
 
-def _step_params(params: Params, names: list[str], delta: np.ndarray) -> Params:
-    x = pack(params, names) + delta
+def _step_params(params: Params, names: list[str], delta: np.ndarray, ref: ReferenceMotion) -> Params:
+    x = pack(params, names, ref) + delta
     out = dict(params)
     out.update(unpack(x, names))
     return out
@@ -231,7 +231,7 @@ def _analyze(
             for c in cands:
                 names = [n for n in cols if n in selected or n == c]
                 delta = _gauss_newton(JtJ, Jtr, names, cols)
-                p_new = _step_params(f.params, names, delta)
+                p_new = _step_params(f.params, names, delta, prob.ref)
                 gains[c][k] = f.held - score(normalized_residual(prob, p_new), f.test)
                 steps[c].append(p_new)
         ranked = sorted(cands, key=lambda c: -float(np.mean(gains[c])))

@@ -4,6 +4,12 @@ Prints the causes in order with parameters, uncertainty and held-out gain (``--j
 discrepancy JSON), writes the extended IMU model in the simulator's format (``--out``), and a report
 with residual plots before/after (``--report DIR``). ``--transfer OTHER.npz ...`` checks the fitted
 model end to end on recordings that were not used for the fit.
+
+``--gravity-case`` (robot recordings, ``q`` with gravity) also trains the paper's sensor networks without
+gravity (Eq. 11) and with it (Eq. 24), and adds their residuals, the cause the analysis names for the
+Eq. 11 residual and each form's topology accuracy (``gravity_case`` in the JSON; ``gravity_case.*`` in
+the report). With ``--model`` the cause is also analysed on the robot's exact kinematics; without it
+only the gravity case runs.
 """
 
 from __future__ import annotations
@@ -12,6 +18,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bodyschema.discrepancy.network_gravity import GravityCase
+    from bodyschema.recording import Recording
+    from bodyschema.rigid_motion import ReferenceMotion
 
 __all__ = ["register"]
 
@@ -36,6 +48,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--blocks", type=int, default=8, help="held-out time blocks")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level of a new effect")
     p.add_argument("--min-gain", type=float, default=0.0005, help="smallest held-out gain to accept")
+    p.add_argument(
+        "--gravity-case",
+        action="store_true",
+        help="train the sensor networks without (Eq. 11) and with (Eq. 24) gravity: residuals, named cause, "
+        "topology accuracy",
+    )
+    p.add_argument("--epochs", type=int, default=40, help="sensor-network epochs (--gravity-case)")
+    p.add_argument("--seed", type=int, default=0, help="sensor-network seed (--gravity-case)")
     p.set_defaults(func=_run)
 
 
@@ -48,17 +68,21 @@ def _run(args: argparse.Namespace) -> int:
     rec = load_recording(args.recording)
     refs = None
     if rec.ref_quat is None:
-        if args.model is None:
+        if args.model is None and not args.gravity_case:
             raise ValueError(
                 f"{args.recording}: no reference motion (ref_quat); a robot recording needs --model"
             )
-        from service.sim2real_report import robot_references
+        if args.model is not None:
+            from service.sim2real_report import robot_references
 
-        refs = robot_references(rec, args.model, cutoff=args.cutoff)
+            refs = robot_references(rec, args.model, cutoff=args.cutoff)
     imus = [args.imu] if args.imu else list(rec.imu_names)
     unknown = [i for i in imus if i not in rec.imu_names]
     if unknown:
         raise ValueError(f"IMUs {unknown} not in the recording ({list(rec.imu_names)})")
+    case = _gravity_case(rec, args, refs) if args.gravity_case else None
+    if case is not None and rec.ref_quat is None and refs is None:
+        imus = []  # nothing to compare the IMUs with but the networks
     results = {}
     kw = {"n_blocks": args.blocks, "alpha": args.alpha, "min_gain": args.min_gain,
           "progress": sys.stderr.isatty()}
@@ -81,7 +105,11 @@ def _run(args: argparse.Namespace) -> int:
         if args.report:
             out = args.report if len(imus) == 1 else args.report / imu
             write_report(rep, out, title=f"{args.recording.stem} {imu}", transfers=transfers or None)
-    if args.out:
+    if case is not None and args.report:
+        from service.sim2real_report import write_gravity_case
+
+        write_gravity_case(case, args.report, title=args.recording.stem)
+    if args.out and imus:
         if len(imus) > 1:
             for imu, (_, model, _) in results.items():
                 save_imu_model(model, args.out.with_name(f"{args.out.stem}_{imu}{args.out.suffix}"))
@@ -94,7 +122,10 @@ def _run(args: argparse.Namespace) -> int:
             if transfers:
                 d["transfer"] = transfers
             docs[imu] = d
-        print(json.dumps(docs[imus[0]] if len(imus) == 1 else docs, indent=2))
+        out = docs[imus[0]] if len(imus) == 1 else docs
+        if case is not None:
+            out["gravity_case"] = case.to_json()
+        print(json.dumps(out, indent=2))
     else:
         for imu, (rep, _, transfers) in results.items():
             print(f"== {args.recording.name} {imu}")
@@ -107,4 +138,21 @@ def _run(args: argparse.Namespace) -> int:
                 )
             if rep.meta.get("attribution"):
                 print(f"data: {rep.meta['attribution']}")
+        if case is not None:
+            from service.sim2real_report import format_gravity_case
+
+            print(f"== {args.recording.name} gravity case")
+            print(format_gravity_case(case))
     return 0
+
+
+def _gravity_case(
+    rec: Recording, args: argparse.Namespace, refs: dict[str, ReferenceMotion] | None
+) -> GravityCase:
+    from bodyschema.discrepancy.network_gravity import gravity_case
+
+    imus = [args.imu] if args.imu else None
+    return gravity_case(
+        rec, epochs=args.epochs, seed=args.seed, imus=imus, references=refs, cutoff=args.cutoff,
+        n_blocks=args.blocks, alpha=args.alpha, min_gain=args.min_gain, progress=sys.stderr.isatty(),
+    )

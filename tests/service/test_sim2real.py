@@ -140,3 +140,33 @@ def test_ideal_robot_recording_through_its_model_has_no_residual_and_no_cause(
     prob = prepare(ref, rec.gyro[:, k], rec.acc[:, k])
     r, _ = residual(prob, {})
     assert np.sqrt(np.mean(r[prob.index, 3:] ** 2)) > 100 * docs["imu11"]["residual_before"]["acc_rms"]
+
+
+def test_cli_gravity_case_adds_both_network_forms_to_json_and_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from simulators.simulation import simulate
+
+    rec = simulate("ur5e", seconds=8.0, seed=2, imu_model="ideal")
+    save_recording(rec, tmp_path / "ur5e.npz")
+    args = ["sim2real", str(tmp_path / "ur5e.npz"), "--model", "ur5e", "--imu", "imu11", "--json",
+            "--gravity-case", "--epochs", "30", "--report", str(tmp_path / "rep")]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["causes"] == []  # the ideal IMU against the exact model: nothing
+    case = doc["gravity_case"]
+    f11, f24 = case["forms"]["eq11"], case["forms"]["eq24"]
+    assert f11["acc_rms"] > 2 * f24["acc_rms"]
+    assert case["imus_analysed"] == ["imu11"]
+    kin = case["analyses"]["kinematics"]
+    assert kin["named_per_imu"]["imu11"] == ["gravity"]
+    assert kin["causes"][0]["params"]["norm"] == pytest.approx(9.81, rel=0.05)
+    assert set(f11["accuracy"]) == {"exact", "joint_parent", "imu_joint"}
+    for name in ("gravity_case.json", "gravity_case.md", "gravity_case.png", "residuals.png"):
+        assert (tmp_path / "rep" / name).stat().st_size > 100
+    assert (tmp_path / "rep" / "gravity_case.png").read_bytes()[:4] == b"\x89PNG"
+    # without a model only the networks are compared
+    args = ["sim2real", str(tmp_path / "ur5e.npz"), "--gravity-case", "--epochs", "2", "--imu", "imu11"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "gravity case" in out and "Eq. 11" in out and "kinematics" not in out
