@@ -14,6 +14,7 @@ from bodyschema.convert import tree_to_matrix
 from bodyschema.correction import correct, nearest_permutation, trellis
 from bodyschema.counting import iter_parent_maps, random_tree
 from bodyschema.depmatrix import DependencyMatrix, DependencyMatrixError
+from bodyschema.tree_milp import nearest_tree_matrix, p_minus_violations
 
 
 @functools.cache
@@ -65,17 +66,76 @@ def test_distance_equals_brute_force_for_small_n(n: int, rng: np.random.Generato
         assert all(check_p(c).ok and D.hamming(c) == fix.distance for c in fix.candidates)
 
 
+def _noisy_tree(rng: np.random.Generator, lo: int, hi: int) -> tuple[DependencyMatrix, DependencyMatrix, int]:
+    """A random tree with N in [lo, hi] joints and its matrix with k = N // 4 bits flipped."""
+    n = int(rng.integers(lo, hi + 1))
+    t = random_tree(n, rng, nodes=[f"imu{i}" for i in range(n)])
+    D = tree_to_matrix(t)
+    k = n // 4
+    return D, _flip(rng, D, k), k
+
+
+def _assert_repaired(noisy: DependencyMatrix, D: DependencyMatrix, k: int) -> None:
+    fix = correct(noisy, beam=16)
+    # the true tree is k flips away, so the minimum is <= k; the exact stage proves what it returns
+    assert fix.distance <= k, (noisy, D)
+    assert fix.certified and fix.lower_bound == fix.distance, (noisy, D)
+    assert all(check_p(c).ok and noisy.hamming(c) == fix.distance for c in fix.candidates)
+    assert fix.trellis_distance is not None and fix.trellis_distance >= fix.distance
+
+
 def test_flipped_bits_are_repaired_within_their_number(rng: np.random.Generator) -> None:
-    for _ in range(12):
-        n = int(rng.integers(4, 17))
-        t = random_tree(n, rng, nodes=[f"imu{i}" for i in range(n)])
-        D = tree_to_matrix(t)
-        k = n // 4
-        noisy = _flip(rng, D, k)
-        fix = correct(noisy, beam=16)
-        assert fix.distance <= k, (noisy, D)
-        assert all(check_p(c).ok and noisy.hamming(c) == fix.distance for c in fix.candidates)
-        assert fix.trellis_distance is not None and fix.trellis_distance >= fix.distance
+    for _ in range(8):
+        D, noisy, k = _noisy_tree(rng, 4, 40)
+        _assert_repaired(noisy, D, k)
+
+
+@pytest.mark.slow
+def test_flipped_bits_are_repaired_within_their_number_sweep(rng: np.random.Generator) -> None:
+    for _ in range(60):
+        D, noisy, k = _noisy_tree(rng, 17, 40)
+        _assert_repaired(noisy, D, k)
+
+
+def test_exact_stage_finds_what_the_search_misses() -> None:
+    # a drawn case (N = 40, 10 flips) where the local search stops at 12: the truth needs several
+    # joints to change links at once (a cycle of joints plus re-hangs), each step alone costs more
+    D, noisy, k = _noisy_tree(np.random.default_rng(39), 17, 40)
+    assert (D.shape[0], k, noisy.hamming(D)) == (40, 10, 10)
+    fix = correct(noisy, beam=16)
+    assert fix.distance == 10 and fix.certified and fix.lower_bound == 10
+    assert all(check_p(c).ok and noisy.hamming(c) == 10 for c in fix.candidates)
+    uncertain = correct(noisy, beam=16, exact=False)
+    assert not uncertain.certified and uncertain.distance >= fix.distance
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_exact_milp_equals_brute_force(n: int, rng: np.random.Generator) -> None:
+    for case in range(6):
+        if case % 2 == 0 or n == 5:  # a tree with a few flipped bits (the case the MILP is built for)
+            t = random_tree(n, rng, nodes=[f"s{i}" for i in range(n)])
+            D = _flip(rng, tree_to_matrix(t), int(rng.integers(1, n // 2 + 2)))
+        else:  # any binary matrix (dense ones take the MILP many rounds: kept small)
+            D = DependencyMatrix(rng.random((n, n)) < rng.uniform(0.2, 0.8), [f"s{i}" for i in range(n)],
+                                 [f"j{i}" for i in range(n)])
+        v = D.values
+        res = nearest_tree_matrix(v)
+        best = brute_force_distance(D)
+        assert res.optimal and res.matrix is not None and res.lower == best, D
+        assert int((res.matrix != v).sum()) == best and check_p(D.with_values(res.matrix)).ok
+        # with the optimum as cut-off nothing closer exists: certified without a matrix
+        cut = nearest_tree_matrix(v, upper=best)
+        assert cut.matrix is None and cut.optimal and cut.lower == best
+        if best > 0:  # a cut-off above the optimum gives the optimum back
+            assert nearest_tree_matrix(v, upper=best + 1).lower == best
+
+
+def test_p_minus_violations_name_the_failures() -> None:
+    m = np.array([[1, 1, 0], [0, 1, 0], [1, 0, 0], [0, 0, 0], [0, 0, 0]], dtype=bool)
+    zero, same, cross = p_minus_violations(m)  # S_0 = {0, 2} and S_1 = {0, 1} cross
+    assert zero == [3, 4] and same == [(3, 4)] and cross == [(0, 1)]
+    assert p_minus_violations(m[:3, :2] | np.eye(3, 2, dtype=bool)) != ([], [], [])
+    assert p_minus_violations(np.tril(np.ones((3, 3), dtype=bool))) == ([], [], [])
 
 
 def test_valid_input_comes_back_unchanged(rng: np.random.Generator) -> None:

@@ -1,0 +1,260 @@
+"""Exact nearest tree matrix: a MILP over the matrix itself, with lazily added tree constraints.
+
+Why this is exact: an R x N binary matrix (R <= N) is a tree matrix, or completes to one, exactly when it
+satisfies P⁻ = {no all-0 row, no two equal rows, any two column sets nested or disjoint} (Thm 2/3; for a
+square matrix P⁻ implies P: the smallest column set holding a row is then a bijection between rows and
+columns, which is the pairing). Each of the three conditions is linear in the cells M[i, j]:
+
+* a row is non-empty: ``sum_j M[i, j] >= 1``;
+* rows i and h differ: ``sum_j z_j >= 1`` with ``z_j <= M[i, j] + M[h, j]`` and
+  ``z_j <= 2 - M[i, j] - M[h, j]`` (z_j can only be 1 where exactly one of the two rows has a 1);
+* columns k and l are nested or disjoint: binaries ``u`` (S_k ⊆ S_l) and ``w`` (S_l ⊆ S_k) with, for
+  every row a, ``M[a, k] <= M[a, l] + 1 - u``, ``M[a, l] <= M[a, k] + 1 - w`` and
+  ``M[a, k] + M[a, l] <= 1 + u + w``.
+
+Minimising the Hamming distance ``sum (1 - 2 D) M + |D|`` under all of them is the exact problem, but
+there are O(R^2 + N^2) pairs. So the pairs come in lazily (constraint generation): solve with the
+constraints collected so far — a relaxation, so its optimum is a lower bound — check the answer, add the
+pairs it violates, solve again. The first answer that satisfies P⁻ is optimal. Rows and columns that
+already clash in D, and the column pairs that overlap in D, are added before the first solve, since the
+answer mostly stays near D.
+
+With a known distance ``upper`` (from the local search) the solves look only for matrices strictly
+closer (a cut-off), so an infeasible solve certifies ``upper``. The work is capped by ``rounds`` and by
+HiGHS's branch-and-bound node limit (both deterministic, so results do not depend on machine speed);
+when a cap is hit the result says so and carries the best lower bound proven.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ExactResult", "nearest_tree_matrix", "p_minus_violations"]
+
+
+@dataclass(frozen=True)
+class ExactResult:
+    """Outcome of :func:`nearest_tree_matrix`.
+
+    ``matrix``: a P⁻ matrix strictly closer than ``upper`` (None when there is none, or none was found
+    within the caps). ``lower``: a proven lower bound on the distance of every tree matrix to D.
+    ``optimal``: the bound is attained — by ``matrix``, or by ``upper`` when ``matrix`` is None.
+    ``rounds``: solves used.
+    """
+
+    matrix: np.ndarray | None
+    lower: int
+    optimal: bool
+    rounds: int
+
+
+def p_minus_violations(m: np.ndarray) -> tuple[list[int], list[tuple[int, int]], list[tuple[int, int]]]:
+    """The P⁻ failures of binary ``m``: all-0 rows, pairs of equal rows, crossing column pairs (k < l)."""
+    mi = m.astype(np.int64)
+    zero = np.flatnonzero(mi.sum(axis=1) == 0).tolist()
+    same = np.triu((mi @ mi.T == mi.sum(axis=1)[:, None]) & (mi @ mi.T == mi.sum(axis=1)[None, :]), k=1)
+    inter = mi.T @ mi
+    size = np.diag(inter)
+    cross = np.triu((inter > 0) & (inter < size[:, None]) & (inter < size[None, :]), k=1)
+    return (zero, [(int(a), int(b)) for a, b in zip(*np.nonzero(same), strict=True)],
+            [(int(a), int(b)) for a, b in zip(*np.nonzero(cross), strict=True)])
+
+
+class _Model:
+    """Sparse rows for HiGHS, collected as (row, column, value) triples."""
+
+    def __init__(self) -> None:
+        self.ri: list[np.ndarray] = []
+        self.ci: list[np.ndarray] = []
+        self.va: list[np.ndarray] = []
+        self.lo: list[float] = []
+        self.hi: list[float] = []
+
+    def row(self, cols: np.ndarray, vals: np.ndarray, low: float, up: float) -> None:
+        self.ri.append(np.full(len(cols), len(self.lo)))
+        self.ci.append(np.asarray(cols, dtype=np.int64))
+        self.va.append(np.asarray(vals, dtype=float))
+        self.lo.append(low)
+        self.hi.append(up)
+
+
+def _solve(
+    d: np.ndarray,
+    rows: set[tuple[int, int]],
+    cols: dict[tuple[int, int], np.ndarray],
+    upper: int | None,
+    max_nodes: int,
+) -> tuple[str, np.ndarray | None, float]:
+    """One relaxation: ('optimal', M, value) | ('infeasible', None, upper) | ('limit', M or None, bound).
+
+    Only the cells some pair constraint mentions are variables ("active"); the others stay as in D, which
+    is optimal for them in this relaxation, except that a row whose 1s all lie in active cells may switch
+    on one inactive 0 at cost 1 (one aggregate variable per row) to be non-empty.
+    """
+    import highspy
+    from scipy.sparse import coo_matrix
+
+    r, n = d.shape
+    act = np.zeros((r, n), dtype=bool)
+    for a, b in rows:
+        act[[a, b]] = True
+    for (k, l), rs in cols.items():
+        act[rs, k] = True
+        act[rs, l] = True
+    idx = np.full((r, n), -1, dtype=np.int64)
+    cells = np.argwhere(act)
+    nx = len(cells)
+    idx[act] = np.arange(nx)
+    cost = list(1.0 - 2.0 * d[act])
+    integer = [True] * nx
+    nv = nx
+    mdl = _Model()
+    inf = highspy.kHighsInf
+    fill: dict[int, int] = {}  # row -> its aggregate "switch on an inactive 0" variable
+    base = (d & ~act).sum(axis=1)
+    for i in np.flatnonzero(base == 0):
+        vs = idx[i][act[i]]
+        coef = np.ones(len(vs))
+        if (~act[i]).any():  # an inactive 0 is available to switch on
+            fill[int(i)] = nv
+            vs = np.append(vs, nv)
+            coef = np.append(coef, 1.0)
+            cost.append(1.0)
+            integer.append(True)
+            nv += 1
+        mdl.row(vs, coef, 1.0, inf)
+    for a, b in sorted(rows):  # rows a and b differ: z_j <= M_a + M_b, z_j <= 2 - M_a - M_b, sum z >= 1
+        z = np.arange(nv, nv + n)
+        cost.extend([0.0] * n)
+        integer.extend([False] * n)
+        nv += n
+        for j in range(n):
+            mdl.row(np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, -1.0, -1.0]), -inf, 0.0)
+            mdl.row(np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, 1.0, 1.0]), -inf, 2.0)
+        mdl.row(z, np.ones(n), 1.0, inf)
+    for (k, l), rs in sorted(cols.items()):  # columns k, l nested (u: S_k in S_l, w: S_l in S_k) or disjoint
+        u, w = nv, nv + 1
+        cost.extend([0.0, 0.0])
+        integer.extend([True, True])
+        nv += 2
+        for a in rs:
+            xk, xl = idx[a, k], idx[a, l]
+            mdl.row(np.array([xk, xl, u]), np.array([1.0, -1.0, 1.0]), -inf, 1.0)
+            mdl.row(np.array([xl, xk, w]), np.array([1.0, -1.0, 1.0]), -inf, 1.0)
+            mdl.row(np.array([xk, xl, u, w]), np.array([1.0, 1.0, -1.0, -1.0]), -inf, 1.0)
+    c = np.array(cost)
+    offset = float(d[act].sum())  # an inactive cell equals D and costs nothing
+    if upper is not None:  # cut-off: strictly closer than upper
+        mdl.row(np.flatnonzero(c), c[c != 0], -inf, upper - 1 - offset)
+    m_rows = len(mdl.lo)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = nv, m_rows
+    lp.col_cost_ = c
+    lp.offset_ = offset
+    lp.col_lower_ = np.zeros(nv)
+    lp.col_upper_ = np.ones(nv)
+    lp.row_lower_ = np.array(mdl.lo)
+    lp.row_upper_ = np.array(mdl.hi)
+    lp.integrality_ = [highspy.HighsVarType.kInteger if t else highspy.HighsVarType.kContinuous
+                       for t in integer]
+    if m_rows:
+        a = coo_matrix((np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))),
+                       shape=(m_rows, nv)).tocsc()
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = a.indptr
+        lp.a_matrix_.index_ = a.indices
+        lp.a_matrix_.value_ = a.data
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("threads", 1)
+    h.setOptionValue("mip_rel_gap", 0.0)
+    h.setOptionValue("mip_abs_gap", 0.5)  # the distance is an integer
+    h.setOptionValue("mip_max_nodes", max_nodes)
+    # these models are decided at the root, where primal heuristics only cost time
+    h.setOptionValue("mip_heuristic_effort", 0.0)
+    h.passModel(lp)
+    h.run()
+    status = h.getModelStatus()
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return "infeasible", None, float(upper if upper is not None else np.inf)
+    info = h.getInfo()
+    m = None
+    if info.primal_solution_status == 2:  # a feasible solution exists
+        x = np.asarray(h.getSolution().col_value) > 0.5
+        m = d.copy()
+        m[act] = x[:nx]
+        for i, v in fill.items():
+            if x[v]:
+                m[i, int(np.flatnonzero(~act[i] & ~d[i])[0])] = True
+    if status == highspy.HighsModelStatus.kOptimal and m is not None:
+        return "optimal", m, float(info.objective_function_value)
+    bound = info.mip_dual_bound
+    return "limit", m, float(bound) if np.isfinite(bound) else 0.0
+
+
+def nearest_tree_matrix(
+    d: np.ndarray,
+    upper: int | None = None,
+    rounds: int = 40,
+    max_nodes: int = 500,
+    max_pairs: int | None = None,
+) -> ExactResult:
+    """A P⁻ matrix nearest to binary ``d`` (R x N, R <= N) in Hamming distance, or a proof that none is
+    closer than ``upper``. See the module notes for the method and the caps ``rounds``/``max_nodes``."""
+    d = np.asarray(d, dtype=bool)
+    rows: set[tuple[int, int]] = set()
+    cols: dict[tuple[int, int], np.ndarray] = {}
+    hot: set[int] = set()
+    touched = np.zeros(d.shape[0], dtype=bool)
+    m = d
+    lower = 0
+    for used in range(1, rounds + 1):
+        zero, same, cross = p_minus_violations(m)
+        if not (zero or same or cross):  # a tree matrix: D itself, or the optimum of the last relaxation
+            dist = int((m != d).sum())
+            if upper is not None and dist >= upper:  # D is a tree matrix and upper is 0
+                return ExactResult(None, int(upper), True, used - 1)
+            return ExactResult(m, dist, True, used - 1)
+        new = False
+        for pair in same:
+            new |= pair not in rows
+            rows.add(pair)
+        pairs = set(cross)
+        # a row that took a new 1 which made two columns cross would otherwise try its other columns one
+        # solve at a time: give every column a pair with each column of that row at once
+        added = m & ~d
+        for k, l in cross:
+            for i in np.flatnonzero((added[:, k] & m[:, l]) | (added[:, l] & m[:, k])):
+                if i not in hot:
+                    hot.add(int(i))
+                    for o in np.flatnonzero(d[i] | m[i]).tolist():
+                        pairs.update((min(j, o), max(j, o)) for j in range(d.shape[1]) if j != o)
+        # a row some answer changed gets into every pair at once: otherwise it tries one column per solve
+        fresh = np.flatnonzero((m != d).any(axis=1) & ~touched)
+        if len(fresh):
+            touched[fresh] = True
+            for key in cols:
+                cols[key] = np.union1d(cols[key], fresh)
+                new = True
+        for k, l in pairs:  # the pair, on every row where D or the last answer has a 1 in either column
+            rs = np.flatnonzero(d[:, k] | d[:, l] | m[:, k] | m[:, l] | touched)
+            old = cols.get((k, l))
+            if old is None or len(np.setdiff1d(rs, old)):
+                cols[(k, l)] = rs if old is None else np.union1d(old, rs)
+                new = True
+        if len(cols) + len(rows) > (20 * d.shape[1] if max_pairs is None else max_pairs):
+            return ExactResult(None, lower, False, used - 1)
+        if used > 1 and not new:
+            raise AssertionError("the relaxation's answer breaks a constraint it was given")
+        status, m_new, value = _solve(d, rows, cols, upper, max_nodes)
+        if status == "infeasible":
+            if upper is None:
+                raise AssertionError("the relaxation without a cut-off cannot be infeasible")
+            return ExactResult(None, int(upper), True, used)
+        lower = max(lower, int(np.ceil(value - 1e-6)))
+        if m_new is None or status == "limit":
+            return ExactResult(None, lower, False, used)
+        m = m_new
+    return ExactResult(None, lower, False, rounds)
