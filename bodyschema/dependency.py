@@ -30,6 +30,7 @@ Example
 
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 from typing import Any
@@ -56,6 +57,11 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 STATISTICS = ("moment", "variance")
+
+#: Features are clustered in log scale, clipped here: which joints an IMU depends on is a pattern of
+#: ratios over a noise floor, and in linear scale a weak true dependency (0.15) sits as close to
+#: "none" as to a strong one, so two links' IMUs could share a cluster.
+CLUSTER_FLOOR = 0.03
 
 
 def invariant_jacobian(net: Any, theta: torch.Tensor) -> torch.Tensor:
@@ -161,18 +167,46 @@ def choose_delta(
     if moving.sum() == 0:
         return float(grid[len(grid) // 2]), labels_full
     x_all = feats[moving]
-    labels = _cluster(x_all, rng)
+    labels = _cluster(np.log(np.maximum(x_all, CLUSTER_FLOOR)), rng)
     labels_full[moving] = labels
     scores = np.array([eq19_score((x_all > d).astype(float), labels, lam) for d in grid])
     # Eq. 19 rewards clean clusters (m = 0) that are distinct (det S != 0) but, among those, cannot see a
     # true 1 that drops out for all IMUs of a link at once; so every δ scoring like a clean clustering
     # (m = 0 puts the score at 1e6 x det S) is a candidate, and the one farthest from any feature
     # value in log scale wins: the middle of the widest empty band of ratios, a max-margin threshold.
-    clean = np.flatnonzero(scores >= 1e3)
-    near = clean if len(clean) else np.flatnonzero(scores >= scores.max())
+    #
+    # Two empty bands can be about as wide: noise | weak true | strong true. A joint two links up
+    # moves an IMU far less than its own joint, so its normalized feature is small but shared by every
+    # IMU of the link, while the noise floor is the lowest band. The lowest band at least 3/4 as wide
+    # as the widest one (and spanning a factor 2 or more) wins. When no clean clustering leaves such a
+    # band (the DPGMM put two links' IMUs in one cluster, so no δ makes it clean), every δ competes.
     logx = np.log(np.maximum(x_all, 1e-4))  # ratios: "no dependency" is a noise floor, not a level
-    margin = np.array([np.min(np.abs(logx - np.log(grid[i]))) for i in near])
-    return float(grid[near[int(np.argmax(margin))]]), labels_full
+    clean = np.flatnonzero(scores >= 1e3)
+    for near in (clean if len(clean) else np.flatnonzero(scores >= scores.max()), np.arange(len(grid))):
+        pick = _lowest_wide_band(logx, np.log(grid[near]))
+        if pick is not None:
+            return float(grid[near[pick]]), labels_full
+    margin = np.array([np.min(np.abs(logx - np.log(g))) for g in grid])
+    return float(grid[int(np.argmax(margin))]), labels_full
+
+
+def _lowest_wide_band(logx: np.ndarray, log_deltas: np.ndarray, min_margin: float = np.log(2.0) / 2
+                      ) -> int | None:
+    """Index into ascending ``log_deltas`` of the threshold in the lowest wide empty band of ``logx``
+    (margin to the nearest feature at least ``min_margin`` and 3/4 of the widest), or None."""
+    if len(log_deltas) == 0:
+        return None
+    margin = np.array([np.min(np.abs(logx - d)) for d in log_deltas])
+    if margin.max() < min_margin:
+        return None
+    # contiguous runs of thresholds with no feature between them are one band
+    between = [np.any((logx > a) & (logx < b)) for a, b in itertools.pairwise(log_deltas)]
+    bands = np.split(np.arange(len(log_deltas)), np.flatnonzero(between) + 1)
+    for band in bands:
+        best = band[int(np.argmax(margin[band]))]
+        if margin[best] >= max(0.75 * margin.max(), min_margin):
+            return int(best)
+    return None
 
 
 @dataclass
@@ -240,8 +274,14 @@ def dependency_from_jacobian(
     lam: float = 0.1,
     rng: np.random.Generator | None = None,
     loss: list[float] | None = None,
+    sure_ratio: float = 2.0,
+    majority: float = 0.75,
 ) -> NetworkDependency:
-    """Statistic, feature, δ, DPGMM merge (steps 2-5 of the module docstring) on Jacobian norms."""
+    """Statistic, feature, δ, DPGMM merge (steps 2-5 of the module docstring) on Jacobian norms.
+
+    Entries more than ``sure_ratio`` times above or below δ keep their own value; a cluster's vote
+    decides the rest where at least ``majority`` of its members agree.
+    """
     rng = np.random.default_rng(0) if rng is None else rng
     N = jbar.shape[-1]
     und = np.zeros(N, dtype=bool) if undetermined is None else np.asarray(undetermined, dtype=bool)
@@ -251,10 +291,19 @@ def dependency_from_jacobian(
     feats, on_base = dependency_feature(stat)
     delta, labels = choose_delta(feats, lam=lam, rng=rng)
     xb = feats > delta
-    dep = np.zeros_like(xb)
+    # The cluster vote repairs only entries near δ: the DPGMM clusters continuous features, and the
+    # IMUs of a link and of its child can land in one cluster (a wrist joint that barely changes
+    # them), where a vote would erase a dependency that every member of the child shows clearly.
+    # So an entry keeps its own value when it is far from δ or when its cluster is split about evenly
+    # (two links in one cluster); a clear majority (``majority`` of the members) overrules the rest.
+    sure = np.abs(np.log(np.maximum(feats, 1e-6) / delta)) > np.log(sure_ratio)
+    dep = xb.copy()
     for c in np.unique(labels[labels >= 0]):
         members = labels == c
-        dep[members] = xb[members].mean(axis=0) > 0.5
+        share = xb[members].mean(axis=0)
+        clear = (share >= majority) | (share <= 1 - majority)
+        keep = sure[members] | ~clear
+        dep[members] = np.where(keep, xb[members], share > 0.5)
     dep[on_base] = False
     # confidence: how far each feature sits from δ, relative to the room on its side
     margin = np.where(xb, (feats - delta) / max(1 - delta, 1e-6), (delta - feats) / max(delta, 1e-6))

@@ -5,7 +5,8 @@ Each IMU ``k`` gets ``f_k(θ) -> (R_k(θ), b_k(θ))``: three sigmoid hidden laye
 module with an IMU axis on every weight (``torch.bmm``), so K networks cost one batched matrix product
 per layer rather than a Python loop.
 
-Loss (per IMU, each term divided by the spread of its measurement so metres and radians weigh alike):
+Loss (per IMU, each term divided by the spread of its sensor type over the robot, so metres and
+radians weigh alike; see :func:`robot_scale`):
 
 * accelerometer, Eq. 11 / Eq. 24: ``|α − Rᵀ (b̈ − g)|²`` with ``b̈ = H θ̇θ̇ + J θ̈`` (Eq. 3). ``b̈`` is the
   second derivative of ``b(θ(t))`` along the motion, taken by two nested forward-mode derivatives of
@@ -42,7 +43,14 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["SensorNetworks", "batched_layers", "rpy_to_matrix", "set_torch_threads", "train_sensor_networks"]
+__all__ = [
+    "SensorNetworks",
+    "batched_layers",
+    "robot_scale",
+    "rpy_to_matrix",
+    "set_torch_threads",
+    "train_sensor_networks",
+]
 
 log = logging.getLogger(__name__)
 
@@ -171,6 +179,19 @@ class SensorNetworks(nn.Module):
         return omega + self.gyro_bias, acc + self.acc_bias
 
 
+def robot_scale(meas: torch.Tensor, floor: float) -> torch.Tensor:
+    """One spread for a sensor type over the whole robot: the median over IMUs of each IMU's spread.
+
+    Each loss term is divided by its sensor's spread so that metres and radians weigh alike. One
+    IMU's own spread is the wrong unit: on a link that turns about the vertical near its axis the
+    accelerometer barely changes, so a per-IMU scale magnifies its tiny residuals (a few mg) a
+    hundredfold. Training then keeps that IMU's pose constant to fit them (the networks of such
+    first-link IMUs came out independent of every joint), or uses other joints' angles as proxies.
+    """
+    per_imu = meas.std(dim=1).mean(-1)  # (K,)
+    return per_imu.median().clamp_min(floor)
+
+
 def train_sensor_networks(
     q: np.ndarray,
     qd: np.ndarray,
@@ -204,8 +225,7 @@ def train_sensor_networks(
     w_meas = torch.as_tensor(gyro, dtype=f32).transpose(0, 1)  # (K, T, 3)
     a_meas = torch.as_tensor(acc, dtype=f32).transpose(0, 1)
     g = None if gravity is None else torch.as_tensor(gravity, dtype=f32)
-    w_scale = w_meas.std(dim=1, keepdim=True).mean(-1, keepdim=True).clamp_min(1e-3)
-    a_scale = a_meas.std(dim=1, keepdim=True).mean(-1, keepdim=True).clamp_min(1e-2)
+    w_scale, a_scale = robot_scale(w_meas, 1e-3), robot_scale(a_meas, 1e-2)
     net = SensorNetworks(K, N, hidden=hidden, seed=seed)
     net.set_input_scaling(th.mean(0), th.std(0))
     with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias

@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--durations", default="1,1.5,2,3,5,7.5,10,15,20,30,45,60",
                         help="prefix lengths tried for the shortest exact recording of fast")
     parser.add_argument("--epochs", type=int, default=40, help="training epochs of network and mlp")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="training processes run side by side (CPU seconds are still per run)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "topology.md")
     parser.add_argument("--fresh", action="store_true", help="ignore per-run results kept from earlier runs")
     parser.add_argument("--no-train", action="store_true",
@@ -143,7 +145,18 @@ def _run_networks(
     return out
 
 
+def _network_job(robot: str, seconds: float, seed: int, todo: list[str], epochs: int) -> dict[str, Any]:
+    """One recording's network/MLP runs (in a worker process with ``--jobs`` > 1)."""
+    from bodyschema.networks import set_torch_threads
+
+    set_torch_threads()
+    return _run_networks(_recording(robot, seconds, seed), todo, epochs, seed, f"{robot}-{seed}")
+
+
 def run(args: argparse.Namespace) -> Path:
+    from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
     from tqdm import tqdm
 
     from bodyschema.estimate import estimate_topology
@@ -159,23 +172,20 @@ def run(args: argparse.Namespace) -> Path:
     store = _Store(CACHE / "results.json")
     if not args.fresh:
         store.load()
-    rows: list[dict[str, Any]] = []
-    bar = tqdm(total=len(robots) * args.seeds, desc="bench topology", unit="run")
-    for robot in robots:
-        per: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
-        shortest_ok: dict[float, int] = {d: 0 for d in durations}
-        n_joints = n_imus = 0
+    net_methods = [m for m in methods if m != "fast"]
+    shape: dict[str, tuple[int, int]] = {}
+    shortest_ok: dict[str, dict[float, int]] = {}
+    jobs: list[tuple[str, int, list[str]]] = []
+    # pass 1, in this process: recordings, fast and its prefixes (cheap), and the list of trainings
+    for robot in tqdm(robots, desc="bench topology: recordings and fast", unit="robot"):
+        shortest_ok[robot] = {d: 0 for d in durations}
         for seed in range(args.seeds):
             rec = _recording(robot, args.seconds, seed)
-            n_joints, n_imus = rec.n_joints, rec.n_imus
+            shape[robot] = (rec.n_joints, rec.n_imus)
             key = f"{robot}|{args.seconds:g}|{seed}"
-            fast = store.get(f"{key}|fast")
-            if "fast" in methods and fast is None:
+            if "fast" in methods and store.get(f"{key}|fast") is None:
                 topo = estimate_topology(rec, method="fast", timer=time.process_time)
-                fast = {"exact": _exact(topo, rec), "seconds": topo.seconds}
-                store.put(f"{key}|fast", fast)
-            if fast is not None and "fast" in methods:
-                per["fast"].append(fast)
+                store.put(f"{key}|fast", {"exact": _exact(topo, rec), "seconds": topo.seconds})
             for d in durations:
                 dk = f"{key}|fast-prefix|{d:g}"
                 ok = store.get(dk)
@@ -186,28 +196,45 @@ def run(args: argparse.Namespace) -> Path:
                     except ValueError:
                         ok = False
                     store.put(dk, ok)
-                shortest_ok[d] += int(bool(ok))
-            net_methods = [m for m in methods if m != "fast"]
+                shortest_ok[robot][d] += int(bool(ok))
             todo = [m for m in net_methods
                     if args.reextract or store.get(f"{key}|{m}|e{args.epochs}") is None]
             if todo and args.no_train:
                 todo = [m for m in todo if _kept(robot, seed, m, args.epochs)]
             if todo:
-                for m, res in _run_networks(rec, todo, args.epochs, seed, f"{robot}-{seed}").items():
-                    store.put(f"{key}|{m}|e{args.epochs}", res)
-            for m in net_methods:
-                got = store.get(f"{key}|{m}|e{args.epochs}")
-                if got is not None:
-                    per[m].append(got)
-            bar.update(1)
-        shortest = next((d for d in durations if shortest_ok[d] == args.seeds), None)
+                jobs.append((robot, seed, todo))
+    # pass 2: the trainings, one process per core asked for; only this process writes the results
+    bar = tqdm(total=len(jobs), desc="bench topology: networks", unit="run")
+
+    def keep(robot: str, seed: int, res: dict[str, Any]) -> None:
+        for m, r in res.items():
+            store.put(f"{robot}|{args.seconds:g}|{seed}|{m}|e{args.epochs}", r)
+        bar.update(1)
+
+    if args.jobs > 1 and len(jobs) > 1:
+        # spawn, not fork: the parent has torch and OpenMP state a forked child must not inherit
+        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
+            futures: dict[Future[dict[str, Any]], tuple[str, int]] = {
+                pool.submit(_network_job, robot, args.seconds, seed, todo, args.epochs): (robot, seed)
+                for robot, seed, todo in jobs}
+            for fut in as_completed(futures):
+                keep(*futures[fut], fut.result())
+    else:
+        for robot, seed, todo in jobs:
+            keep(robot, seed, _network_job(robot, args.seconds, seed, todo, args.epochs))
+    bar.close()
+    rows: list[dict[str, Any]] = []
+    for robot in robots:
+        shortest = next((d for d in durations if shortest_ok[robot][d] == args.seeds), None)
+        n_joints, n_imus = shape[robot]
         row: dict[str, Any] = {"robot": robot, "joints": n_joints, "imus": n_imus, "shortest": shortest}
         for m in methods:
-            runs = per[m]
+            runs = [r for seed in range(args.seeds)
+                    if (r := store.get(f"{robot}|{args.seconds:g}|{seed}|"
+                                       + ("fast" if m == "fast" else f"{m}|e{args.epochs}"))) is not None]
             row[m] = {"exact": sum(int(r["exact"]) for r in runs), "runs": len(runs),
                       "seconds": float(np.median([r["seconds"] for r in runs])) if runs else float("nan")}
         rows.append(row)
-    bar.close()
     return _write(rows, methods, args)
 
 
@@ -235,13 +262,13 @@ def _write(rows: list[dict[str, Any]], methods: list[str], args: argparse.Namesp
     text = f"""# Benchmark: topology learning
 
 `bodyhealth bench topology --robots {args.robots} --seeds {args.seeds} --methods {",".join(methods)} \
---seconds {args.seconds:g} --epochs {args.epochs}`
+--seconds {args.seconds:g} --epochs {args.epochs} --jobs {args.jobs}`
 
-Machine: {machine_note()}. CPU seconds are process time (all threads), medians over seeds; ratios are
-to `fast` on the same recordings in the same run. Data: `mpu6050` IMU preset (bias, scale, cross-axis,
-noise), observable excitation, {args.seconds:g} s at 100 Hz. *Exact* = every joint's parent and every
-IMU's joint equal the truth. *Shortest exact*: the shortest prefix (of {args.durations} s) on which
-`fast` is exact for all {args.seeds} seeds.{_note(args)}
+Machine: {machine_note()}. CPU seconds are process time (all threads) of the process that ran
+the method, medians over seeds; ratios are to `fast` on the same recordings in the same run. Data:
+`mpu6050` IMU preset (bias, scale, cross-axis, noise), observable excitation, {args.seconds:g} s at
+100 Hz. *Exact* = every joint's parent and every IMU's joint equal the truth. *Shortest exact*: the
+shortest prefix (of {args.durations} s) on which `fast` is exact for all {args.seeds} seeds.{_note(args)}
 
 {table}
 
