@@ -160,7 +160,7 @@ def _report(rows: list[dict], args: argparse.Namespace, png: str, sparse: list[d
         "(the true tree sits at the flipped count); *<= flipped*: trees where the search found a tree at "
         "least as close as the truth; *truth returned*: the true tree is among the candidates (with this "
         "much noise another tree is often closer); *certified*: the exact stage proved the distance "
-        "minimal (it runs only while the distance is at most N // 2, so not at this noise level).",
+        "minimal (it runs only while the distance is at most N // 2, so rarely at this noise level).",
         "",
         "| N | flipped bits | correct: median s (min-max) | distance | <= flipped | truth returned "
         "| candidates | certified | trellis (Alg. 3) alone: s | trellis distance | Eq. 22 alone: s |",
