@@ -7,13 +7,16 @@
    rotation column constant, so its variance is ~0 and the paper's statistic drops an IMU's own parent
    joint (DESIGN §3, measured on MuJoCo robots; the benchmark shows both).
 3. The dependency feature (Eq. 16): the maximum over the four rows, normalized to unit length.
-4. The threshold δ (Eq. 18) chosen by Eq. 19 over a grid: binarize the features, cluster the rows with
-   a Dirichlet-process Gaussian mixture (sklearn ``BayesianGaussianMixture``), and score
+4. The threshold δ (Eq. 18) chosen by Eq. 19 over a grid: binarize the features, cluster the rows
+   (log features) with a Dirichlet-process Gaussian mixture (sklearn ``BayesianGaussianMixture``),
+   and score
    ``|det S| / m − λ Σ p_c log p_c`` (S: distances between cluster means, m: dispersion inside clusters,
-   p_c: cluster shares). Among the near-best δ (half the best score or more) the one farthest from
-   every feature value wins: Eq. 19 alone cannot see a true 1 that drops out for all IMUs of a link.
-5. Rows of one cluster are IMUs on one link: each IMU gets its cluster's mean binary row, thresholded at
-   0.5 (the paper's "sample rows from the DPGMM, filter with 0.5").
+   p_c: cluster shares). Eq. 19 alone cannot see a true 1 that drops out for all IMUs of a link, so
+   among the δ giving clean clusters the one in the lowest wide empty band of log feature values
+   wins (see :func:`choose_delta`).
+5. Rows of one cluster are IMUs on one link: an IMU's entries near δ take its cluster's mean binary
+   row, thresholded at 0.5 (the paper's "sample rows from the DPGMM, filter with 0.5") where the
+   cluster clearly agrees; entries far from δ stay (:func:`cluster_vote`).
 
 IMUs whose network barely depends on any joint (largest statistic below ``base_level`` times the median
 over IMUs) sit on the base: normalizing their feature (Eq. 16) would turn noise into a unit vector.
@@ -45,6 +48,7 @@ __all__ = [
     "STATISTICS",
     "NetworkDependency",
     "choose_delta",
+    "cluster_vote",
     "dependency_feature",
     "dependency_from_jacobian",
     "eq19_score",
@@ -267,6 +271,42 @@ def network_jacobian(
     return jbar.numpy().astype(np.float64), loss
 
 
+def cluster_vote(
+    feats: np.ndarray, delta: float, labels: np.ndarray, sure_ratio: float = 2.0, majority: float = 0.75
+) -> np.ndarray:
+    """Binarize ``feats`` at δ, then let each cluster of IMUs (one link) vote on its uncertain entries.
+
+    The vote repairs only entries near δ: the DPGMM clusters continuous features, and the IMUs of a
+    link and of its child can land in one cluster (a wrist joint that barely changes them), where a
+    vote would erase a dependency that every member of the child shows clearly. So an entry keeps its
+    own value when it is more than ``sure_ratio`` times above or below δ, or when its cluster is split
+    about evenly; a clear majority (``majority`` of the members) overrules the rest. Label -1: no
+    cluster (kept as binarized).
+
+    Two links in one cluster, split evenly: every entry is kept.
+
+    >>> split = np.array([[0.9, 0.5], [0.9, 0.45], [0.9, 0.01], [0.9, 0.02]])
+    >>> cluster_vote(split, 0.1, np.zeros(4, dtype=int)).astype(int).tolist()
+    [[1, 1], [1, 1], [1, 0], [1, 0]]
+
+    One link, three of four members clearly dependent: the fourth, just under δ, is overruled.
+
+    >>> one = np.array([[0.9, 0.5], [0.9, 0.45], [0.9, 0.6], [0.9, 0.08]])
+    >>> cluster_vote(one, 0.1, np.zeros(4, dtype=int)).astype(int).tolist()
+    [[1, 1], [1, 1], [1, 1], [1, 1]]
+    """
+    xb = feats > delta
+    sure = np.abs(np.log(np.maximum(feats, 1e-6) / delta)) > np.log(sure_ratio)
+    dep = xb.copy()
+    for c in np.unique(labels[labels >= 0]):
+        members = labels == c
+        share = xb[members].mean(axis=0)
+        clear = (share >= majority) | (share <= 1 - majority)
+        keep = sure[members] | ~clear
+        dep[members] = np.where(keep, xb[members], share > 0.5)
+    return dep
+
+
 def dependency_from_jacobian(
     jbar: np.ndarray,
     statistic: str = "moment",
@@ -290,22 +330,10 @@ def dependency_from_jacobian(
     stat = jacobian_statistic(jbar, statistic)
     feats, on_base = dependency_feature(stat)
     delta, labels = choose_delta(feats, lam=lam, rng=rng)
-    xb = feats > delta
-    # The cluster vote repairs only entries near δ: the DPGMM clusters continuous features, and the
-    # IMUs of a link and of its child can land in one cluster (a wrist joint that barely changes
-    # them), where a vote would erase a dependency that every member of the child shows clearly.
-    # So an entry keeps its own value when it is far from δ or when its cluster is split about evenly
-    # (two links in one cluster); a clear majority (``majority`` of the members) overrules the rest.
-    sure = np.abs(np.log(np.maximum(feats, 1e-6) / delta)) > np.log(sure_ratio)
-    dep = xb.copy()
-    for c in np.unique(labels[labels >= 0]):
-        members = labels == c
-        share = xb[members].mean(axis=0)
-        clear = (share >= majority) | (share <= 1 - majority)
-        keep = sure[members] | ~clear
-        dep[members] = np.where(keep, xb[members], share > 0.5)
+    dep = cluster_vote(feats, delta, labels, sure_ratio=sure_ratio, majority=majority)
     dep[on_base] = False
     # confidence: how far each feature sits from δ, relative to the room on its side
+    xb = feats > delta
     margin = np.where(xb, (feats - delta) / max(1 - delta, 1e-6), (delta - feats) / max(delta, 1e-6))
     margin[:, und] = 1.0
     return NetworkDependency(
