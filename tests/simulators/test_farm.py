@@ -89,6 +89,6 @@ def test_readahead_changes_nothing_even_around_damage(seed: int) -> None:
     (a, da, _), (b, db, _) = runs
     assert da == db
     for name in robots:
-        for field in ("t", "q", "qd", "acc", "gyro"):
+        for field in ("t", "q", "qd", "qdd", "acc", "gyro"):
             assert np.array_equal(_cat(a, name, field), _cat(b, name, field)), (name, field)
     assert np.allclose(a[-1]["p"].extra["damage_time"], [0.3])
