@@ -67,7 +67,7 @@ from bodyschema.conditions import check_p, check_p_minus
 from bodyschema.convert import matrix_to_tree
 from bodyschema.depmatrix import DependencyMatrix, DependencyMatrixError
 from bodyschema.outtree import DEFAULT_ROOT, OutTree
-from bodyschema.tree_milp import nearest_tree_matrix
+from bodyschema.tree_milp import binary_lp, nearest_tree_matrix, quiet_highs
 
 __all__ = ["SOLVERS", "Correction", "correct", "nearest_permutation", "trellis"]
 
@@ -128,23 +128,11 @@ def _highs_eq22(v: np.ndarray) -> np.ndarray:
     rr = np.concatenate([i_idx // n, r + i_idx % n, r + n + np.arange(n_w), r + n + np.arange(n_w)])
     cc = np.concatenate([i_idx, i_idx, n_i + np.arange(n_w), ones_i * n + ones_j])
     vals = np.concatenate([np.ones(2 * n_i), np.ones(n_w), -np.ones(n_w)])
-    a = coo_matrix((vals, (rr, cc)), shape=(r + n + n_w, n_i + n_w)).tocsc()
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = n_i + n_w, r + n + n_w
-    lp.sense_ = highspy.ObjSense.kMaximize
-    lp.col_cost_ = np.concatenate([np.zeros(n_i), np.ones(n_w)])
-    lp.col_lower_ = np.zeros(n_i + n_w)
-    lp.col_upper_ = np.ones(n_i + n_w)
-    col_low = 1.0 if r == n else 0.0
-    lp.row_lower_ = np.concatenate([np.ones(r), np.full(n, col_low), np.full(n_w, -highspy.kHighsInf)])
-    lp.row_upper_ = np.concatenate([np.ones(r + n), np.zeros(n_w)])
-    lp.integrality_ = [highspy.HighsVarType.kInteger] * n_i + [highspy.HighsVarType.kContinuous] * n_w
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = a.indptr
-    lp.a_matrix_.index_ = a.indices
-    lp.a_matrix_.value_ = a.data
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    a = coo_matrix((vals, (rr, cc)), shape=(r + n + n_w, n_i + n_w))
+    lp = binary_lp(np.concatenate([np.zeros(n_i), np.ones(n_w)]), [True] * n_i + [False] * n_w,
+                   np.concatenate([np.ones(r), np.full(n, 1.0 if r == n else 0.0), np.full(n_w, -np.inf)]),
+                   np.concatenate([np.ones(r + n), np.zeros(n_w)]), a, maximize=True)
+    h = quiet_highs()
     h.passModel(lp)
     h.run()
     if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:

@@ -33,11 +33,13 @@ in well under a second for N = 40, 10 % of all bits do not (the caller decides w
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-__all__ = ["ExactResult", "nearest_tree_matrix", "p_minus_violations"]
+__all__ = ["ExactResult", "binary_lp", "nearest_tree_matrix", "p_minus_violations", "quiet_highs"]
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,54 @@ def p_minus_violations(m: np.ndarray) -> tuple[list[int], list[tuple[int, int]],
     cross = np.triu((inter > 0) & (inter < size[:, None]) & (inter < size[None, :]), k=1)
     return (zero, [(int(a), int(b)) for a, b in zip(*np.nonzero(same), strict=True)],
             [(int(a), int(b)) for a, b in zip(*np.nonzero(cross), strict=True)])
+
+
+
+def binary_lp(
+    cost: np.ndarray,
+    integer: Sequence[bool],
+    row_lower: np.ndarray,
+    row_upper: np.ndarray,
+    a: Any,
+    *,
+    offset: float = 0.0,
+    maximize: bool = False,
+) -> Any:
+    """A HiGHS model over columns in [0, 1] (``integer`` marks the binaries) with rows
+    ``row_lower <= a @ x <= row_upper`` (``a``: any scipy sparse matrix), handed over as arrays.
+
+    Arrays rather than pulp: pulp builds a Python object per variable, which dominates the time on
+    the N x N models of the correction."""
+    import highspy
+
+    a = a.tocsc()
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = a.shape[1], a.shape[0]
+    if maximize:
+        lp.sense_ = highspy.ObjSense.kMaximize
+    lp.col_cost_ = np.asarray(cost, dtype=np.float64)
+    lp.offset_ = offset
+    lp.col_lower_ = np.zeros(a.shape[1])
+    lp.col_upper_ = np.ones(a.shape[1])
+    lp.row_lower_ = np.asarray(row_lower, dtype=np.float64)
+    lp.row_upper_ = np.asarray(row_upper, dtype=np.float64)
+    lp.integrality_ = [highspy.HighsVarType.kInteger if t else highspy.HighsVarType.kContinuous
+                       for t in integer]
+    if a.shape[0]:
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = a.indptr
+        lp.a_matrix_.index_ = a.indices
+        lp.a_matrix_.value_ = a.data
+    return lp
+
+
+def quiet_highs() -> Any:
+    """A HiGHS solver that prints nothing."""
+    import highspy
+
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    return h
 
 
 class _Model:
@@ -155,25 +205,10 @@ def _solve(
     if upper is not None:  # cut-off: strictly closer than upper
         mdl.row(np.flatnonzero(c), c[c != 0], -inf, upper - 1 - offset)
     m_rows = len(mdl.lo)
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = nv, m_rows
-    lp.col_cost_ = c
-    lp.offset_ = offset
-    lp.col_lower_ = np.zeros(nv)
-    lp.col_upper_ = np.ones(nv)
-    lp.row_lower_ = np.array(mdl.lo)
-    lp.row_upper_ = np.array(mdl.hi)
-    lp.integrality_ = [highspy.HighsVarType.kInteger if t else highspy.HighsVarType.kContinuous
-                       for t in integer]
-    if m_rows:
-        a = coo_matrix((np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))),
-                       shape=(m_rows, nv)).tocsc()
-        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-        lp.a_matrix_.start_ = a.indptr
-        lp.a_matrix_.index_ = a.indices
-        lp.a_matrix_.value_ = a.data
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    a = (coo_matrix((np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))),
+                    shape=(m_rows, nv)) if m_rows else coo_matrix((0, nv)))
+    lp = binary_lp(c, integer, np.array(mdl.lo), np.array(mdl.hi), a, offset=offset)
+    h = quiet_highs()
     h.setOptionValue("threads", 1)
     h.setOptionValue("mip_rel_gap", 0.0)
     h.setOptionValue("mip_abs_gap", 0.5)  # the distance is an integer

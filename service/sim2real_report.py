@@ -291,6 +291,28 @@ def _residuals(report: DiscrepancyReport) -> tuple[Any, np.ndarray, np.ndarray]:
     return prob, before, after
 
 
+def _save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
+    """Lay out, write (PNG, creating the folder) and close ``fig``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+    return out
+
+
+def _save_time_axes(fig: Any, axes: Any, path: str | os.PathLike[str], title: str) -> Path:
+    """Finish a column of traces against time (legend on top, time label below) and save it."""
+    for ax in axes:
+        ax.tick_params(labelsize=7)
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
+    return _save_figure(fig, path)
+
+
 def plot_residuals(report: DiscrepancyReport, path: str | os.PathLike[str], title: str = "") -> Path:
     """Residuals per axis against time, before and after the fitted effects (PNG)."""
     import matplotlib
@@ -308,16 +330,7 @@ def plot_residuals(report: DiscrepancyReport, path: str | os.PathLike[str], titl
         ax.plot(t, np.where(mask, before[:, i], np.nan), lw=0.5, color="tab:red", label="before (ideal)")
         ax.plot(t, np.where(mask, after[:, i], np.nan), lw=0.5, color="tab:blue", label="after (fitted)")
         ax.set_ylabel(f"{labels[i]}\n{'rad/s' if i < 3 else 'm/s²'}", fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes[0].legend(loc="upper right", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle(title or "measured minus simulated IMU readings", fontsize=10)
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
-    return out
+    return _save_time_axes(fig, axes, path, title or "measured minus simulated IMU readings")
 
 
 def plot_structure(report: DiscrepancyReport, path: str | os.PathLike[str], title: str = "") -> Path:
@@ -353,12 +366,7 @@ def plot_structure(report: DiscrepancyReport, path: str | os.PathLike[str], titl
         ax.set_ylabel(f"{name} residual PSD", fontsize=8)
         ax.legend(fontsize=7)
     fig.suptitle(title or "residual structure", fontsize=10)
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
-    return out
+    return _save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------------------- report
@@ -470,17 +478,8 @@ def plot_gravity_case(case: GravityCase, path: str | os.PathLike[str], title: st
             if key in tr:
                 ax.plot(tr["t"], tr[key][:, ax_i], lw=0.5, color=color, label=label)
         ax.set_ylabel(f"acc {'xyz'[ax_i]}\nm/s²", fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes[0].legend(loc="upper right", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
     imu = case.settings.get("trace_imu", "")
-    fig.suptitle(title or f"measured minus sensor-network accelerometer, {imu}", fontsize=10)
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
-    return out
+    return _save_time_axes(fig, axes, path, title or f"measured minus sensor-network accelerometer, {imu}")
 
 
 def write_gravity_case(
