@@ -3,17 +3,23 @@
 Each :class:`Metrics` owns its own ``CollectorRegistry`` (not the process-global one), so several apps
 in one test process do not collide. Frame counters are not incremented here: a collector reads them
 from the ingest pipeline's :class:`~service.ingest.base.Counters` at scrape time, so the numbers on
-``/metrics`` are exactly those the pipeline keeps.
+``/metrics`` are exactly those the pipeline keeps. Transport-specific counters (CAN error frames,
+serial CRC failures, reconnects, ...) come out as ``bodyhealth_ingest_events_total{event=...}``, summed
+over sources, and the queue between readers and the store writer as a gauge.
 
 Example
 -------
 >>> from service.ingest.base import Counters
->>> c = Counters(); c.add("received", 7)
->>> m = Metrics(counters=lambda: c.as_dict())
+>>> c = Counters(); c.add("received", 7); c.add("error_frames", 2)
+>>> m = Metrics(counters=lambda: {**c.as_dict(), "queue_depth": 3})
 >>> m.retrain_seconds.labels(method="fast").observe(0.4)
 >>> text = m.render().decode()
 >>> "bodyhealth_frames_received_total 7.0" in text, "bodyhealth_retrain_seconds_count" in text
 (True, True)
+>>> 'bodyhealth_ingest_events_total{event="error_frames"} 2.0' in text
+True
+>>> "bodyhealth_ingest_queue_depth 3.0" in text
+True
 """
 
 from __future__ import annotations
@@ -28,19 +34,20 @@ from prometheus_client import (
     Histogram,
     generate_latest,
 )
-from prometheus_client.core import CounterMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 __all__ = ["CONTENT_TYPE_LATEST", "Metrics"]
 
 _FRAME_COUNTERS = ("received", "stored", "dropped", "malformed")
+_QUEUE_DEPTH = "queue_depth"
 
 
 class _FrameCollector(Collector):
     def __init__(self, read: Callable[[], dict[str, int]]) -> None:
         self._read = read
 
-    def collect(self) -> Iterator[CounterMetricFamily]:
+    def collect(self) -> Iterator[CounterMetricFamily | GaugeMetricFamily]:
         try:
             values = self._read() or {}
         except Exception:  # a scrape must never fail because the pipeline is shutting down
@@ -51,6 +58,20 @@ class _FrameCollector(Collector):
                 f"frame samples {name} by the ingest pipeline",
                 value=float(values.get(name, 0)),
             )
+        events = CounterMetricFamily(
+            "bodyhealth_ingest_events",
+            "transport events counted by the ingest sources (summed over sources)",
+            labels=["event"],
+        )
+        for name, value in sorted(values.items()):
+            if name not in _FRAME_COUNTERS and name != _QUEUE_DEPTH:
+                events.add_metric([name], float(value))
+        yield events
+        yield GaugeMetricFamily(
+            "bodyhealth_ingest_queue_depth",
+            "batches waiting between the transport readers and the store writer",
+            value=float(values.get(_QUEUE_DEPTH, 0)),
+        )
 
 
 class Metrics:
