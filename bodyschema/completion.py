@@ -175,8 +175,9 @@ class Completion:
                 full = {**jp, **attach}
                 nodes = {**node, **{c: link_label(c) for c in cl.zero}}
                 ordered = sorted(full, key=rank.__getitem__)
-                yield OutTree.from_parents({c: full[c] for c in ordered}, {c: nodes[c] for c in ordered},
-                                           root=root)
+                yield OutTree.from_parents(
+                    {c: full[c] for c in ordered}, {c: nodes[c] for c in ordered}, root=root
+                )
                 produced += 1
                 if limit is not None and produced >= limit:
                     return

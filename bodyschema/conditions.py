@@ -214,38 +214,71 @@ def check(D: DependencyMatrix, conditions: tuple[int, ...]) -> ConditionReport:
             if not D.is_square:
                 add(0, [ConditionFailure(0, f"shape is {D.shape}; P and P0 are defined on N x N matrices")])
         elif cond == 1:
-            add(1, [ConditionFailure(1, f"row {rows[i]!r} is all 0", rows=(rows[i],))
-                    for i in np.flatnonzero(rel["rs"][0] == 0)])
+            add(
+                1,
+                [
+                    ConditionFailure(1, f"row {rows[i]!r} is all 0", rows=(rows[i],))
+                    for i in np.flatnonzero(rel["rs"][0] == 0)
+                ],
+            )
         elif cond == 2:
-            add(2, [ConditionFailure(2, f"column {cols[k]!r} is all 0", cols=(cols[k],))
-                    for k in np.flatnonzero(rel["cs"][0] == 0)])
+            add(
+                2,
+                [
+                    ConditionFailure(2, f"column {cols[k]!r} is all 0", cols=(cols[k],))
+                    for k in np.flatnonzero(rel["cs"][0] == 0)
+                ],
+            )
         elif cond == 3:
             d = np.triu(rel["dup_rows"][0], 1)
-            add(3, [ConditionFailure(3, f"rows {rows[i]!r} and {rows[k]!r} are equal",
-                                     rows=(rows[i], rows[k]))
-                    for i, k in zip(*np.nonzero(d), strict=True)])
+            add(
+                3,
+                [
+                    ConditionFailure(
+                        3, f"rows {rows[i]!r} and {rows[k]!r} are equal", rows=(rows[i], rows[k])
+                    )
+                    for i, k in zip(*np.nonzero(d), strict=True)
+                ],
+            )
         elif cond == 4:
             d = np.triu(rel["dup_cols"][0], 1)
-            add(4, [ConditionFailure(4, f"columns {cols[i]!r} and {cols[k]!r} are equal",
-                                     cols=(cols[i], cols[k]))
-                    for i, k in zip(*np.nonzero(d), strict=True)])
+            add(
+                4,
+                [
+                    ConditionFailure(
+                        4, f"columns {cols[i]!r} and {cols[k]!r} are equal", cols=(cols[i], cols[k])
+                    )
+                    for i, k in zip(*np.nonzero(d), strict=True)
+                ],
+            )
         elif cond == 5:
             d = np.triu(rel["crossing"][0], 1)
             items = []
             for i, k in zip(*np.nonzero(d), strict=True):
                 common = tuple(r for r, a, b in zip(rows, v[:, i], v[:, k], strict=True) if a and b)
-                items.append(ConditionFailure(
-                    5, f"column sets of {cols[i]!r} and {cols[k]!r} overlap without nesting "
-                       f"(common rows {list(common)})", rows=common, cols=(cols[i], cols[k])))
+                items.append(
+                    ConditionFailure(
+                        5,
+                        f"column sets of {cols[i]!r} and {cols[k]!r} overlap without nesting "
+                        f"(common rows {list(common)})",
+                        rows=common,
+                        cols=(cols[i], cols[k]),
+                    )
+                )
             add(5, items)
         elif cond == 6:
             j = rel["j_sets"][0]
             items = []
             for k in np.flatnonzero(j.sum(axis=0) != 1):
                 members = tuple(r for r, x in zip(rows, j[:, k], strict=True) if x)
-                items.append(ConditionFailure(
-                    6, f"J_Sc of column {cols[k]!r} has {len(members)} rows {list(members)}",
-                    rows=members, cols=(cols[k],)))
+                items.append(
+                    ConditionFailure(
+                        6,
+                        f"J_Sc of column {cols[k]!r} has {len(members)} rows {list(members)}",
+                        rows=members,
+                        cols=(cols[k],),
+                    )
+                )
             add(6, items)
         else:
             raise ValueError(f"unknown condition {cond}; conditions are numbered 0-6")
@@ -269,8 +302,12 @@ def check_p_minus(D: DependencyMatrix) -> ConditionReport:
     """
     rep = check(D, P_MINUS)
     if D.shape[0] > D.shape[1]:
-        extra = ConditionFailure(0, f"{D.shape[0]} rows but only {D.shape[1]} columns; merge duplicate rows "
-                                    "(sensors on one link) before completing")
-        return ConditionReport(conditions=(0, *P_MINUS), failures=(extra, *rep.failures),
-                               counts={0: 1, **rep.counts})
+        extra = ConditionFailure(
+            0,
+            f"{D.shape[0]} rows but only {D.shape[1]} columns; merge duplicate rows "
+            "(sensors on one link) before completing",
+        )
+        return ConditionReport(
+            conditions=(0, *P_MINUS), failures=(extra, *rep.failures), counts={0: 1, **rep.counts}
+        )
     return rep

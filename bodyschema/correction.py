@@ -95,8 +95,12 @@ def _assignment(v: np.ndarray, solver: str) -> np.ndarray:
     prob = pulp.LpProblem("nearest_permutation", pulp.LpMaximize)
     x = [[pulp.LpVariable(f"I_{i}_{j}", cat=pulp.LpBinary) for j in range(n)] for i in range(r)]
     # W_ij <= D_ij: where D is 0 the overlap W is 0, so only the W of D's ones are variables
-    w = {(i, j): pulp.LpVariable(f"W_{i}_{j}", lowBound=0, upBound=1)
-         for i in range(r) for j in range(n) if v[i, j]}
+    w = {
+        (i, j): pulp.LpVariable(f"W_{i}_{j}", lowBound=0, upBound=1)
+        for i in range(r)
+        for j in range(n)
+        if v[i, j]
+    }
     prob += pulp.lpSum(w.values())
     for i in range(r):
         prob += pulp.lpSum(x[i]) == 1
@@ -129,9 +133,14 @@ def _highs_eq22(v: np.ndarray) -> np.ndarray:
     cc = np.concatenate([i_idx, i_idx, n_i + np.arange(n_w), ones_i * n + ones_j])
     vals = np.concatenate([np.ones(2 * n_i), np.ones(n_w), -np.ones(n_w)])
     a = coo_matrix((vals, (rr, cc)), shape=(r + n + n_w, n_i + n_w))
-    lp = binary_lp(np.concatenate([np.zeros(n_i), np.ones(n_w)]), [True] * n_i + [False] * n_w,
-                   np.concatenate([np.ones(r), np.full(n, 1.0 if r == n else 0.0), np.full(n_w, -np.inf)]),
-                   np.concatenate([np.ones(r + n), np.zeros(n_w)]), a, maximize=True)
+    lp = binary_lp(
+        np.concatenate([np.zeros(n_i), np.ones(n_w)]),
+        [True] * n_i + [False] * n_w,
+        np.concatenate([np.ones(r), np.full(n, 1.0 if r == n else 0.0), np.full(n_w, -np.inf)]),
+        np.concatenate([np.ones(r + n), np.zeros(n_w)]),
+        a,
+        maximize=True,
+    )
     h = quiet_highs()
     h.passModel(lp)
     h.run()

@@ -194,8 +194,9 @@ def choose_delta(
     return float(grid[int(np.argmax(margin))]), labels_full
 
 
-def _lowest_wide_band(logx: np.ndarray, log_deltas: np.ndarray, min_margin: float = np.log(2.0) / 2
-                      ) -> int | None:
+def _lowest_wide_band(
+    logx: np.ndarray, log_deltas: np.ndarray, min_margin: float = np.log(2.0) / 2
+) -> int | None:
     """Index into ascending ``log_deltas`` of the threshold in the lowest wide empty band of ``logx``
     (margin to the nearest feature at least ``min_margin`` and 3/4 of the widest), or None."""
     if len(log_deltas) == 0:
@@ -253,17 +254,40 @@ def network_jacobian(
     if kind == "mlp":
         from bodyschema.mlp_baseline import mlp_jacobian, train_mlp
 
-        mlp, loss = train_mlp(rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, hidden=hidden, epochs=epochs,
-                              seed=seed, progress=progress, **train_kw)
-        jbar = mlp_jacobian(mlp, theta, torch.as_tensor(rec.qd[pick], dtype=torch.float32),
-                            torch.as_tensor(rec.qdd[pick], dtype=torch.float32))
+        mlp, loss = train_mlp(
+            rec.q,
+            rec.qd,
+            rec.qdd,
+            rec.gyro,
+            rec.acc,
+            hidden=hidden,
+            epochs=epochs,
+            seed=seed,
+            progress=progress,
+            **train_kw,
+        )
+        jbar = mlp_jacobian(
+            mlp,
+            theta,
+            torch.as_tensor(rec.qd[pick], dtype=torch.float32),
+            torch.as_tensor(rec.qdd[pick], dtype=torch.float32),
+        )
     elif kind == "network":
         from bodyschema.networks import train_sensor_networks
 
         use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
         net, loss = train_sensor_networks(
-            rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, rec.gravity if use_g else None,
-            hidden=hidden, epochs=epochs, seed=seed, progress=progress, **train_kw,
+            rec.q,
+            rec.qd,
+            rec.qdd,
+            rec.gyro,
+            rec.acc,
+            rec.gravity if use_g else None,
+            hidden=hidden,
+            epochs=epochs,
+            seed=seed,
+            progress=progress,
+            **train_kw,
         )
         jbar = invariant_jacobian(net, theta)
     else:
@@ -337,7 +361,11 @@ def dependency_from_jacobian(
     margin = np.where(xb, (feats - delta) / max(1 - delta, 1e-6), (delta - feats) / max(delta, 1e-6))
     margin[:, und] = 1.0
     return NetworkDependency(
-        dependency=dep, features=feats, delta=delta, labels=labels, undetermined=np.flatnonzero(und),
+        dependency=dep,
+        features=feats,
+        delta=delta,
+        labels=labels,
+        undetermined=np.flatnonzero(und),
         imu_confidence=np.clip(margin.min(axis=1) * 2, 0.0, 1.0),
         joint_confidence=np.clip(margin.min(axis=0) * 2, 0.0, 1.0),
         loss=list(loss or []),
@@ -370,5 +398,6 @@ def network_dependency(
     rec = rec.derived()
     assert rec.qd is not None
     und = insufficient_excitation(rec.qd, rec.gyro)
-    return dependency_from_jacobian(jbar, statistic, und, lam=lam, rng=np.random.default_rng(seed + 1),
-                                    loss=loss)
+    return dependency_from_jacobian(
+        jbar, statistic, und, lam=lam, rng=np.random.default_rng(seed + 1), loss=loss
+    )

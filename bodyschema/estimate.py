@@ -90,9 +90,14 @@ def estimate_topology(
         imu_conf = dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True))
         joint_conf = dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True))
     topo = topology_from_dependency(
-        dep, rec.imu_names, rec.joint_names,
-        undetermined=undetermined, imu_confidence=imu_conf, joint_confidence=joint_conf,
-        method=method, excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
+        dep,
+        rec.imu_names,
+        rec.joint_names,
+        undetermined=undetermined,
+        imu_confidence=imu_conf,
+        joint_confidence=joint_conf,
+        method=method,
+        excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
     )
     return _with(topo, seconds=(timer() - start) if timer is not None else 0.0)
 

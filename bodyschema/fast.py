@@ -147,8 +147,13 @@ def _hop_features(wh: np.ndarray | None, c: np.ndarray, s: np.ndarray, qd: np.nd
 
 
 def _two_hop_features(
-    wh: np.ndarray | None, ca: np.ndarray, sa: np.ndarray, qda: np.ndarray,
-    cb: np.ndarray, sb: np.ndarray, qdb: np.ndarray,
+    wh: np.ndarray | None,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    qda: np.ndarray,
+    cb: np.ndarray,
+    sb: np.ndarray,
+    qdb: np.ndarray,
 ) -> np.ndarray:
     """Regressors (H, p, T) of ``ω_g = A_b(q_b)[A_a(q_a) ω_h + e_a q̇_a] + e_b q̇_b`` (+ rotated biases).
 
@@ -196,7 +201,9 @@ class FastEstimator:
 
     def fit(self, q: np.ndarray, qd: np.ndarray, gyro: np.ndarray) -> FastEstimator:
         res = fast_fit(
-            q, qd, gyro,
+            q,
+            qd,
+            gyro,
             fit_ratio=self.fit_ratio,
             rel_tol=self.rel_tol,
             min_excitation_snr=self.min_excitation_snr,

@@ -235,12 +235,15 @@ def reduce_to_permutation(D: DependencyMatrix) -> Reduction:
                     found = k
                     break
         if found is None:
-            raise OperationError(f"row {D.rows[i]!r} is no leaf with a row one entry shorter to be "
-                                 "absorbed by; not a dependency matrix")
+            raise OperationError(
+                f"row {D.rows[i]!r} is no leaf with a row one entry shorter to be "
+                "absorbed by; not a dependency matrix"
+            )
         v[i] = v[i] ^ v[found]
         steps.append(Step(D.rows[i], D.rows[found]))
     out = D.with_values(v)
     if not is_permutation(out):
-        raise OperationError("absorption ended in a matrix that is not a permutation matrix; "
-                             "not a dependency matrix")
+        raise OperationError(
+            "absorption ended in a matrix that is not a permutation matrix; not a dependency matrix"
+        )
     return Reduction(original=D, permutation=out, steps=tuple(steps))

@@ -56,7 +56,13 @@ class OutTree:
     """
 
     __slots__ = (
-        "_depth", "_joint_of_node", "_joint_parent", "_joints", "_node_of_joint", "_root", "_sensors"
+        "_depth",
+        "_joint_of_node",
+        "_joint_parent",
+        "_joints",
+        "_node_of_joint",
+        "_root",
+        "_sensors",
     )
 
     def __init__(

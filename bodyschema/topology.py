@@ -117,8 +117,10 @@ class Topology:
     def from_json(cls, data: dict[str, Any]) -> Topology:
         """Parse the DESIGN §2 topology JSON; raise :class:`TopologyError` when malformed."""
         try:
-            joints = {str(j): (None if v.get("parent") is None else str(v["parent"]))
-                      for j, v in data["joints"].items()}
+            joints = {
+                str(j): (None if v.get("parent") is None else str(v["parent"]))
+                for j, v in data["joints"].items()
+            }
             imus = {str(i): (None if j is None else str(j)) for i, j in data["imus"].items()}
             cands = tuple(
                 cls(

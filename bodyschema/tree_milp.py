@@ -66,9 +66,11 @@ def p_minus_violations(m: np.ndarray) -> tuple[list[int], list[tuple[int, int]],
     inter = mi.T @ mi
     size = np.diag(inter)
     cross = np.triu((inter > 0) & (inter < size[:, None]) & (inter < size[None, :]), k=1)
-    return (zero, [(int(a), int(b)) for a, b in zip(*np.nonzero(same), strict=True)],
-            [(int(a), int(b)) for a, b in zip(*np.nonzero(cross), strict=True)])
-
+    return (
+        zero,
+        [(int(a), int(b)) for a, b in zip(*np.nonzero(same), strict=True)],
+        [(int(a), int(b)) for a, b in zip(*np.nonzero(cross), strict=True)],
+    )
 
 
 def binary_lp(
@@ -99,8 +101,9 @@ def binary_lp(
     lp.col_upper_ = np.ones(a.shape[1])
     lp.row_lower_ = np.asarray(row_lower, dtype=np.float64)
     lp.row_upper_ = np.asarray(row_upper, dtype=np.float64)
-    lp.integrality_ = [highspy.HighsVarType.kInteger if t else highspy.HighsVarType.kContinuous
-                       for t in integer]
+    lp.integrality_ = [
+        highspy.HighsVarType.kInteger if t else highspy.HighsVarType.kContinuous for t in integer
+    ]
     if a.shape[0]:
         lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
         lp.a_matrix_.start_ = a.indptr
@@ -205,8 +208,13 @@ def _solve(
     if upper is not None:  # cut-off: strictly closer than upper
         mdl.row(np.flatnonzero(c), c[c != 0], -inf, upper - 1 - offset)
     m_rows = len(mdl.lo)
-    a = (coo_matrix((np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))),
-                    shape=(m_rows, nv)) if m_rows else coo_matrix((0, nv)))
+    a = (
+        coo_matrix(
+            (np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))), shape=(m_rows, nv)
+        )
+        if m_rows
+        else coo_matrix((0, nv))
+    )
     lp = binary_lp(c, integer, np.array(mdl.lo), np.array(mdl.hi), a, offset=offset)
     h = quiet_highs()
     h.setOptionValue("threads", 1)

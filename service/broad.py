@@ -39,7 +39,6 @@ BROAD_ATTRIBUTION = (
 )
 
 
-
 def broad_data_dir() -> Path:
     """Where the shared BROAD trials are: ``$BODYHEALTH_BROAD_DIR``, else ``shared/data/broad`` beside
     the repository (the layout of a checkout next to the team's shared folder)."""

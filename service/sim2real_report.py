@@ -157,9 +157,7 @@ def transfer(
     return out
 
 
-def robot_references(
-    rec: Recording, robot: str, cutoff: float | None = 10.0
-) -> dict[str, ReferenceMotion]:
+def robot_references(rec: Recording, robot: str, cutoff: float | None = 10.0) -> dict[str, ReferenceMotion]:
     """The reference motion of every IMU site of ``robot`` (catalog name or MJCF file) driven by ``rec.q``.
 
     With joint velocities ``qd`` in the recording, each site's angular velocity and acceleration come
@@ -351,8 +349,13 @@ def plot_structure(report: DiscrepancyReport, path: str | os.PathLike[str], titl
         for j, (tag, st) in enumerate(stages):
             r2 = np.array([st[name]["r2"][f] for f in fam])  # (families, 3)
             for ax_i in range(3):
-                ax.bar(x + (j * 3 + ax_i - 2.5) * 0.13, r2[:, ax_i], width=0.13,
-                       color=("tab:red" if tag == "before" else "tab:blue"), alpha=0.4 + 0.2 * ax_i)
+                ax.bar(
+                    x + (j * 3 + ax_i - 2.5) * 0.13,
+                    r2[:, ax_i],
+                    width=0.13,
+                    color=("tab:red" if tag == "before" else "tab:blue"),
+                    alpha=0.4 + 0.2 * ax_i,
+                )
         ax.set_xticks(x, fam, rotation=20, fontsize=7)
         ax.set_ylim(0, 1)
         ax.set_ylabel(f"{name}: R² of residual (x,y,z)", fontsize=8)
@@ -409,9 +412,12 @@ def write_report(
         "",
     ]
     if transfers:
-        md += ["## Transfer to other recordings", "",
-               "| recording | gyro rms default -> fitted (rad/s) | acc rms default -> fitted (m/s²) | gain |",
-               "|---|---|---|---|"]
+        md += [
+            "## Transfer to other recordings",
+            "",
+            "| recording | gyro rms default -> fitted (rad/s) | acc rms default -> fitted (m/s²) | gain |",
+            "|---|---|---|---|",
+        ]
         for name, tr in transfers.items():
             md.append(
                 f"| {name} | {tr['gyro_rms_default']:.4f} -> {tr['gyro_rms_model']:.4f} | "
@@ -437,13 +443,18 @@ def format_gravity_case(case: GravityCase) -> str:
         acc = f["accuracy"]
         topo = "no ground truth"
         if acc:
-            topo = (f"exact {acc['exact']}, joint parents {acc['joint_parent']:.2f}, "
-                    f"IMU joints {acc['imu_joint']:.2f}")
-        lines.append(f"  {form}: residual acc {f['acc_rms']:.4f} m/s², gyro {f['gyro_rms']:.4f} rad/s; "
-                     f"topology {topo}")
+            topo = (
+                f"exact {acc['exact']}, joint parents {acc['joint_parent']:.2f}, "
+                f"IMU joints {acc['imu_joint']:.2f}"
+            )
+        lines.append(
+            f"  {form}: residual acc {f['acc_rms']:.4f} m/s², gyro {f['gyro_rms']:.4f} rad/s; topology {topo}"
+        )
     gain = d["residual_gain"]
-    lines.append(f"  Eq. 24 removes {gain['acc']:.1%} of the accelerometer and {gain['gyro']:.1%} of the "
-                 "gyro residual energy")
+    lines.append(
+        f"  Eq. 24 removes {gain['acc']:.1%} of the accelerometer and {gain['gyro']:.1%} of the "
+        "gyro residual energy"
+    )
     for name, an in case.analyses.items():
         lines.append(f"causes of the Eq. 11 residual on the {name} reference ({len(case.imus)} IMUs):")
         if not an.causes:
@@ -470,9 +481,11 @@ def plot_gravity_case(case: GravityCase, path: str | os.PathLike[str], title: st
 
     tr = case.traces
     fig, axes = plt.subplots(3, 1, figsize=(11, 7), sharex=True)
-    series = [("eq11", "Eq. 11 (no gravity)", "tab:red"),
-              ("eq11_fitted", "Eq. 11 + named effects", "tab:orange"),
-              ("eq24", "Eq. 24 (gravity)", "tab:blue")]
+    series = [
+        ("eq11", "Eq. 11 (no gravity)", "tab:red"),
+        ("eq11_fitted", "Eq. 11 + named effects", "tab:orange"),
+        ("eq24", "Eq. 24 (gravity)", "tab:blue"),
+    ]
     for ax_i, ax in enumerate(axes):
         for key, label, color in series:
             if key in tr:
@@ -493,10 +506,18 @@ def write_gravity_case(
     out.mkdir(parents=True, exist_ok=True)
     files = [out / "gravity_case.json", out / "gravity_case.md"]
     files[0].write_text(json.dumps(case.to_json(), indent=2) + "\n", encoding="utf-8")
-    md = [f"# Gravity case{': ' + title if title else ''}", "", "```", format_gravity_case(case), "```", "",
-          "Residuals are in-sample (both forms trained on the same data with the same seed). The causes "
-          "come from the held-out effect selection on the Eq. 11 residual; an effect is listed when it "
-          "was named on at least half of the analysed IMUs.", ""]
+    md = [
+        f"# Gravity case{': ' + title if title else ''}",
+        "",
+        "```",
+        format_gravity_case(case),
+        "```",
+        "",
+        "Residuals are in-sample (both forms trained on the same data with the same seed). The causes "
+        "come from the held-out effect selection on the Eq. 11 residual; an effect is listed when it "
+        "was named on at least half of the analysed IMUs.",
+        "",
+    ]
     if plots:
         files.append(plot_gravity_case(case, out / "gravity_case.png", title))
         md += ["![accelerometer residual before and after](gravity_case.png)", ""]

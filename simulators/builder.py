@@ -235,13 +235,16 @@ def add_imus(
         for p, q in zip(pos, quats, strict=True):
             name = f"imu{nxt}"
             nxt += 1
-            body.add_site(name=name, pos=p.tolist(), quat=q.tolist(), size=[0.006, 0.0, 0.0],
-                          rgba=[0.9, 0.1, 0.1, 1.0])
+            body.add_site(
+                name=name, pos=p.tolist(), quat=q.tolist(), size=[0.006, 0.0, 0.0], rgba=[0.9, 0.1, 0.1, 1.0]
+            )
             site = mujoco.mjtObj.mjOBJ_SITE
-            spec.add_sensor(name=f"{name}:acc", type=mujoco.mjtSensor.mjSENS_ACCELEROMETER,
-                            objtype=site, objname=name)
-            spec.add_sensor(name=f"{name}:gyro", type=mujoco.mjtSensor.mjSENS_GYRO,
-                            objtype=site, objname=name)
+            spec.add_sensor(
+                name=f"{name}:acc", type=mujoco.mjtSensor.mjSENS_ACCELEROMETER, objtype=site, objname=name
+            )
+            spec.add_sensor(
+                name=f"{name}:gyro", type=mujoco.mjtSensor.mjSENS_GYRO, objtype=site, objname=name
+            )
             names.append(name)
     return names
 
@@ -280,18 +283,30 @@ def instrument(
 # --------------------------------------------------------------------------- from a description
 def _add_link(spec: mujoco.MjSpec, parent: mujoco.MjsBody, link: LinkSpec, desc: RobotDescription) -> None:
     body = parent.add_body(name=link.name, pos=list(link.pos), quat=list(link.quat))
-    joint = body.add_joint(name=link.joint, type=_J.mjJNT_HINGE, axis=list(link.axis),
-                           damping=desc.damping, armature=desc.armature)
+    joint = body.add_joint(
+        name=link.joint,
+        type=_J.mjJNT_HINGE,
+        axis=list(link.axis),
+        damping=desc.damping,
+        armature=desc.armature,
+    )
     if link.range is not None:
         joint.range = list(link.range)
         joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     end = np.asarray(link.end, dtype=float)
     if np.linalg.norm(end) < 1e-9:
-        body.add_geom(type=_G.mjGEOM_SPHERE, size=[link.radius, 0, 0], mass=link.mass,
-                      contype=0, conaffinity=0)
+        body.add_geom(
+            type=_G.mjGEOM_SPHERE, size=[link.radius, 0, 0], mass=link.mass, contype=0, conaffinity=0
+        )
     else:
-        body.add_geom(type=_G.mjGEOM_CAPSULE, fromto=[0, 0, 0, *end.tolist()], size=[link.radius, 0, 0],
-                      mass=link.mass, contype=0, conaffinity=0)
+        body.add_geom(
+            type=_G.mjGEOM_CAPSULE,
+            fromto=[0, 0, 0, *end.tolist()],
+            size=[link.radius, 0, 0],
+            mass=link.mass,
+            contype=0,
+            conaffinity=0,
+        )
     for child in link.children:
         _add_link(spec, body, child, desc)
 
@@ -308,8 +323,14 @@ def build_spec(desc: RobotDescription) -> mujoco.MjSpec:
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     base = spec.worldbody.add_body(name="base", pos=[0, 0, 0])
-    base.add_geom(type=_G.mjGEOM_BOX, size=list(desc.base_half_size), mass=desc.base_mass,
-                  contype=0, conaffinity=0, pos=[0, 0, -desc.base_half_size[2]])
+    base.add_geom(
+        type=_G.mjGEOM_BOX,
+        size=list(desc.base_half_size),
+        mass=desc.base_mass,
+        contype=0,
+        conaffinity=0,
+        pos=[0, 0, -desc.base_half_size[2]],
+    )
     for link in desc.links:
         _add_link(spec, base, link, desc)
     counts = {"base": desc.base_imus}

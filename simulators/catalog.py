@@ -80,9 +80,15 @@ def _paper(name: str) -> RobotDescription:
             q = _qmul(_rz(math.pi / 2 * (1 + c_idx)), _rx(spread + 0.5))
             specs.append(make(c, (0.0, 0.0, length), q))
         return LinkSpec(
-            name=f"link{i + 1}", joint=f"j{i + 1}", axis=_AXES[(i + depth[i]) % 3],
-            pos=pos, quat=tuple(quat),  # type: ignore[arg-type]
-            end=(0.0, 0.0, length), radius=0.03, mass=_MASSES[depth[i]], children=tuple(specs),
+            name=f"link{i + 1}",
+            joint=f"j{i + 1}",
+            axis=_AXES[(i + depth[i]) % 3],
+            pos=pos,
+            quat=tuple(quat),  # type: ignore[arg-type]
+            end=(0.0, 0.0, length),
+            radius=0.03,
+            mass=_MASSES[depth[i]],
+            children=tuple(specs),
         )
 
     links = []
@@ -91,7 +97,10 @@ def _paper(name: str) -> RobotDescription:
         tilt = 0.0 if len(roots) == 1 else (-0.4 + 0.8 * r_idx / (len(roots) - 1))
         links.append(make(r, (x, 0.0, 0.0), _ry(tilt)))
     return RobotDescription(
-        name=name, links=tuple(links), imus_per_link=12, seed=sum(map(ord, name)),
+        name=name,
+        links=tuple(links),
+        imus_per_link=12,
+        seed=sum(map(ord, name)),
         summary=f"5 joints, parents {parents}, 12 IMUs per link",
     )
 
@@ -114,9 +123,15 @@ def _ur_chain(prefix: str, pos: tuple[float, float, float], quat: tuple[float, .
         d, a, alpha = UR5E_DH["d"][i], UR5E_DH["a"][i], UR5E_DH["alpha"][i]
         kids = () if link is None else (replace(link, pos=(a, 0.0, d), quat=_rx(alpha)),)
         link = LinkSpec(
-            name=f"{prefix}{_UR_JOINTS[i]}_link", joint=f"{prefix}{_UR_JOINTS[i]}", axis=(0.0, 0.0, 1.0),
-            end=(a, 0.0, d), radius=_UR_RADII[i], mass=UR5E_DH["mass"][i], imus=imus,
-            range=(-2 * math.pi, 2 * math.pi), children=kids,
+            name=f"{prefix}{_UR_JOINTS[i]}_link",
+            joint=f"{prefix}{_UR_JOINTS[i]}",
+            axis=(0.0, 0.0, 1.0),
+            end=(a, 0.0, d),
+            radius=_UR_RADII[i],
+            mass=UR5E_DH["mass"][i],
+            imus=imus,
+            range=(-2 * math.pi, 2 * math.pi),
+            children=kids,
         )
     assert link is not None
     return replace(link, pos=pos, quat=tuple(quat))
@@ -124,8 +139,14 @@ def _ur_chain(prefix: str, pos: tuple[float, float, float], quat: tuple[float, .
 
 def _ur5e() -> RobotDescription:
     return RobotDescription(
-        name="ur5e", links=(_ur_chain("", (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 2),), imus_per_link=2,
-        base_half_size=(0.075, 0.075, 0.02), base_mass=4.0, damping=0.5, armature=0.1, seed=5,
+        name="ur5e",
+        links=(_ur_chain("", (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 2),),
+        imus_per_link=2,
+        base_half_size=(0.075, 0.075, 0.02),
+        base_mass=4.0,
+        damping=0.5,
+        armature=0.1,
+        seed=5,
         summary="Universal Robots UR5e from published DH parameters and masses, 2 IMUs per link",
     )
 
@@ -134,18 +155,50 @@ def _ur5e() -> RobotDescription:
 def _quadruped() -> RobotDescription:
     legs = []
     for tag, x, y in (("fl", 0.22, 0.1), ("fr", 0.22, -0.1), ("hl", -0.22, 0.1), ("hr", -0.22, -0.1)):
-        knee = LinkSpec(f"{tag}_shank", f"{tag}_knee", axis=(0, 1, 0), pos=(0, 0, -0.22),
-                        end=(0, 0, -0.22), radius=0.02, mass=0.25, range=(-2.6, -0.2))
+        knee = LinkSpec(
+            f"{tag}_shank",
+            f"{tag}_knee",
+            axis=(0, 1, 0),
+            pos=(0, 0, -0.22),
+            end=(0, 0, -0.22),
+            radius=0.02,
+            mass=0.25,
+            range=(-2.6, -0.2),
+        )
         side = math.copysign(0.05, y)
-        thigh = LinkSpec(f"{tag}_thigh", f"{tag}_hip_flex", axis=(0, 1, 0), pos=(0, side, 0),
-                         end=(0, 0, -0.22), radius=0.03, mass=1.0, range=(-1.5, 1.5), children=(knee,))
-        hip = LinkSpec(f"{tag}_hip", f"{tag}_hip_abd", axis=(1, 0, 0), pos=(x, y, 0),
-                       end=(0, math.copysign(0.05, y), 0), radius=0.04, mass=0.6, range=(-0.8, 0.8),
-                       children=(thigh,))
+        thigh = LinkSpec(
+            f"{tag}_thigh",
+            f"{tag}_hip_flex",
+            axis=(0, 1, 0),
+            pos=(0, side, 0),
+            end=(0, 0, -0.22),
+            radius=0.03,
+            mass=1.0,
+            range=(-1.5, 1.5),
+            children=(knee,),
+        )
+        hip = LinkSpec(
+            f"{tag}_hip",
+            f"{tag}_hip_abd",
+            axis=(1, 0, 0),
+            pos=(x, y, 0),
+            end=(0, math.copysign(0.05, y), 0),
+            radius=0.04,
+            mass=0.6,
+            range=(-0.8, 0.8),
+            children=(thigh,),
+        )
         legs.append(hip)
     return RobotDescription(
-        name="quadruped", links=tuple(legs), imus_per_link=2, base_imus=2,
-        base_half_size=(0.3, 0.15, 0.06), base_mass=8.0, damping=0.2, armature=0.02, seed=7,
+        name="quadruped",
+        links=tuple(legs),
+        imus_per_link=2,
+        base_imus=2,
+        base_half_size=(0.3, 0.15, 0.06),
+        base_mass=8.0,
+        damping=0.2,
+        armature=0.02,
+        seed=7,
         summary="a torso and 4 legs x 3 joints, 2 IMUs per link and on the torso",
     )
 
@@ -168,51 +221,176 @@ def _chain(specs: list[dict[str, object]]) -> LinkSpec:
 
 def _humanoid() -> RobotDescription:
     def leg(side: str, y: float) -> LinkSpec:
-        return _chain([
-            dict(name=f"{side}_hip_yaw_link", joint=f"{side}_hip_yaw", axis=(0, 0, 1), pos=(0, y, -0.06),
-                 end=(0, 0, -0.06), radius=0.04, mass=1.0, range=(-0.7, 0.7)),
-            dict(name=f"{side}_hip_roll_link", joint=f"{side}_hip_roll", axis=(1, 0, 0),
-                 end=(0, 0, -0.06), radius=0.04, mass=1.0, range=(-0.5, 0.5)),
-            dict(name=f"{side}_thigh", joint=f"{side}_hip_pitch", axis=(0, 1, 0),
-                 end=(0, 0, -0.4), radius=0.055, mass=4.0, range=(-1.6, 1.0)),
-            dict(name=f"{side}_shank", joint=f"{side}_knee", axis=(0, 1, 0),
-                 end=(0, 0, -0.4), radius=0.045, mass=2.5, range=(0.0, 2.4)),
-            dict(name=f"{side}_ankle_link", joint=f"{side}_ankle_pitch", axis=(0, 1, 0),
-                 end=(0, 0, -0.04), radius=0.035, mass=0.4, range=(-0.8, 0.8)),
-            dict(name=f"{side}_foot", joint=f"{side}_ankle_roll", axis=(1, 0, 0),
-                 end=(0.15, 0, 0), radius=0.03, mass=0.6, range=(-0.4, 0.4)),
-        ])
+        return _chain(
+            [
+                dict(
+                    name=f"{side}_hip_yaw_link",
+                    joint=f"{side}_hip_yaw",
+                    axis=(0, 0, 1),
+                    pos=(0, y, -0.06),
+                    end=(0, 0, -0.06),
+                    radius=0.04,
+                    mass=1.0,
+                    range=(-0.7, 0.7),
+                ),
+                dict(
+                    name=f"{side}_hip_roll_link",
+                    joint=f"{side}_hip_roll",
+                    axis=(1, 0, 0),
+                    end=(0, 0, -0.06),
+                    radius=0.04,
+                    mass=1.0,
+                    range=(-0.5, 0.5),
+                ),
+                dict(
+                    name=f"{side}_thigh",
+                    joint=f"{side}_hip_pitch",
+                    axis=(0, 1, 0),
+                    end=(0, 0, -0.4),
+                    radius=0.055,
+                    mass=4.0,
+                    range=(-1.6, 1.0),
+                ),
+                dict(
+                    name=f"{side}_shank",
+                    joint=f"{side}_knee",
+                    axis=(0, 1, 0),
+                    end=(0, 0, -0.4),
+                    radius=0.045,
+                    mass=2.5,
+                    range=(0.0, 2.4),
+                ),
+                dict(
+                    name=f"{side}_ankle_link",
+                    joint=f"{side}_ankle_pitch",
+                    axis=(0, 1, 0),
+                    end=(0, 0, -0.04),
+                    radius=0.035,
+                    mass=0.4,
+                    range=(-0.8, 0.8),
+                ),
+                dict(
+                    name=f"{side}_foot",
+                    joint=f"{side}_ankle_roll",
+                    axis=(1, 0, 0),
+                    end=(0.15, 0, 0),
+                    radius=0.03,
+                    mass=0.6,
+                    range=(-0.4, 0.4),
+                ),
+            ]
+        )
 
     def arm(side: str, y: float) -> LinkSpec:
         sgn = 1.0 if y > 0 else -1.0
-        return _chain([
-            dict(name=f"{side}_shoulder_link", joint=f"{side}_shoulder_pitch", axis=(0, 1, 0),
-                 pos=(0, y, 0.26), end=(0, sgn * 0.06, 0), radius=0.04, mass=0.8, range=(-2.5, 2.5)),
-            dict(name=f"{side}_shoulder_roll_link", joint=f"{side}_shoulder_roll", axis=(1, 0, 0),
-                 end=(0, 0, -0.05), radius=0.04, mass=0.6, range=(-1.5, 1.5)),
-            dict(name=f"{side}_upper_arm", joint=f"{side}_shoulder_yaw", axis=(0, 0, 1),
-                 end=(0, 0, -0.28), radius=0.04, mass=1.5, range=(-1.5, 1.5)),
-            dict(name=f"{side}_forearm", joint=f"{side}_elbow", axis=(0, 1, 0),
-                 end=(0, 0, -0.25), radius=0.035, mass=1.0, range=(-2.4, 0.0)),
-            dict(name=f"{side}_hand", joint=f"{side}_wrist_yaw", axis=(0, 0, 1),
-                 end=(0, 0, -0.08), radius=0.03, mass=0.4, range=(-1.5, 1.5)),
-        ])
+        return _chain(
+            [
+                dict(
+                    name=f"{side}_shoulder_link",
+                    joint=f"{side}_shoulder_pitch",
+                    axis=(0, 1, 0),
+                    pos=(0, y, 0.26),
+                    end=(0, sgn * 0.06, 0),
+                    radius=0.04,
+                    mass=0.8,
+                    range=(-2.5, 2.5),
+                ),
+                dict(
+                    name=f"{side}_shoulder_roll_link",
+                    joint=f"{side}_shoulder_roll",
+                    axis=(1, 0, 0),
+                    end=(0, 0, -0.05),
+                    radius=0.04,
+                    mass=0.6,
+                    range=(-1.5, 1.5),
+                ),
+                dict(
+                    name=f"{side}_upper_arm",
+                    joint=f"{side}_shoulder_yaw",
+                    axis=(0, 0, 1),
+                    end=(0, 0, -0.28),
+                    radius=0.04,
+                    mass=1.5,
+                    range=(-1.5, 1.5),
+                ),
+                dict(
+                    name=f"{side}_forearm",
+                    joint=f"{side}_elbow",
+                    axis=(0, 1, 0),
+                    end=(0, 0, -0.25),
+                    radius=0.035,
+                    mass=1.0,
+                    range=(-2.4, 0.0),
+                ),
+                dict(
+                    name=f"{side}_hand",
+                    joint=f"{side}_wrist_yaw",
+                    axis=(0, 0, 1),
+                    end=(0, 0, -0.08),
+                    radius=0.03,
+                    mass=0.4,
+                    range=(-1.5, 1.5),
+                ),
+            ]
+        )
 
-    head = _chain([
-        dict(name="neck", joint="neck_yaw", axis=(0, 0, 1), pos=(0, 0, 0.32), end=(0, 0, 0.06),
-             radius=0.03, mass=0.4, range=(-1.2, 1.2)),
-        dict(name="head", joint="neck_pitch", axis=(0, 1, 0), end=(0, 0, 0.14), radius=0.08, mass=3.0,
-             range=(-0.6, 0.6)),
-    ])
-    torso = _chain([
-        dict(name="waist", joint="waist_yaw", axis=(0, 0, 1), pos=(0, 0, 0.02), end=(0, 0, 0.08),
-             radius=0.08, mass=3.0, range=(-1.0, 1.0)),
-        dict(name="chest", joint="waist_pitch", axis=(0, 1, 0), end=(0, 0, 0.32), radius=0.12,
-             mass=10.0, range=(-0.5, 0.8), children=(head, arm("l", 0.2), arm("r", -0.2))),
-    ])
+    head = _chain(
+        [
+            dict(
+                name="neck",
+                joint="neck_yaw",
+                axis=(0, 0, 1),
+                pos=(0, 0, 0.32),
+                end=(0, 0, 0.06),
+                radius=0.03,
+                mass=0.4,
+                range=(-1.2, 1.2),
+            ),
+            dict(
+                name="head",
+                joint="neck_pitch",
+                axis=(0, 1, 0),
+                end=(0, 0, 0.14),
+                radius=0.08,
+                mass=3.0,
+                range=(-0.6, 0.6),
+            ),
+        ]
+    )
+    torso = _chain(
+        [
+            dict(
+                name="waist",
+                joint="waist_yaw",
+                axis=(0, 0, 1),
+                pos=(0, 0, 0.02),
+                end=(0, 0, 0.08),
+                radius=0.08,
+                mass=3.0,
+                range=(-1.0, 1.0),
+            ),
+            dict(
+                name="chest",
+                joint="waist_pitch",
+                axis=(0, 1, 0),
+                end=(0, 0, 0.32),
+                radius=0.12,
+                mass=10.0,
+                range=(-0.5, 0.8),
+                children=(head, arm("l", 0.2), arm("r", -0.2)),
+            ),
+        ]
+    )
     return RobotDescription(
-        name="humanoid", links=(leg("l", 0.1), leg("r", -0.1), torso), imus_per_link=2, base_imus=2,
-        base_half_size=(0.1, 0.15, 0.06), base_mass=8.0, damping=0.3, armature=0.02, seed=11,
+        name="humanoid",
+        links=(leg("l", 0.1), leg("r", -0.1), torso),
+        imus_per_link=2,
+        base_imus=2,
+        base_half_size=(0.1, 0.15, 0.06),
+        base_mass=8.0,
+        damping=0.3,
+        armature=0.02,
+        seed=11,
         summary="26 joints: legs (6 each), waist (2), neck (2), arms (5 each); fixed pelvis",
     )
 
@@ -220,11 +398,26 @@ def _humanoid() -> RobotDescription:
 def _dual_arm() -> RobotDescription:
     left = _ur_chain("l_", (0.0, 0.2, 0.45), _rx(-math.pi / 2), 2)
     right = _ur_chain("r_", (0.0, -0.2, 0.45), _rx(math.pi / 2), 2)
-    torso = LinkSpec("torso", "torso_yaw", axis=(0, 0, 1), end=(0, 0, 0.45), radius=0.1, mass=15.0,
-                     range=(-3.0, 3.0), children=(left, right))
+    torso = LinkSpec(
+        "torso",
+        "torso_yaw",
+        axis=(0, 0, 1),
+        end=(0, 0, 0.45),
+        radius=0.1,
+        mass=15.0,
+        range=(-3.0, 3.0),
+        children=(left, right),
+    )
     return RobotDescription(
-        name="dual-arm", links=(torso,), imus_per_link=2, base_imus=0,
-        base_half_size=(0.2, 0.2, 0.05), base_mass=30.0, damping=0.5, armature=0.1, seed=13,
+        name="dual-arm",
+        links=(torso,),
+        imus_per_link=2,
+        base_imus=0,
+        base_half_size=(0.2, 0.2, 0.05),
+        base_mass=30.0,
+        damping=0.5,
+        armature=0.1,
+        seed=13,
         summary="two 6-joint UR5e-like arms on a rotating torso, 2 IMUs per link",
     )
 

@@ -41,7 +41,12 @@ if TYPE_CHECKING:
 __all__ = ["DAMAGES", "inject", "parse_damage"]
 
 DAMAGES: tuple[str, ...] = (
-    "imu_moved", "imu_detached", "imu_dead", "joint_locked", "encoder_fault", "link_lost",
+    "imu_moved",
+    "imu_detached",
+    "imu_dead",
+    "joint_locked",
+    "encoder_fault",
+    "link_lost",
 )
 
 
@@ -144,10 +149,15 @@ def _imu_detached(sim: Simulation, imu: str | None = None, tether: float = 0.05)
     site = spec.site(imu)
     pos, quat = np.array(site.pos), np.array(site.quat)
     loose = spec.body(parent).add_body(name=f"{LOOSE_PREFIX}{imu}", pos=pos.tolist(), quat=quat.tolist())
-    loose.add_joint(name=f"{LOOSE_PREFIX}{imu}", type=mujoco.mjtJoint.mjJNT_BALL, damping=2e-4,
-                    armature=1e-5)
-    loose.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.01, 0, 0], pos=[0, 0, tether], mass=0.02,
-                   contype=0, conaffinity=0)
+    loose.add_joint(name=f"{LOOSE_PREFIX}{imu}", type=mujoco.mjtJoint.mjJNT_BALL, damping=2e-4, armature=1e-5)
+    loose.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.01, 0, 0],
+        pos=[0, 0, tether],
+        mass=0.02,
+        contype=0,
+        conaffinity=0,
+    )
     _move_site(sim, imu, loose.name, np.array([0.0, 0.0, tether]), np.array([1.0, 0.0, 0.0, 0.0]))
     sim.recompile()
     return Finding(kind="imu_detached", imu=imu, from_=src, detail=f"hangs on a {tether:.3f} m tether")
@@ -171,9 +181,15 @@ def _joint_locked(sim: Simulation, joint: str | None = None) -> Finding:
     joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
     q = float(r.q()[r.joint_names.index(joint)])
     data = [q] + [0.0] * 11
-    r.spec.add_equality(name=f"lock:{joint}", type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
-                        name1=joint, data=data, solref=[2 * r.model.opt.timestep, 1.0],
-                        solimp=[0.99, 0.9999, 0.001, 0.5, 2.0])
+    r.spec.add_equality(
+        name=f"lock:{joint}",
+        type=mujoco.mjtEq.mjEQ_JOINT,
+        objtype=mujoco.mjtObj.mjOBJ_JOINT,
+        name1=joint,
+        data=data,
+        solref=[2 * r.model.opt.timestep, 1.0],
+        solimp=[0.99, 0.9999, 0.001, 0.5, 2.0],
+    )
     sim.locked.add(joint)
     sim.recompile()
     # a seizure stops the joint at once (the constraint alone would let it coast a few ms)
@@ -203,8 +219,9 @@ def _link_lost(sim: Simulation, joint: str | None = None) -> Finding:
     _check(joint, r.joint_names, "joint")
     joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.lost], "joint")
     body = _joint_body(sim, joint)
-    r.spec.body(body).add_joint(name=f"{LOOSE_PREFIX}{joint}", type=mujoco.mjtJoint.mjJNT_BALL,
-                                damping=0.01, armature=1e-4)
+    r.spec.body(body).add_joint(
+        name=f"{LOOSE_PREFIX}{joint}", type=mujoco.mjtJoint.mjJNT_BALL, damping=0.01, armature=1e-4
+    )
     r.no_gravcomp.update(r.body_names(subtree_of=body))
     sim.lost.add(joint)
     sim.recompile()

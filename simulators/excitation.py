@@ -29,8 +29,17 @@ import numpy as np
 
 from simulators.robot import Robot
 
-__all__ = ["EXCITATIONS", "Excitation", "Hold", "Observable", "Poses", "RandomTorque", "SineVelocity",
-           "excitation_rms", "make_excitation"]
+__all__ = [
+    "EXCITATIONS",
+    "Excitation",
+    "Hold",
+    "Observable",
+    "Poses",
+    "RandomTorque",
+    "SineVelocity",
+    "excitation_rms",
+    "make_excitation",
+]
 
 #: Paper Table I (UR5e): joint-velocity frequencies k (Hz) and phases y (rad).
 TABLE_I_FREQS = (0.1, 0.13, 0.15, 0.17, 0.19, 0.21)
@@ -107,8 +116,9 @@ class RandomTorque(Excitation):
 
     name = "random-torque"
 
-    def __init__(self, period: float = 0.2, scale: float = 0.8, accel: float = 6.0,
-                 friction_time: float = 0.5) -> None:
+    def __init__(
+        self, period: float = 0.2, scale: float = 0.8, accel: float = 6.0, friction_time: float = 0.5
+    ) -> None:
         self.period = period
         self.scale = scale
         self.accel = accel
@@ -173,8 +183,13 @@ class SineVelocity(_Tracking):
 
     name = "sine"
 
-    def __init__(self, amplitude: float = 0.2, freqs: tuple[float, ...] = TABLE_I_FREQS,
-                 phases: tuple[float, ...] = TABLE_I_PHASES, bandwidth: float = 4.0) -> None:
+    def __init__(
+        self,
+        amplitude: float = 0.2,
+        freqs: tuple[float, ...] = TABLE_I_FREQS,
+        phases: tuple[float, ...] = TABLE_I_PHASES,
+        bandwidth: float = 4.0,
+    ) -> None:
         super().__init__(bandwidth=bandwidth)
         self.amplitude = amplitude
         self.freqs = freqs
@@ -182,8 +197,9 @@ class SineVelocity(_Tracking):
 
     def _bind(self, robot: Robot, rng: np.random.Generator) -> None:
         n = robot.n_joints
-        self.k_ = np.array([self.freqs[j % len(self.freqs)] * (1 + 0.05 * (j // len(self.freqs)))
-                            for j in range(n)])
+        self.k_ = np.array(
+            [self.freqs[j % len(self.freqs)] * (1 + 0.05 * (j // len(self.freqs))) for j in range(n)]
+        )
         self.y_ = np.array([self.phases[j % len(self.phases)] for j in range(n)])
 
     def targets(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -203,8 +219,14 @@ class Observable(_Tracking):
 
     name = "observable"
 
-    def __init__(self, amplitude: float = 0.7, band: tuple[float, float] = (0.1, 0.5), components: int = 3,
-                 bandwidth: float = 4.0, ramp: float = 1.0) -> None:
+    def __init__(
+        self,
+        amplitude: float = 0.7,
+        band: tuple[float, float] = (0.1, 0.5),
+        components: int = 3,
+        bandwidth: float = 4.0,
+        ramp: float = 1.0,
+    ) -> None:
         super().__init__(bandwidth=bandwidth)
         self.amplitude = amplitude
         self.band = band
@@ -266,8 +288,9 @@ class Poses(_Tracking):
 
     name = "poses"
 
-    def __init__(self, dwell: float = 1.5, move: float = 0.7, amplitude: float = 1.2,
-                 bandwidth: float = 4.0) -> None:
+    def __init__(
+        self, dwell: float = 1.5, move: float = 0.7, amplitude: float = 1.2, bandwidth: float = 4.0
+    ) -> None:
         super().__init__(bandwidth=bandwidth)
         self.dwell = dwell
         self.move = move

@@ -75,8 +75,14 @@ class Farm:
             kw.update(overrides.get(name, {}))
             ss = np.random.SeedSequence([self.seed, zlib.crc32(name.encode("utf-8"))])
             exc: str | Excitation = kw["excitation"]
-            self._sims[name] = Simulation(source, seed=ss, imu_model=kw["imu_model"], excitation=exc,
-                                          rate=float(kw["rate"]), readahead=readahead)
+            self._sims[name] = Simulation(
+                source,
+                seed=ss,
+                imu_model=kw["imu_model"],
+                excitation=exc,
+                rate=float(kw["rate"]),
+                readahead=readahead,
+            )
             self._catalog[name] = source
         self._elapsed = 0.0
 
@@ -127,8 +133,9 @@ class Farm:
         """Damage ``robot`` now; parts left out are picked by the robot's seeded damage generator."""
         return self._sims[self._known(robot)].inject(kind, **kwargs)
 
-    def stream(self, chunk: float = 0.1, speed: float | None = 1.0,
-               seconds: float | None = None) -> Iterator[dict[str, Recording]]:
+    def stream(
+        self, chunk: float = 0.1, speed: float | None = 1.0, seconds: float | None = None
+    ) -> Iterator[dict[str, Recording]]:
         """Chunks of ``chunk`` simulated seconds, paced at ``speed`` × real time (None: unpaced),
         for ``seconds`` in total (None: forever)."""
         start, done = time.monotonic(), 0.0

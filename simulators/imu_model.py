@@ -338,10 +338,12 @@ class ImuParams:
             g, a = self.noise_std(rate)
             f = self.flags
             std = np.stack([g, a]) if (f["gyro_noise"] or f["acc_noise"]) else None
-            full = (np.array([self.gyro_range, self.acc_range])
-                    if math.isfinite(self.gyro_range) or math.isfinite(self.acc_range) else None)
-            lsb = (np.array([self.gyro_lsb, self.acc_lsb])
-                   if self.gyro_lsb > 0 or self.acc_lsb > 0 else None)
+            full = (
+                np.array([self.gyro_range, self.acc_range])
+                if math.isfinite(self.gyro_range) or math.isfinite(self.acc_range)
+                else None
+            )
+            lsb = np.array([self.gyro_lsb, self.acc_lsb]) if self.gyro_lsb > 0 or self.acc_lsb > 0 else None
             cache[rate] = (std, full, lsb)
         return cache[rate]
 
@@ -361,8 +363,10 @@ class ImuParams:
         def per(key: str, values: np.ndarray, default: Any) -> dict[str, Any] | None:
             if np.allclose(values, default):
                 return None
-            return {key: default, "per_imu": {n: {key: _jsonable(v)} for n, v in
-                                              zip(self.imu_names, values, strict=True)}}
+            return {
+                key: default,
+                "per_imu": {n: {key: _jsonable(v)} for n, v in zip(self.imu_names, values, strict=True)},
+            }
 
         eye, z = np.eye(3).tolist(), [0.0, 0.0, 0.0]
         for eff, key, vals, default in (
@@ -379,8 +383,9 @@ class ImuParams:
                 effs.append((eff, d))
         if np.any(self.gyro_noise) or np.any(self.acc_noise):
             k = self.noise_kind
-            effs.append(("noise", {f"gyro_{k}": self.gyro_noise.tolist(),
-                                   f"acc_{k}": self.acc_noise.tolist()}))
+            effs.append(
+                ("noise", {f"gyro_{k}": self.gyro_noise.tolist(), f"acc_{k}": self.acc_noise.tolist()})
+            )
         if self.gyro_lsb or self.acc_lsb or math.isfinite(self.gyro_range) or math.isfinite(self.acc_range):
             q: dict[str, Any] = {"gyro_lsb": self.gyro_lsb, "acc_lsb": self.acc_lsb}
             if math.isfinite(self.gyro_range):
@@ -424,13 +429,15 @@ def _sensitivity(p: ImuParams, acc: np.ndarray, gyro: np.ndarray) -> np.ndarray:
     f = p.flags
     out = np.empty((2, *gyro.shape))
     if f["gyro_matrix"] or f["gyro_bias"]:
-        out[0] = fx.affine(gyro, p.gyro_matrix if f["gyro_matrix"] else None,
-                           p.gyro_bias if f["gyro_bias"] else None)
+        out[0] = fx.affine(
+            gyro, p.gyro_matrix if f["gyro_matrix"] else None, p.gyro_bias if f["gyro_bias"] else None
+        )
     else:
         out[0] = gyro
     if f["acc_matrix"] or f["acc_bias"]:
-        out[1] = fx.affine(acc, p.acc_matrix if f["acc_matrix"] else None,
-                           p.acc_bias if f["acc_bias"] else None)
+        out[1] = fx.affine(
+            acc, p.acc_matrix if f["acc_matrix"] else None, p.acc_bias if f["acc_bias"] else None
+        )
     else:
         out[1] = acc
     return out
@@ -547,9 +554,16 @@ class ImuStream:
         self.dead[index] = mode
         self._frozen[index] = self._last[:, index].copy()
 
-    def process(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, rng: np.random.Generator, *,
-                gyro_dot: np.ndarray | None = None,
-                R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def process(
+        self,
+        t: np.ndarray,
+        acc: np.ndarray,
+        gyro: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        gyro_dot: np.ndarray | None = None,
+        R: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
         T = len(t)
         if T == 0:
@@ -562,7 +576,7 @@ class ImuStream:
             ht = np.concatenate([self._t, t])
             hb = np.concatenate([self._hist, both], axis=1)
             both = np.ascontiguousarray(_shift(p, ht, hb)[:, -T:])
-            self._t, self._hist = ht[-self.history:], hb[:, -self.history:]
+            self._t, self._hist = ht[-self.history :], hb[:, -self.history :]
         both = _finish(p, both, self.rate, rng)
         for k, mode in self.dead.items():
             both[:, :, k] = 0.0 if mode == "zero" else self._frozen[k][:, None, :]
@@ -581,8 +595,15 @@ def _mpu6050() -> ImuModel:
             ("gyro_bias", {"uniform": [20 * _DEG] * 3}),
             ("acc_bias", {"uniform": [0.050 * _G0, 0.050 * _G0, 0.080 * _G0]}),
             ("noise", {"gyro_density": 0.005 * _DEG, "acc_density": 400e-6 * _G0}),
-            ("quantization", {"gyro_lsb": _DEG / 32.8, "acc_lsb": _G0 / 4096,
-                              "gyro_range": 1000 * _DEG, "acc_range": 8 * _G0}),
+            (
+                "quantization",
+                {
+                    "gyro_lsb": _DEG / 32.8,
+                    "acc_lsb": _G0 / 4096,
+                    "gyro_range": 1000 * _DEG,
+                    "acc_range": 8 * _G0,
+                },
+            ),
         ),
     )
 

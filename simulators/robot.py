@@ -134,8 +134,9 @@ class Robot:
     sites named ``imuN`` carrying an accelerometer, in numeric order.
     """
 
-    def __init__(self, spec: mujoco.MjSpec, *, name: str | None = None, rate: float = 100.0,
-                 max_timestep: float = 0.01) -> None:
+    def __init__(
+        self, spec: mujoco.MjSpec, *, name: str | None = None, rate: float = 100.0, max_timestep: float = 0.01
+    ) -> None:
         if not rate > 0:
             raise ValueError("rate must be > 0")
         self.spec = spec
@@ -166,8 +167,9 @@ class Robot:
         return cls(build(name), name=name, rate=rate)
 
     @classmethod
-    def from_file(cls, path: str | os.PathLike[str], *, rate: float = 100.0, imus_per_link: int = 2,
-                  seed: int = 0) -> Robot:
+    def from_file(
+        cls, path: str | os.PathLike[str], *, rate: float = 100.0, imus_per_link: int = 2, seed: int = 0
+    ) -> Robot:
         """An MJCF/URDF model; instrumented with ``imus_per_link`` IMUs per body if it has none."""
         spec = load_spec(path)
         if not any(s.name.startswith("imu") for s in spec.sites):
@@ -193,8 +195,10 @@ class Robot:
         names = [m.actuator(i).name for i in range(m.nu)]
 
         def act(suffix: str) -> np.ndarray:
-            return np.array([names.index(f"{j}:{suffix}") if f"{j}:{suffix}" in names else -1
-                             for j in self.joint_names], dtype=np.intp)
+            return np.array(
+                [names.index(f"{j}:{suffix}") if f"{j}:{suffix}" in names else -1 for j in self.joint_names],
+                dtype=np.intp,
+            )
 
         self.act_torque, self.act_pos, self.act_vel = act("torque"), act("pos"), act("vel")
         sensors = {m.sensor(i).name: i for i in range(m.nsensor)}
@@ -330,7 +334,14 @@ class Robot:
         opt.disableflags = on
         # views into MjData, bound once (each attribute access builds a new array object)
         d_ctrl, d_qpos, d_qvel, d_qacc, d_sens, d_xmat, d_cacc = (
-            d.ctrl, d.qpos, d.qvel, d.qacc, d.sensordata, d.site_xmat, d.cacc)
+            d.ctrl,
+            d.qpos,
+            d.qvel,
+            d.qacc,
+            d.sensordata,
+            d.site_xmat,
+            d.cacc,
+        )
         t0 = d.time
         try:
             for i in range(T):
@@ -373,8 +384,11 @@ class Robot:
 def _last_robot_joint_up(model: mujoco.MjModel, body: int, robot: set[str]) -> str | None:
     b = body
     while b != 0:
-        js = [model.joint(j).name for j in range(model.njnt)
-              if model.jnt_bodyid[j] == b and model.joint(j).name in robot]
+        js = [
+            model.joint(j).name
+            for j in range(model.njnt)
+            if model.jnt_bodyid[j] == b and model.joint(j).name in robot
+        ]
         if js:
             return js[-1]
         b = int(model.body_parentid[b])

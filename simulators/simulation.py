@@ -172,10 +172,18 @@ class Simulation:
             extra["damage_time"] = np.array(self.damage_times, dtype=np.float64)
             extra["truth_imu_detached"] = _detached_json(r.imu_names, detached)
         return Recording(
-            t=cat["t"], joint_names=r.joint_names, q=cat["q"], qd=cat["qd"], qdd=cat["qdd"],
+            t=cat["t"],
+            joint_names=r.joint_names,
+            q=cat["q"],
+            qd=cat["qd"],
+            qdd=cat["qdd"],
             imu_names=r.imu_names,
-            acc=cat["acc"], gyro=cat["gyro"], gravity=np.array(r.model.opt.gravity, dtype=np.float64),
-            truth_joint_parent=jp, truth_imu_joint=ij, extra=extra,
+            acc=cat["acc"],
+            gyro=cat["gyro"],
+            gravity=np.array(r.model.opt.gravity, dtype=np.float64),
+            truth_joint_parent=jp,
+            truth_imu_joint=ij,
+            extra=extra,
         )
 
     def _produce(self, n: int) -> dict[str, np.ndarray]:
@@ -184,8 +192,9 @@ class Simulation:
         t = (self._samples + np.arange(n)) / self.rate  # the rate grid (the physics clock, exactly)
         poses = self.stream.needs_poses
         s = r.sample(self._ctrl(self._samples, n), poses=poses)
-        acc, gyro = self.stream.process(t, s.acc, s.gyro, self.noise_rng,
-                                        gyro_dot=s.gyro_dot if poses else None, R=s.R if poses else None)
+        acc, gyro = self.stream.process(
+            t, s.acc, s.gyro, self.noise_rng, gyro_dot=s.gyro_dot if poses else None, R=s.R if poses else None
+        )
         q, qd, qdd = s.q, s.qd, s.qdd
         if self.encoder_faults:
             q, qd, qdd = q.copy(), qd.copy(), qdd.copy()
@@ -209,8 +218,14 @@ class Simulation:
         state = np.empty(mujoco.mj_stateSize(m, _STATE))
         mujoco.mj_getState(m, d, state, _STATE)
         st = self.stream
-        return (self._samples, state, st._t.copy(), st._hist.copy(), st._last.copy(),
-                copy.deepcopy(self.noise_rng.bit_generator.state))
+        return (
+            self._samples,
+            state,
+            st._t.copy(),
+            st._hist.copy(),
+            st._last.copy(),
+            copy.deepcopy(self.noise_rng.bit_generator.state),
+        )
 
     def sync(self) -> None:
         """Bring the physics back to the last served sample, dropping read-ahead samples.
@@ -246,9 +261,15 @@ def _concat(chunks: list[Recording], sim: Simulation) -> Recording:
         last = chunks[-1]
         fields = ("t", "q", "qd", "qdd", "acc", "gyro")
         cat = {k: np.concatenate([getattr(c, k) for c in chunks]) for k in fields}
-        rec = Recording(joint_names=last.joint_names, imu_names=last.imu_names, gravity=last.gravity,
-                        truth_joint_parent=last.truth_joint_parent, truth_imu_joint=last.truth_imu_joint,
-                        extra=dict(last.extra), **cat)
+        rec = Recording(
+            joint_names=last.joint_names,
+            imu_names=last.imu_names,
+            gravity=last.gravity,
+            truth_joint_parent=last.truth_joint_parent,
+            truth_imu_joint=last.truth_imu_joint,
+            extra=dict(last.extra),
+            **cat,
+        )
     extra = dict(rec.extra)
     # per-chunk RMS (of the body's motion, not of a faulty encoder) pooled over the whole run
     n = np.array([c.n_samples for c in chunks], dtype=np.float64)
@@ -288,8 +309,9 @@ def simulate(
     sim = Simulation(robot, seed=seed, imu_model=imu_model, excitation=excitation, rate=rate)
     todo: list[tuple[float, str, dict[str, Any]]] = []
     single = isinstance(damage, str) or (
-        isinstance(damage, tuple) and len(damage) == 2 and isinstance(damage[1], dict))
-    for d in ([damage] if single else list(damage or [])):
+        isinstance(damage, tuple) and len(damage) == 2 and isinstance(damage[1], dict)
+    )
+    for d in [damage] if single else list(damage or []):
         kind, kw = parse_damage(d) if isinstance(d, str) else (d[0], dict(d[1]))
         at = float(kw.pop("at", 0.0))
         if not 0.0 <= at < seconds:

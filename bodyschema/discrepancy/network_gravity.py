@@ -186,8 +186,10 @@ def _poses(net: Any, q: np.ndarray, batch: int = 4096) -> np.ndarray:
 
 def _biases(net: Any) -> tuple[np.ndarray, np.ndarray]:
     """(K, 3) learned gyro and accelerometer biases."""
-    return (net.gyro_bias.detach().numpy()[:, 0].astype(np.float64),
-            net.acc_bias.detach().numpy()[:, 0].astype(np.float64))
+    return (
+        net.gyro_bias.detach().numpy()[:, 0].astype(np.float64),
+        net.acc_bias.detach().numpy()[:, 0].astype(np.float64),
+    )
 
 
 def network_reference(
@@ -250,11 +252,14 @@ def _topology(
     res = dependency_from_jacobian(jbar, "moment", und, rng=np.random.default_rng(seed + 1), loss=loss)
     excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
     topo = topology_from_dependency(
-        res.dependency, rec.imu_names, rec.joint_names,
+        res.dependency,
+        rec.imu_names,
+        rec.joint_names,
         undetermined=[rec.joint_names[j] for j in res.undetermined],
         imu_confidence=dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True)),
         joint_confidence=dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True)),
-        method="network", excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
+        method="network",
+        excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
     )
     return res.dependency, topo
 
@@ -320,8 +325,9 @@ def gravity_case(
     truth = (rec.truth_parent_map, rec.truth_imu_map)  # read for the comparison only
     for form in FORMS:
         g = None if form == "eq11" else gravity
-        net, loss = train_sensor_networks(rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, g,
-                                          hidden=hidden, epochs=epochs, seed=seed, **train_kw)
+        net, loss = train_sensor_networks(
+            rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, g, hidden=hidden, epochs=epochs, seed=seed, **train_kw
+        )
         gp, ap = network_readings(net, rec.q, rec.qd, rec.qdd, g)
         ra, rg = rec.acc - ap, rec.gyro - gp
         dep, topo = _topology(rec, net, loss, samples, seed)
@@ -329,10 +335,15 @@ def gravity_case(
         if truth[0] is not None and truth[1] is not None:
             acc = topology_accuracy(topo.joint_parent, topo.imu_joint, truth[0], truth[1])
         forms[form] = FormResult(
-            form=form, acc_rms=float(_rms(ra)), gyro_rms=float(_rms(rg)),
+            form=form,
+            acc_rms=float(_rms(ra)),
+            gyro_rms=float(_rms(rg)),
             acc_rms_imu=[float(x) for x in _rms(ra, axis=(0, 2))],
             gyro_rms_imu=[float(x) for x in _rms(rg, axis=(0, 2))],
-            loss=loss, dependency=dep, topology=topo, accuracy=acc,
+            loss=loss,
+            dependency=dep,
+            topology=topo,
+            accuracy=acc,
         )
         nets[form], preds[form] = net, (gp, ap)
 
@@ -347,8 +358,11 @@ def gravity_case(
     net_refs = {}
     for imu in chosen:
         k = rec.imu_names.index(imu)
-        net_refs[imu] = (network_reference(rec.t, R11[:, k], gp11[:, k], ap11[:, k], gb[k], ab[k], cutoff),
-                         rec.gyro[:, k] - gb[k], rec.acc[:, k] - ab[k])
+        net_refs[imu] = (
+            network_reference(rec.t, R11[:, k], gp11[:, k], ap11[:, k], gb[k], ab[k], cutoff),
+            rec.gyro[:, k] - gb[k],
+            rec.acc[:, k] - ab[k],
+        )
 
     def eq24_angle(imu: str, v: np.ndarray) -> dict[str, float]:
         # the fitted vector is in the Eq. 11 network's world frame: compare it with the Eq. 24 network's
@@ -366,8 +380,11 @@ def gravity_case(
                 raise ValueError(f"no reference motion for IMU {imu!r}")
             r = references[imu]
             k = rec.imu_names.index(imu)
-            kin_refs[imu] = (ReferenceMotion(r.t, r.R, r.omega, r.acc_world, np.zeros(3)),
-                             rec.gyro[:, k], rec.acc[:, k])
+            kin_refs[imu] = (
+                ReferenceMotion(r.t, r.R, r.omega, r.acc_world, np.zeros(3)),
+                rec.gyro[:, k],
+                rec.acc[:, k],
+            )
 
         def to_recording(imu: str, v: np.ndarray) -> dict[str, float]:
             cos = float(v @ gravity / (np.linalg.norm(v) * g_norm))
@@ -377,8 +394,11 @@ def gravity_case(
 
     worst = chosen[int(np.argmax([forms["eq11"].acc_rms_imu[rec.imu_names.index(i)] for i in chosen]))]
     k = rec.imu_names.index(worst)
-    traces = {"t": rec.t - rec.t[0], "eq11": rec.acc[:, k] - ap11[:, k],
-              "eq24": rec.acc[:, k] - preds["eq24"][1][:, k]}
+    traces = {
+        "t": rec.t - rec.t[0],
+        "eq11": rec.acc[:, k] - ap11[:, k],
+        "eq24": rec.acc[:, k] - preds["eq24"][1][:, k],
+    }
     fitted = {e: p for e, p in analyses["network"].reports[worst].params.items() if e != "noise"}
     if fitted:
         from bodyschema.discrepancy.effects import predict
@@ -386,10 +406,21 @@ def gravity_case(
         ref = network_reference(rec.t, R11[:, k], gp11[:, k], ap11[:, k], gb[k], ab[k], cutoff=None)
         traces["eq11_fitted"] = rec.acc[:, k] - ab[k] - predict(ref, fitted)[1]
     return GravityCase(
-        forms=forms, imus=chosen, analyses=analyses, gravity=gravity,
-        settings={"epochs": epochs, "hidden": list(hidden), "seed": seed, "samples": samples,
-                  "cutoff_hz": cutoff, "n_blocks": n_blocks, "alpha": alpha, "min_gain": min_gain,
-                  "trace_imu": worst},
+        forms=forms,
+        imus=chosen,
+        analyses=analyses,
+        gravity=gravity,
+        settings={
+            "epochs": epochs,
+            "hidden": list(hidden),
+            "seed": seed,
+            "samples": samples,
+            "cutoff_hz": cutoff,
+            "n_blocks": n_blocks,
+            "alpha": alpha,
+            "min_gain": min_gain,
+            "trace_imu": worst,
+        },
         traces=traces,
     )
 
@@ -419,8 +450,12 @@ def _analyse(
         c = rep.cause("gravity")
         if c is not None:
             v = np.asarray(c.params["vector"], dtype=np.float64)
-            fits[imu] = {"vector": v.tolist(), "norm": float(np.linalg.norm(v)), "gain": float(c.gain),
-                         **direction(imu, v)}
+            fits[imu] = {
+                "vector": v.tolist(),
+                "norm": float(np.linalg.norm(v)),
+                "gain": float(c.gain),
+                **direction(imu, v),
+            }
     counts: dict[str, int] = {}
     for names in named.values():
         for n in names:
@@ -430,8 +465,12 @@ def _analyse(
         if 2 * n < len(chosen):
             continue
         gains = [c.gain for c in (reports[i].cause(eff) for i in chosen) if c is not None]
-        entry: dict[str, Any] = {"effect": eff, "imus": n, "of": len(chosen),
-                                 "median_gain": float(np.median(gains))}
+        entry: dict[str, Any] = {
+            "effect": eff,
+            "imus": n,
+            "of": len(chosen),
+            "median_gain": float(np.median(gains)),
+        }
         if eff == "gravity":
             norms = [f["norm"] for f in fits.values()]
             keys = [k for k in next(iter(fits.values())) if k.startswith("angle")]

@@ -120,9 +120,7 @@ def _init_mounting(prob: Problem, params: Params, index: np.ndarray) -> Params:
     return out
 
 
-def _gauss_newton(
-    JtJ: np.ndarray, Jtr: np.ndarray, names: list[str], cols: list[str]
-) -> np.ndarray:
+def _gauss_newton(JtJ: np.ndarray, Jtr: np.ndarray, names: list[str], cols: list[str]) -> np.ndarray:
     """One Gauss-Newton step (parameter deltas of ``names``) from the training normal equations.
 
     ``JtJ``/``Jtr`` hold every screened column; each candidate solves its own sub-system (a
@@ -179,8 +177,23 @@ def analyze(
     # The matrices here are tall and thin (samples x a few dozen parameters): BLAS threads only
     # contend, several-fold slower on a busy machine than one thread.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyze(ref, gyro, acc, valid, effects, n_blocks, alpha, min_gain, cutoff, analysis_rate,
-                        margin, noise_floor, scale_floor, max_tries, progress)
+        return _analyze(
+            ref,
+            gyro,
+            acc,
+            valid,
+            effects,
+            n_blocks,
+            alpha,
+            min_gain,
+            cutoff,
+            analysis_rate,
+            margin,
+            noise_floor,
+            scale_floor,
+            max_tries,
+            progress,
+        )
 
 
 def _analyze(
@@ -287,8 +300,16 @@ def _analyze(
         se = np.sqrt((n_blocks - 1) / n_blocks * np.sum((xs - xs.mean(axis=0)) ** 2, axis=0))
         unc = unpack(se, names)
         causes = [
-            Cause(c.effect, params[c.effect], unc[c.effect], c.gain, c.p_value, c.signature, c.explained,
-                  c.block_gains)
+            Cause(
+                c.effect,
+                params[c.effect],
+                unc[c.effect],
+                c.gain,
+                c.p_value,
+                c.signature,
+                c.explained,
+                c.block_gains,
+            )
             for c in causes
         ]
     # Noise, from the full-rate measured readings above the motion band.
@@ -376,10 +397,13 @@ def _noise_cause(
         return []
     # Standard error of a std estimate from the halves of the trial (a crude block spread).
     halves = np.array_split(idx, 2)
-    spread = np.abs(
-        np.concatenate([noise_std(g, rate, halves[0]), noise_std(a, rate, halves[0])])
-        - np.concatenate([noise_std(g, rate, halves[1]), noise_std(a, rate, halves[1])])
-    ) / 2
+    spread = (
+        np.abs(
+            np.concatenate([noise_std(g, rate, halves[0]), noise_std(a, rate, halves[0])])
+            - np.concatenate([noise_std(g, rate, halves[1]), noise_std(a, rate, halves[1])])
+        )
+        / 2
+    )
     std = np.concatenate([sg, sa])
     return [
         Cause(
@@ -477,9 +501,20 @@ class DiscrepancyAnalyzer:
         self.max_tries = max_tries
 
     def _kwargs(self) -> dict[str, object]:
-        return {k: getattr(self, k) for k in (
-            "effects", "n_blocks", "alpha", "min_gain", "analysis_rate", "margin", "noise_floor",
-            "scale_floor", "max_tries")}
+        return {
+            k: getattr(self, k)
+            for k in (
+                "effects",
+                "n_blocks",
+                "alpha",
+                "min_gain",
+                "analysis_rate",
+                "margin",
+                "noise_floor",
+                "scale_floor",
+                "max_tries",
+            )
+        }
 
     def fit(self, rec: Recording, imu: int | str = 0) -> DiscrepancyAnalyzer:
         """Analyse one IMU of a recording with a reference motion."""

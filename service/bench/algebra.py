@@ -23,13 +23,20 @@ __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=[10, 20, 40, 80],
-                        help="comma-separated joint counts N (default 10,20,40,80)")
+    parser.add_argument(
+        "--sizes",
+        type=lambda s: [int(x) for x in s.split(",")],
+        default=[10, 20, 40, 80],
+        help="comma-separated joint counts N (default 10,20,40,80)",
+    )
     parser.add_argument("--flip", type=float, default=0.10, help="fraction of matrix bits flipped (0.10)")
     parser.add_argument("--repeats", type=int, default=5, help="random trees per N; the median is reported")
-    parser.add_argument("--sparse-sizes", type=lambda s: [int(x) for x in s.split(",")] if s else [],
-                        default=[10, 20, 40, 80],
-                        help="joint counts N for the sparse-error table, N // 4 bits flipped ('' to skip)")
+    parser.add_argument(
+        "--sparse-sizes",
+        type=lambda s: [int(x) for x in s.split(",")] if s else [],
+        default=[10, 20, 40, 80],
+        help="joint counts N for the sparse-error table, N // 4 bits flipped ('' to skip)",
+    )
     parser.add_argument("--beam", type=int, default=64, help="candidate cap of the search (64)")
     parser.add_argument("--solver", default="highs", help="Eq. 22 solver: highs, cbc or hungarian")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random trees and flips")
@@ -82,25 +89,30 @@ def run(args: argparse.Namespace) -> Path:
             rec["true"].append(float(truth in fix.candidates))
             rec["cert"].append(float(fix.certified))
             done += 1
-            print(f"[{done}/{total}] N={n:3d} flipped={k:4d} correct {t1 - t0:7.3f} s"
-                  f" distance {fix.distance:4d} | trellis {t2 - t1:7.3f} s distance {td:4d}"
-                  f" | Eq.22 {t3 - t2:6.3f} s"
-                  f" | {time.perf_counter() - started:6.1f} s elapsed", flush=True)
-        rows.append({
-            "n": n,
-            "k": int(statistics.median(rec["k"])),
-            "t": statistics.median(rec["t"]),
-            "tmin": min(rec["t"]),
-            "tmax": max(rec["t"]),
-            "d": statistics.median(rec["d"]),
-            "hit": int(sum(rec["hit"])),
-            "tt": statistics.median(rec["tt"]),
-            "td": statistics.median(rec["td"]),
-            "tm": statistics.median(rec["tm"]),
-            "cands": statistics.median(rec["cands"]),
-            "true": int(sum(rec["true"])),
-            "cert": int(sum(rec["cert"])),
-        })
+            print(
+                f"[{done}/{total}] N={n:3d} flipped={k:4d} correct {t1 - t0:7.3f} s"
+                f" distance {fix.distance:4d} | trellis {t2 - t1:7.3f} s distance {td:4d}"
+                f" | Eq.22 {t3 - t2:6.3f} s"
+                f" | {time.perf_counter() - started:6.1f} s elapsed",
+                flush=True,
+            )
+        rows.append(
+            {
+                "n": n,
+                "k": int(statistics.median(rec["k"])),
+                "t": statistics.median(rec["t"]),
+                "tmin": min(rec["t"]),
+                "tmax": max(rec["t"]),
+                "d": statistics.median(rec["d"]),
+                "hit": int(sum(rec["hit"])),
+                "tt": statistics.median(rec["tt"]),
+                "td": statistics.median(rec["td"]),
+                "tm": statistics.median(rec["tm"]),
+                "cands": statistics.median(rec["cands"]),
+                "true": int(sum(rec["true"])),
+                "cert": int(sum(rec["cert"])),
+            }
+        )
     sparse = _sparse(args, rng)
     args.out.mkdir(parents=True, exist_ok=True)
     png = args.out / "algebra.png"
@@ -131,20 +143,25 @@ def _sparse(args: argparse.Namespace, rng: np.random.Generator) -> list[dict]:
             rec["hit"].append(float(fix.distance <= k))
             rec["cert"].append(float(fix.certified))
             rec["true"].append(float(truth in fix.candidates))
-            print(f"[sparse] N={n:3d} flipped={k:3d} correct {t1 - t0:7.3f} s distance {fix.distance:3d}"
-                  f" certified {fix.certified} | search alone {t2 - t1:7.3f} s", flush=True)
-        out.append({
-            "n": n,
-            "k": int(statistics.median(rec["k"])),
-            "t": statistics.median(rec["t"]),
-            "tmin": min(rec["t"]),
-            "tmax": max(rec["t"]),
-            "ts": statistics.median(rec["ts"]),
-            "d": statistics.median(rec["d"]),
-            "hit": int(sum(rec["hit"])),
-            "cert": int(sum(rec["cert"])),
-            "true": int(sum(rec["true"])),
-        })
+            print(
+                f"[sparse] N={n:3d} flipped={k:3d} correct {t1 - t0:7.3f} s distance {fix.distance:3d}"
+                f" certified {fix.certified} | search alone {t2 - t1:7.3f} s",
+                flush=True,
+            )
+        out.append(
+            {
+                "n": n,
+                "k": int(statistics.median(rec["k"])),
+                "t": statistics.median(rec["t"]),
+                "tmin": min(rec["t"]),
+                "tmax": max(rec["t"]),
+                "ts": statistics.median(rec["ts"]),
+                "d": statistics.median(rec["d"]),
+                "hit": int(sum(rec["hit"])),
+                "cert": int(sum(rec["cert"])),
+                "true": int(sum(rec["true"])),
+            }
+        )
     return out
 
 
@@ -197,8 +214,10 @@ def _report(rows: list[dict], args: argparse.Namespace, png: str, sparse: list[d
         verdict = "met" if target["t"] < 2.0 else "NOT met"
         lines.append(f"Target N = 40 under 2 s: {verdict} (median {target['t']:.3f} s).")
     lines.append("")
-    lines.append("Run it again with `bodyhealth bench algebra` (options: `--sizes`, `--flip`, `--repeats`, "
-                 "`--sparse-sizes`, `--beam`, `--solver`, `--seed`).")
+    lines.append(
+        "Run it again with `bodyhealth bench algebra` (options: `--sizes`, `--flip`, `--repeats`, "
+        "`--sparse-sizes`, `--beam`, `--solver`, `--seed`)."
+    )
     return "\n".join(lines) + "\n"
 
 

@@ -70,11 +70,13 @@ def _acc(a: dict) -> str:
 
 def runs_table(runs: list[dict]) -> str:
     """One row per robot and seed."""
-    rows = ["| robot | seed | acc residual Eq. 11 → Eq. 24 (m/s²) | gyro residual Eq. 11 → Eq. 24 (rad/s) | "
-            "named on Eq. 11 (kinematics): IMUs, \\|g\\|, angle | "
-            "named on Eq. 11 (networks): IMUs, \\|g\\| | "
-            "topology Eq. 11: exact (parents / IMUs) | topology Eq. 24 | CPU s |",
-            "|---|---:|---|---|---|---|---|---|---:|"]
+    rows = [
+        "| robot | seed | acc residual Eq. 11 → Eq. 24 (m/s²) | gyro residual Eq. 11 → Eq. 24 (rad/s) | "
+        "named on Eq. 11 (kinematics): IMUs, \\|g\\|, angle | "
+        "named on Eq. 11 (networks): IMUs, \\|g\\| | "
+        "topology Eq. 11: exact (parents / IMUs) | topology Eq. 24 | CPU s |",
+        "|---|---:|---|---|---|---|---|---|---:|",
+    ]
     for d in runs:
         f11, f24 = d["forms"]["eq11"], d["forms"]["eq24"]
 
@@ -89,31 +91,41 @@ def runs_table(runs: list[dict]) -> str:
             f"| {d['robot']} | {d['seed']} | {f11['acc_rms']:.3f} → {f24['acc_rms']:.3f} | "
             f"{f11['gyro_rms']:.3f} → {f24['gyro_rms']:.3f} | {named(d['analyses']['kinematics'], True)} | "
             f"{named(d['analyses']['network'], False)} | {_acc(f11['accuracy'])} | {_acc(f24['accuracy'])} | "
-            f"{d['cpu_s']:.0f} |")
+            f"{d['cpu_s']:.0f} |"
+        )
     return "\n".join(rows)
 
 
 def summary_table(runs: list[dict]) -> str:
     """One row per robot over its seeds (the table the README shows)."""
-    rows = ["| robot | seeds | acc residual Eq. 11 → Eq. 24 (m/s², median) | gravity named on Eq. 11 "
-            "(kinematics): \\|g\\| m/s², angle | topology exact Eq. 11 / Eq. 24 | right joint parents, IMU "
-            "joints: Eq. 11 → Eq. 24 (mean) |", "|---|---:|---|---|---|---|"]
+    rows = [
+        "| robot | seeds | acc residual Eq. 11 → Eq. 24 (m/s², median) | gravity named on Eq. 11 "
+        "(kinematics): \\|g\\| m/s², angle | topology exact Eq. 11 / Eq. 24 | right joint parents, IMU "
+        "joints: Eq. 11 → Eq. 24 (mean) |",
+        "|---|---:|---|---|---|---|",
+    ]
     for robot in dict.fromkeys(d["robot"] for d in runs):
         rs = [d for d in runs if d["robot"] == robot]
         f = {k: [d["forms"][k] for d in rs] for k in ("eq11", "eq24")}
         named = [c for c in (_gravity(d["analyses"]["kinematics"]) for d in rs) if c is not None]
-        gtext = (f"{len(named)}/{len(rs)} runs: {_span([c['params']['norm'] for c in named])}, "
-                 f"{_span([c['params']['angle_to_recording_deg'] for c in named], '.1f')}°"
-                 if named else "not named")
-        mean = {k: {a: np.mean([x["accuracy"][a] for x in f[k]]) for a in ("joint_parent", "imu_joint")}
-                for k in f}
+        gtext = (
+            f"{len(named)}/{len(rs)} runs: {_span([c['params']['norm'] for c in named])}, "
+            f"{_span([c['params']['angle_to_recording_deg'] for c in named], '.1f')}°"
+            if named
+            else "not named"
+        )
+        mean = {
+            k: {a: np.mean([x["accuracy"][a] for x in f[k]]) for a in ("joint_parent", "imu_joint")}
+            for k in f
+        }
         rows.append(
             f"| {robot} | {len(rs)} | {np.median([x['acc_rms'] for x in f['eq11']]):.2f} → "
             f"{np.median([x['acc_rms'] for x in f['eq24']]):.2f} | {gtext} | "
             f"{sum(x['accuracy']['exact'] for x in f['eq11'])}/{len(rs)} / "
             f"{sum(x['accuracy']['exact'] for x in f['eq24'])}/{len(rs)} | "
             f"{mean['eq11']['joint_parent']:.2f}, {mean['eq11']['imu_joint']:.2f} → "
-            f"{mean['eq24']['joint_parent']:.2f}, {mean['eq24']['imu_joint']:.2f} |")
+            f"{mean['eq24']['joint_parent']:.2f}, {mean['eq24']['imu_joint']:.2f} |"
+        )
     return "\n".join(rows)
 
 
@@ -124,28 +136,41 @@ def _findings(runs: list[dict]) -> list[str]:
     net = [c for c in (_gravity(d["analyses"]["network"]) for d in runs) if c is not None]
     f11 = [d["forms"]["eq11"] for d in runs]
     f24 = [d["forms"]["eq24"] for d in runs]
-    lines = [f"* Gravity named on the Eq. 11 residual on the exact kinematics in {len(kin)}/{n} runs"
-             + (f": {_span([c['params']['norm'] for c in kin])} m/s², "
-                f"{_span([c['params']['angle_to_recording_deg'] for c in kin], '.1f')}° from the recording's "
-                f"gravity, by {_span([c['imus'] for c in kin], 'd')} of {_span([c['of'] for c in kin], 'd')} "
-                "IMUs." if kin else ".")]
+    lines = [
+        f"* Gravity named on the Eq. 11 residual on the exact kinematics in {len(kin)}/{n} runs"
+        + (
+            f": {_span([c['params']['norm'] for c in kin])} m/s², "
+            f"{_span([c['params']['angle_to_recording_deg'] for c in kin], '.1f')}° from the recording's "
+            f"gravity, by {_span([c['imus'] for c in kin], 'd')} of {_span([c['of'] for c in kin], 'd')} "
+            "IMUs."
+            if kin
+            else "."
+        )
+    ]
     if net:
         norms = _span([c["params"]["norm"] for c in net])
-        lines.append(f"* On the Eq. 11 networks themselves: named in {len(net)}/{n} runs, with only {norms} "
-                     "m/s², the rest absorbed by the networks' bent accelerations and biases.")
+        lines.append(
+            f"* On the Eq. 11 networks themselves: named in {len(net)}/{n} runs, with only {norms} "
+            "m/s², the rest absorbed by the networks' bent accelerations and biases."
+        )
     gain = [d["residual_gain"] for d in runs]
-    lines.append(f"* Eq. 24 removes {_span([100 * g['acc'] for g in gain], '.1f')} % of the accelerometer "
-                 f"residual energy ({_span([x['acc_rms'] for x in f11])} → "
-                 f"{_span([x['acc_rms'] for x in f24])} m/s²) and "
-                 f"{_span([100 * g['gyro'] for g in gain], '.0f')} % of the gyro residual's.")
-    lines.append(f"* Topology exact: Eq. 11 in {sum(x['accuracy']['exact'] for x in f11)}/{n} runs "
-                 f"({_span([100 * x['accuracy']['joint_parent'] for x in f11], '.0f')} % of joint parents, "
-                 f"{_span([100 * x['accuracy']['imu_joint'] for x in f11], '.0f')} % of IMU joints right), "
-                 f"Eq. 24 in {sum(x['accuracy']['exact'] for x in f24)}/{n}.")
+    lines.append(
+        f"* Eq. 24 removes {_span([100 * g['acc'] for g in gain], '.1f')} % of the accelerometer "
+        f"residual energy ({_span([x['acc_rms'] for x in f11])} → "
+        f"{_span([x['acc_rms'] for x in f24])} m/s²) and "
+        f"{_span([100 * g['gyro'] for g in gain], '.0f')} % of the gyro residual's."
+    )
+    lines.append(
+        f"* Topology exact: Eq. 11 in {sum(x['accuracy']['exact'] for x in f11)}/{n} runs "
+        f"({_span([100 * x['accuracy']['joint_parent'] for x in f11], '.0f')} % of joint parents, "
+        f"{_span([100 * x['accuracy']['imu_joint'] for x in f11], '.0f')} % of IMU joints right), "
+        f"Eq. 24 in {sum(x['accuracy']['exact'] for x in f24)}/{n}."
+    )
     for robot in dict.fromkeys(d["robot"] for d in runs):
         cpu = [d["cpu_s"] for d in runs if d["robot"] == robot]
-        lines.append(f"* {robot}: {_span(cpu, '.0f')} CPU s per run (both trainings, both topologies, "
-                     "the analyses).")
+        lines.append(
+            f"* {robot}: {_span(cpu, '.0f')} CPU s per run (both trainings, both topologies, the analyses)."
+        )
     return lines
 
 
@@ -158,10 +183,20 @@ def _plot(runs: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     x = np.arange(len(runs))
     for off, form, color in ((-0.2, "eq11", "tab:red"), (0.2, "eq24", "tab:blue")):
-        axes[0].bar(x + off, [d["forms"][form]["acc_rms"] for d in runs], width=0.4, color=color,
-                    label=f"Eq. {form[2:]}")
-        axes[1].bar(x + off, [d["forms"][form]["accuracy"]["imu_joint"] for d in runs], width=0.4,
-                    color=color, label=f"Eq. {form[2:]}")
+        axes[0].bar(
+            x + off,
+            [d["forms"][form]["acc_rms"] for d in runs],
+            width=0.4,
+            color=color,
+            label=f"Eq. {form[2:]}",
+        )
+        axes[1].bar(
+            x + off,
+            [d["forms"][form]["accuracy"]["imu_joint"] for d in runs],
+            width=0.4,
+            color=color,
+            label=f"Eq. {form[2:]}",
+        )
     axes[0].set_ylabel("accelerometer residual RMS (m/s²)")
     axes[1].set_ylabel("fraction of IMUs on the right joint")
     for ax in axes:
@@ -173,37 +208,44 @@ def _plot(runs: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def _markdown(runs: list[dict], args: argparse.Namespace) -> str:
+def _settings_text(runs: list[dict], args: argparse.Namespace) -> str:
     s = runs[0]["settings"]
-    return "\n".join([
-        "# The robot gravity case: sensor networks without gravity (Eq. 11) and with it (Eq. 24)",
-        "",
-        f"`bodyhealth bench gravity --robots {args.robots} --seeds {args.seeds}` (resumable: runs already in "
-        "`gravity.json` are kept). Per robot and seed: `bodyhealth simulate ROBOT --seconds "
-        f"{s['seconds']:g} --seed S --imu-model {s['imu_model']}`, then what `bodyhealth sim2real REC.npz "
-        "--model ROBOT --gravity-case --seed S` runs: both network forms trained with seed S "
+    machines = "; ".join(dict.fromkeys(d["machine"] for d in runs))
+    return (
+        f"`bodyhealth bench gravity --robots {args.robots} --seeds {args.seeds}` (resumable: runs "
+        "already in `gravity.json` are kept). Per robot and seed: `bodyhealth simulate ROBOT --seconds "
+        f"{s['seconds']:g} --seed S --imu-model {s['imu_model']}`, then what `bodyhealth sim2real "
+        "REC.npz --model ROBOT --gravity-case --seed S` runs: both network forms trained with seed S "
         f"({s['epochs']} epochs, hidden {'-'.join(map(str, s['hidden']))}), residuals in-sample, the "
-        "held-out effect selection on the Eq. 11 residual (up to 12 IMUs, spread over the Eq. 11 residual "
-        "ranking) against the exact kinematics and against the Eq. 11 networks, and each form's topology "
-        "against the ground truth.",
-        "",
-        f"Machine: {'; '.join(dict.fromkeys(d['machine'] for d in runs))}, one torch thread (runs measured "
-        "while other work shared the cores). CPU s: process time of both trainings, both topologies and "
-        "the analyses.",
-        "",
-        "## Summary",
-        "",
-        summary_table(runs),
-        "",
-        *_findings(runs),
-        "",
-        "## Per run",
-        "",
-        runs_table(runs),
-        "",
-        "![residual and topology per run](gravity.png)",
-        "",
-    ])
+        "held-out effect selection on the Eq. 11 residual (up to 12 IMUs, spread over the Eq. 11 "
+        "residual ranking) against the exact kinematics and against the Eq. 11 networks, and each "
+        "form's topology against the ground truth.\n\n"
+        f"Machine: {machines}, one torch thread (runs measured while other work shared the cores). "
+        "CPU s: process time of both trainings, both topologies and the analyses."
+    )
+
+
+def _markdown(runs: list[dict], args: argparse.Namespace) -> str:
+    return "\n".join(
+        [
+            "# The robot gravity case: sensor networks without gravity (Eq. 11) and with it (Eq. 24)",
+            "",
+            _settings_text(runs, args),
+            "",
+            "## Summary",
+            "",
+            summary_table(runs),
+            "",
+            *_findings(runs),
+            "",
+            "## Per run",
+            "",
+            runs_table(runs),
+            "",
+            "![residual and topology per run](gravity.png)",
+            "",
+        ]
+    )
 
 
 def run(args: argparse.Namespace) -> Path:
@@ -212,8 +254,9 @@ def run(args: argparse.Namespace) -> Path:
     results = out / "gravity.json"
     runs: list[dict] = [] if args.fresh or not results.exists() else json.loads(results.read_text())
     done = {(d["robot"], d["seed"]) for d in runs}
-    todo = [(r, int(s)) for r in args.robots.split(",") for s in args.seeds.split(",")
-            if (r, int(s)) not in done]
+    todo = [
+        (r, int(s)) for r in args.robots.split(",") for s in args.seeds.split(",") if (r, int(s)) not in done
+    ]
     for robot, seed in tqdm(todo, desc="bench gravity", unit="run"):
         d = run_one(robot, seed, args.seconds, args.imu_model, args.epochs)
         runs.append(d)

@@ -50,8 +50,14 @@ def _recording(n: int, k: int, rate: float, seconds: float, seed: int) -> Record
     q = np.cumsum(rng.normal(0, 0.01, (T, n)), axis=0)
     acc = rng.normal(0, 2, (T, k, 3)) + np.array([0, 0, 9.81])
     gyro = np.cumsum(rng.normal(0, 0.02, (T, k, 3)), axis=0).clip(-30, 30)
-    return Recording(t=np.arange(T) / rate, joint_names=[f"joint{i}" for i in range(n)], q=q,
-                     imu_names=[f"imu{i}" for i in range(k)], acc=acc, gyro=gyro)
+    return Recording(
+        t=np.arange(T) / rate,
+        joint_names=[f"joint{i}" for i in range(n)],
+        q=q,
+        imu_names=[f"imu{i}" for i in range(k)],
+        acc=acc,
+        gyro=gyro,
+    )
 
 
 def _log(msg: str) -> None:
@@ -70,7 +76,7 @@ def _serial_decode(rec: Recording) -> tuple[float, float, int]:
     t0, c0 = time.perf_counter(), time.process_time()
     n = 0
     for off in range(0, len(wire), 4096):
-        n += sum(b.n_samples for b in src.decode(wire[off:off + 4096]))
+        n += sum(b.n_samples for b in src.decode(wire[off : off + 4096]))
     dt, cpu = time.perf_counter() - t0, time.process_time() - c0
     src.close()
     return dt, cpu, n
@@ -92,8 +98,9 @@ def _can_decode(rec: Recording, layout: str) -> tuple[float, float, int]:
     from service.ingest.can_regroup import SampleAssembler
     from service.ingest.device import DeviceConfig
 
-    cfg = DeviceConfig("bench", 1 / rec.sample_rate, rec.joint_names, rec.imu_names,
-                       {"can": {"layout": layout}})
+    cfg = DeviceConfig(
+        "bench", 1 / rec.sample_rate, rec.joint_names, rec.imu_names, {"can": {"layout": layout}}
+    )
     counter = np.arange(rec.n_samples)
     if layout == "fd":
         ids, lengths, data = encode_samples_fd(counter, rec.q, rec.acc, rec.gyro)
@@ -102,25 +109,41 @@ def _can_decode(rec: Recording, layout: str) -> tuple[float, float, int]:
         lengths = np.full(len(ids), 8)
     F = len(ids)
     all_ids = np.tile(ids, rec.n_samples).tolist()
-    datas = [data[t, f, :lengths[f]].tobytes() for t in range(rec.n_samples) for f in range(F)]
+    datas = [data[t, f, : lengths[f]].tobytes() for t in range(rec.n_samples) for f in range(F)]
     asm = SampleAssembler(SignalMap.for_config(cfg))
     t0, c0 = time.perf_counter(), time.process_time()
     n = 0
     step = 2048
     for off in range(0, len(all_ids), step):
-        asm.add_many(all_ids[off:off + step], datas[off:off + step])
+        asm.add_many(all_ids[off : off + step], datas[off : off + step])
         n += sum(b.n_samples for b in asm.take())
     n += sum(b.n_samples for b in asm.take(flush=True))
     return time.perf_counter() - t0, time.process_time() - c0, n
 
 
-def _pty(kind: str, rec_path: Path, rec: Recording, tmp: Path, *extra: str
-         ) -> tuple[float, float, int, dict]:
+def _pty(kind: str, rec_path: Path, rec: Recording, tmp: Path, *extra: str) -> tuple[float, float, int, dict]:
     """Run the emulator in its own process; time from the first sample read to the last."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.emulators", kind, "--recording", str(rec_path), "--speed", "0",
-         "--robot", "bench", "--config-out", str(tmp / f"{kind}.json"), "--linger", "30", *extra],
-        stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "service.emulators",
+            kind,
+            "--recording",
+            str(rec_path),
+            "--speed",
+            "0",
+            "--robot",
+            "bench",
+            "--config-out",
+            str(tmp / f"{kind}.json"),
+            "--linger",
+            "30",
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None
         fields = dict(kv.split("=", 1) for kv in proc.stdout.readline().split())
@@ -172,15 +195,29 @@ def run(args: argparse.Namespace) -> Path:
 
     def add(path: str, frames_per_sample: int, dt: float, cpu: float, n: int, note: str = "") -> None:
         sps, cps = n / dt, n / max(cpu, 1e-9)
-        rows.append({"path": path, "samples": n, "seconds": round(dt, 3), "cpu_seconds": round(cpu, 3),
-                     "frames_per_s": round(sps * frames_per_sample), "samples_per_s": round(sps),
-                     "x_real_time": round(sps / rate, 1), "frames_per_cpu_s": round(cps * frames_per_sample),
-                     "x_real_time_per_core": round(cps / rate, 1), "note": note})
-        _log(f"{path}: {sps * frames_per_sample:,.0f} frames/s ({sps / rate:.1f}x real time); per CPU-second "
-             f"{cps * frames_per_sample:,.0f} frames ({cps / rate:.1f}x)")
+        rows.append(
+            {
+                "path": path,
+                "samples": n,
+                "seconds": round(dt, 3),
+                "cpu_seconds": round(cpu, 3),
+                "frames_per_s": round(sps * frames_per_sample),
+                "samples_per_s": round(sps),
+                "x_real_time": round(sps / rate, 1),
+                "frames_per_cpu_s": round(cps * frames_per_sample),
+                "x_real_time_per_core": round(cps / rate, 1),
+                "note": note,
+            }
+        )
+        _log(
+            f"{path}: {sps * frames_per_sample:,.0f} frames/s ({sps / rate:.1f}x real time); per CPU-second "
+            f"{cps * frames_per_sample:,.0f} frames ({cps / rate:.1f}x)"
+        )
 
-    _log(f"robot: {n_j} joints, {n_i} IMUs at {rate:g} Hz; {rec.n_samples} samples; "
-         f"CAN {F} frames/sample (FD: {F_fd}), serial 1 frame/sample")
+    _log(
+        f"robot: {n_j} joints, {n_i} IMUs at {rate:g} Hz; {rec.n_samples} samples; "
+        f"CAN {F} frames/sample (FD: {F_fd}), serial 1 frame/sample"
+    )
     add("serial decode (memory)", 1, *_serial_decode(rec))
     add("CAN decode+regroup (memory)", F, *_can_decode(rec, "classic"))
     add("CAN FD decode+regroup (memory)", F_fd, *_can_decode(rec, "fd"))
@@ -190,14 +227,32 @@ def run(args: argparse.Namespace) -> Path:
 
         save_recording(rec, tmp / "rec.npz")
         dt, cpu, n, c = _pty("serial", tmp / "rec.npz", rec, tmp)
-        add("serial pty (emulator process)", 1, dt, cpu, n, f"crc_errors={c.get('crc_errors', 0)}, "
-            f"gaps={c.get('sequence_gaps', 0)}")
+        add(
+            "serial pty (emulator process)",
+            1,
+            dt,
+            cpu,
+            n,
+            f"crc_errors={c.get('crc_errors', 0)}, gaps={c.get('sequence_gaps', 0)}",
+        )
         dt, cpu, n, c = _pty("can", tmp / "rec.npz", rec, tmp)
-        add("CAN slcan pty (emulator process)", F, dt, cpu, n,
-            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}")
+        add(
+            "CAN slcan pty (emulator process)",
+            F,
+            dt,
+            cpu,
+            n,
+            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}",
+        )
         dt, cpu, n, c = _pty("can", tmp / "rec.npz", rec, tmp, "--can-fd")
-        add("CAN FD slcan pty (emulator process)", F_fd, dt, cpu, n,
-            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}")
+        add(
+            "CAN FD slcan pty (emulator process)",
+            F_fd,
+            dt,
+            cpu,
+            n,
+            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}",
+        )
 
     args.out.mkdir(parents=True, exist_ok=True)
     md = args.out / "ingest.md"
@@ -215,11 +270,14 @@ def run(args: argparse.Namespace) -> Path:
         "| path | frames/s (wall) | × real time (wall) | frames per CPU-second | × real time per core "
         "| note |",
         "|---|---:|---:|---:|---:|---|",
-        *[f"| {r['path']} | {r['frames_per_s']:,} | {r['x_real_time']} | {r['frames_per_cpu_s']:,} "
-          f"| {r['x_real_time_per_core']} | {r['note']} |" for r in rows],
+        *[
+            f"| {r['path']} | {r['frames_per_s']:,} | {r['x_real_time']} | {r['frames_per_cpu_s']:,} "
+            f"| {r['x_real_time_per_core']} | {r['note']} |"
+            for r in rows
+        ],
         "",
         "pty paths: the emulator runs in its own process with `--speed 0` (as fast as the reader takes it);",
-        "time runs from the first sample read to the last. \"Per CPU-second\" divides by the CPU time of the",
+        'time runs from the first sample read to the last. "Per CPU-second" divides by the CPU time of the',
         "ingesting process (all its threads, python-can's notifier included; the emulator's is not counted),",
         "which does not depend on what else the machine runs; the wall-clock columns do",
         f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores when this ran).",
@@ -230,9 +288,19 @@ def run(args: argparse.Namespace) -> Path:
         "",
     ]
     md.write_text("\n".join(lines), encoding="utf-8")
-    (args.out / "ingest.json").write_text(json.dumps({"machine": machine_note(), "rows": rows,
-                                                      "joints": n_j, "imus": n_i,
-                                                      "rate": rate, "can_frames_per_sample": F}, indent=1))
+    (args.out / "ingest.json").write_text(
+        json.dumps(
+            {
+                "machine": machine_note(),
+                "rows": rows,
+                "joints": n_j,
+                "imus": n_i,
+                "rate": rate,
+                "can_frames_per_sample": F,
+            },
+            indent=1,
+        )
+    )
     _plot(rows, args.out / "ingest.png")
     print("\n".join(lines))
     return md
@@ -248,8 +316,13 @@ def _plot(rows: list[dict], path: Path) -> None:
     names = [r["path"] for r in rows]
     y = np.arange(len(rows))
     ax.barh(y - 0.2, [r["x_real_time"] for r in rows], height=0.4, color="#4a7ab5", label="wall clock")
-    ax.barh(y + 0.2, [r["x_real_time_per_core"] for r in rows], height=0.4, color="#9cc0e6",
-            label="per CPU-second")
+    ax.barh(
+        y + 0.2,
+        [r["x_real_time_per_core"] for r in rows],
+        height=0.4,
+        color="#9cc0e6",
+        label="per CPU-second",
+    )
     ax.set_yticks(y, names)
     ax.axvline(10, color="#b54a4a", ls="--", label="10× real time")
     ax.set_xscale("log")

@@ -48,8 +48,9 @@ def _log(msg: str) -> None:
 def _time_robot(name: str, args: argparse.Namespace) -> dict[str, float]:
     from simulators.simulation import Simulation
 
-    sim = Simulation(name, seed=args.seed, imu_model=args.imu_model, excitation=args.excitation,
-                     rate=args.rate)
+    sim = Simulation(
+        name, seed=args.seed, imu_model=args.imu_model, excitation=args.excitation, rate=args.rate
+    )
     sim.advance(10)  # warm-up
     n = round(args.seconds * sim.rate)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -59,9 +60,15 @@ def _time_robot(name: str, args: argparse.Namespace) -> dict[str, float]:
         sim.advance(k)
         done += k
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return {"joints": sim.robot.n_joints, "imus": sim.robot.n_imus, "samples_per_s": n / wall,
-            "imu_samples_per_s": n * sim.robot.n_imus / wall, "x_realtime": n / sim.rate / wall,
-            "x_realtime_cpu": n / sim.rate / cpu, "warnings": sum(sim.robot.warnings().values())}
+    return {
+        "joints": sim.robot.n_joints,
+        "imus": sim.robot.n_imus,
+        "samples_per_s": n / wall,
+        "imu_samples_per_s": n * sim.robot.n_imus / wall,
+        "x_realtime": n / sim.rate / wall,
+        "x_realtime_cpu": n / sim.rate / cpu,
+        "warnings": sum(sim.robot.warnings().values()),
+    }
 
 
 def _time_farm(size: int, chunk: float, readahead: float, args: argparse.Namespace) -> dict[str, float]:
@@ -69,10 +76,17 @@ def _time_farm(size: int, chunk: float, readahead: float, args: argparse.Namespa
     from simulators.farm import Farm
 
     papers = list(PAPER_TOPOLOGIES)
-    robots = {f"{papers[i % len(papers)]}-{i // len(papers) + 1}": papers[i % len(papers)]
-              for i in range(size)}
-    farm = Farm(robots, seed=args.seed, imu_model=args.imu_model, excitation=args.excitation, rate=args.rate,
-                readahead=readahead)
+    robots = {
+        f"{papers[i % len(papers)]}-{i // len(papers) + 1}": papers[i % len(papers)] for i in range(size)
+    }
+    farm = Farm(
+        robots,
+        seed=args.seed,
+        imu_model=args.imu_model,
+        excitation=args.excitation,
+        rate=args.rate,
+        readahead=readahead,
+    )
     farm.advance(0.1)  # warm-up
     steps = max(1, round(args.seconds / chunk))
     samples = imu_samples = 0
@@ -82,9 +96,15 @@ def _time_farm(size: int, chunk: float, readahead: float, args: argparse.Namespa
             samples += rec.n_samples
             imu_samples += rec.n_samples * rec.n_imus
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return {"robots": size, "chunk": chunk, "readahead": readahead, "samples_per_s": samples / wall,
-            "imu_samples_per_s": imu_samples / wall, "x_realtime": steps * chunk / wall,
-            "x_realtime_cpu": steps * chunk / cpu}
+    return {
+        "robots": size,
+        "chunk": chunk,
+        "readahead": readahead,
+        "samples_per_s": samples / wall,
+        "imu_samples_per_s": imu_samples / wall,
+        "x_realtime": steps * chunk / wall,
+        "x_realtime_cpu": steps * chunk / cpu,
+    }
 
 
 def _plot(path: Path, robots: dict[str, dict[str, float]], farms: list[dict[str, float]], note: str) -> None:
@@ -93,8 +113,10 @@ def _plot(path: Path, robots: dict[str, dict[str, float]], farms: list[dict[str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = list(robots) + [f"farm {int(f['robots'])} x paper\n{f['chunk']:g} s chunks, "
-                             f"read-ahead {f['readahead']:g} s" for f in farms]
+    labels = list(robots) + [
+        f"farm {int(f['robots'])} x paper\n{f['chunk']:g} s chunks, read-ahead {f['readahead']:g} s"
+        for f in farms
+    ]
     wall = [r["x_realtime"] for r in robots.values()] + [f["x_realtime"] for f in farms]
     cpu = [r["x_realtime_cpu"] for r in robots.values()] + [f["x_realtime_cpu"] for f in farms]
     x = np.arange(len(wall))
@@ -151,16 +173,24 @@ def run(args: argparse.Namespace) -> Path:
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, r in robots.items():
-        lines.append(f"| {name} | {r['joints']} | {r['imus']} | {r['samples_per_s']:,.0f} | "
-                     f"{r['imu_samples_per_s']:,.0f} | {r['x_realtime']:.0f}× | {r['x_realtime_cpu']:.0f}× |")
-    lines += ["", "| farm | robots | chunk | read-ahead | samples/s (all robots) | IMU samples/s "
-              "| × real time | × real time (CPU) |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        lines.append(
+            f"| {name} | {r['joints']} | {r['imus']} | {r['samples_per_s']:,.0f} | "
+            f"{r['imu_samples_per_s']:,.0f} | {r['x_realtime']:.0f}× | {r['x_realtime_cpu']:.0f}× |"
+        )
+    lines += [
+        "",
+        "| farm | robots | chunk | read-ahead | samples/s (all robots) | IMU samples/s "
+        "| × real time | × real time (CPU) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for f in farms:
         ok = "meets" if f["x_realtime"] >= TARGET_FARM_X else "misses"
-        lines.append(f"| paper robots | {f['robots']} | {f['chunk']:g} s | {f['readahead']:g} s | "
-                     f"{f['samples_per_s']:,.0f} | "
-                     f"{f['imu_samples_per_s']:,.0f} | {f['x_realtime']:.1f}× ({ok} {TARGET_FARM_X:g}×) | "
-                     f"{f['x_realtime_cpu']:.1f}× |")
+        lines.append(
+            f"| paper robots | {f['robots']} | {f['chunk']:g} s | {f['readahead']:g} s | "
+            f"{f['samples_per_s']:,.0f} | "
+            f"{f['imu_samples_per_s']:,.0f} | {f['x_realtime']:.1f}× ({ok} {TARGET_FARM_X:g}×) | "
+            f"{f['x_realtime_cpu']:.1f}× |"
+        )
     lines += ["", "![simulation speed](sim.png)", ""]
     md.write_text("\n".join(lines), encoding="utf-8")
     _plot(png, robots, farms, note)

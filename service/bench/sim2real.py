@@ -71,8 +71,16 @@ def run(args: argparse.Namespace) -> Path:
         models[name] = to_imu_model(rep.params, name=name)
         probs[name] = transfer_problem(rec)
         write_report(rep, out / "sim2real" / name, title=name, plots=not args.no_plots)
-        rows.append({"trial": name, "session": session_of(name), "report": rep, "seconds": seconds,
-                     "cpu": cpu, "minutes": rec.duration / 60})
+        rows.append(
+            {
+                "trial": name,
+                "session": session_of(name),
+                "report": rep,
+                "seconds": seconds,
+                "cpu": cpu,
+                "minutes": rec.duration / 60,
+            }
+        )
         log.info("%s: %s in %.1f s", name, rep.names, seconds)
     # Transfer: fit on one trial, simulate every other trial of the same session.
     pairs: dict[str, dict[str, dict[str, float]]] = {}
@@ -114,13 +122,12 @@ def _markdown(rows: list[dict], pairs: dict[str, dict[str, dict[str, float]]], a
     for row in rows:
         rep = row["report"]
         h = rep.held_out
-        causes = ", ".join(
-            f"{c.effect} {_short(c.effect, c.params)}" for c in rep.causes if c.effect != "noise"
-        ) or "none"
-        gains = [v["gain"] for v in pairs[row["trial"]].values()]
-        tr = (
-            f"{np.median(gains):.3f} ({min(gains):.2f}–{max(gains):.2f}, n={len(gains)})" if gains else "—"
+        causes = (
+            ", ".join(f"{c.effect} {_short(c.effect, c.params)}" for c in rep.causes if c.effect != "noise")
+            or "none"
         )
+        gains = [v["gain"] for v in pairs[row["trial"]].values()]
+        tr = f"{np.median(gains):.3f} ({min(gains):.2f}–{max(gains):.2f}, n={len(gains)})" if gains else "—"
         lines.append(
             f"| {row['trial']} | {row['session']} | {causes} | {h['gain']:.3f} | "
             f"{h['gyro_rms_before']:.4f} → {h['gyro_rms_after']:.4f} | "
@@ -136,12 +143,7 @@ def _markdown(rows: list[dict], pairs: dict[str, dict[str, dict[str, float]]], a
         "other work while this ran: wall clock is the honest upper figure, CPU time the cost.",
         "",
         "How often each effect was named: "
-        + ", ".join(
-            f"{e} {n}/{len(rows)}"
-            for e, n in sorted(
-                _counts(rows).items(), key=lambda kv: -kv[1]
-            )
-        )
+        + ", ".join(f"{e} {n}/{len(rows)}" for e, n in sorted(_counts(rows).items(), key=lambda kv: -kv[1]))
         + ".",
         "",
         "## Transfer within sessions (fit on the row's trial, simulate the column's)",
@@ -152,8 +154,12 @@ def _markdown(rows: list[dict], pairs: dict[str, dict[str, dict[str, float]]], a
         if len(names) < 2:
             continue
         short = [n.split("_")[0] for n in names]
-        lines += [f"Session {session}: transfer gain", "", "| fit \\ test | " + " | ".join(short) + " |",
-                  "|---" * (len(names) + 1) + "|"]
+        lines += [
+            f"Session {session}: transfer gain",
+            "",
+            "| fit \\ test | " + " | ".join(short) + " |",
+            "|---" * (len(names) + 1) + "|",
+        ]
         for n, s in zip(names, short, strict=True):
             cells = [f"{pairs[n][o]['gain']:.2f}" if o in pairs[n] else "—" for o in names]
             lines.append(f"| {s} | " + " | ".join(cells) + " |")

@@ -29,8 +29,18 @@ __all__ = ["add_arguments", "run"]
 
 log = logging.getLogger(__name__)
 
-ALL_ROBOTS = ("paper-1", "paper-2", "paper-3", "paper-4", "paper-5", "paper-6", "ur5e", "quadruped",
-              "humanoid", "dual-arm")
+ALL_ROBOTS = (
+    "paper-1",
+    "paper-2",
+    "paper-3",
+    "paper-4",
+    "paper-5",
+    "paper-6",
+    "ur5e",
+    "quadruped",
+    "humanoid",
+    "dual-arm",
+)
 METHODS = ("fast", "network", "network-paper", "mlp")
 CACHE = Path("var/bench-topology")
 
@@ -40,17 +50,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=5, help="seeds per robot (default 5)")
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--seconds", type=float, default=60.0, help="recording length (default 60)")
-    parser.add_argument("--durations", default="1,1.5,2,3,5,7.5,10,15,20,30,45,60",
-                        help="prefix lengths tried for the shortest exact recording of fast")
+    parser.add_argument(
+        "--durations",
+        default="1,1.5,2,3,5,7.5,10,15,20,30,45,60",
+        help="prefix lengths tried for the shortest exact recording of fast",
+    )
     parser.add_argument("--epochs", type=int, default=40, help="training epochs of network and mlp")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="training processes run side by side (CPU seconds are still per run)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="training processes run side by side (CPU seconds are still per run)",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "topology.md")
     parser.add_argument("--fresh", action="store_true", help="ignore per-run results kept from earlier runs")
-    parser.add_argument("--no-train", action="store_true",
-                        help="report network/mlp results only where kept from earlier runs (no training)")
-    parser.add_argument("--reextract", action="store_true",
-                        help="redo the dependency extraction from the cached trained-network Jacobians")
+    parser.add_argument(
+        "--no-train",
+        action="store_true",
+        help="report network/mlp results only where kept from earlier runs (no training)",
+    )
+    parser.add_argument(
+        "--reextract",
+        action="store_true",
+        help="redo the dependency extraction from the cached trained-network Jacobians",
+    )
 
 
 @dataclass
@@ -112,15 +135,18 @@ def _run_networks(
         t0 = time.process_time()
         res = dependency_from_jacobian(jbar, statistic, und, rng=np.random.default_rng(seed + 1))
         try:
-            topo = topology_from_dependency(res.dependency, rec.imu_names, rec.joint_names,
-                                            undetermined=[rec.joint_names[j] for j in res.undetermined],
-                                            method=name)
+            topo = topology_from_dependency(
+                res.dependency,
+                rec.imu_names,
+                rec.joint_names,
+                undetermined=[rec.joint_names[j] for j in res.undetermined],
+                method=name,
+            )
             exact = _exact(topo, rec)
         except ValueError as err:  # no tree fits the extracted matrix at all
             log.info("%s: no tree (%s)", name, err)
             exact = False
-        out[name] = {"exact": exact, "seconds": train_s + time.process_time() - t0,
-                     "delta": res.delta}
+        out[name] = {"exact": exact, "seconds": train_s + time.process_time() - t0, "delta": res.delta}
 
     def trained(kind: str) -> tuple[np.ndarray, float]:
         """Jacobian norms of the trained networks, cached with their training CPU time."""
@@ -197,8 +223,9 @@ def run(args: argparse.Namespace) -> Path:
                         ok = False
                     store.put(dk, ok)
                 shortest_ok[robot][d] += int(bool(ok))
-            todo = [m for m in net_methods
-                    if args.reextract or store.get(f"{key}|{m}|e{args.epochs}") is None]
+            todo = [
+                m for m in net_methods if args.reextract or store.get(f"{key}|{m}|e{args.epochs}") is None
+            ]
             if todo and args.no_train:
                 todo = [m for m in todo if _kept(robot, seed, m, args.epochs)]
             if todo:
@@ -216,7 +243,8 @@ def run(args: argparse.Namespace) -> Path:
         with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
             futures: dict[Future[dict[str, Any]], tuple[str, int]] = {
                 pool.submit(_network_job, robot, args.seconds, seed, todo, args.epochs): (robot, seed)
-                for robot, seed, todo in jobs}
+                for robot, seed, todo in jobs
+            }
             for fut in as_completed(futures):
                 keep(*futures[fut], fut.result())
     else:
@@ -229,11 +257,22 @@ def run(args: argparse.Namespace) -> Path:
         n_joints, n_imus = shape[robot]
         row: dict[str, Any] = {"robot": robot, "joints": n_joints, "imus": n_imus, "shortest": shortest}
         for m in methods:
-            runs = [r for seed in range(args.seeds)
-                    if (r := store.get(f"{robot}|{args.seconds:g}|{seed}|"
-                                       + ("fast" if m == "fast" else f"{m}|e{args.epochs}"))) is not None]
-            row[m] = {"exact": sum(int(r["exact"]) for r in runs), "runs": len(runs),
-                      "seconds": float(np.median([r["seconds"] for r in runs])) if runs else float("nan")}
+            runs = [
+                r
+                for seed in range(args.seeds)
+                if (
+                    r := store.get(
+                        f"{robot}|{args.seconds:g}|{seed}|"
+                        + ("fast" if m == "fast" else f"{m}|e{args.epochs}")
+                    )
+                )
+                is not None
+            ]
+            row[m] = {
+                "exact": sum(int(r["exact"]) for r in runs),
+                "runs": len(runs),
+                "seconds": float(np.median([r["seconds"] for r in runs])) if runs else float("nan"),
+            }
         rows.append(row)
     return _write(rows, methods, args)
 
@@ -282,8 +321,10 @@ shortest prefix (of {args.durations} s) on which `fast` is exact for all {args.s
 def _note(args: argparse.Namespace) -> str:
     if not getattr(args, "no_train", False):
         return ""
-    return ("\n\nNetwork and MLP columns count only the runs whose networks were trained in earlier "
-            "(interrupted) runs of this benchmark (`--no-train`); \"not run\" means none was.")
+    return (
+        "\n\nNetwork and MLP columns count only the runs whose networks were trained in earlier "
+        '(interrupted) runs of this benchmark (`--no-train`); "not run" means none was.'
+    )
 
 
 def _plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> None:

@@ -84,8 +84,12 @@ def _run(args: argparse.Namespace) -> int:
     if case is not None and rec.ref_quat is None and refs is None:
         imus = []  # nothing to compare the IMUs with but the networks
     results = {}
-    kw = {"n_blocks": args.blocks, "alpha": args.alpha, "min_gain": args.min_gain,
-          "progress": sys.stderr.isatty()}
+    kw = {
+        "n_blocks": args.blocks,
+        "alpha": args.alpha,
+        "min_gain": args.min_gain,
+        "progress": sys.stderr.isatty(),
+    }
     for imu in imus:
         if refs is None:
             rep = analyze_recording(rec, imu, cutoff=args.cutoff, **kw)
@@ -153,6 +157,14 @@ def _gravity_case(
 
     imus = [args.imu] if args.imu else None
     return gravity_case(
-        rec, epochs=args.epochs, seed=args.seed, imus=imus, references=refs, cutoff=args.cutoff,
-        n_blocks=args.blocks, alpha=args.alpha, min_gain=args.min_gain, progress=sys.stderr.isatty(),
+        rec,
+        epochs=args.epochs,
+        seed=args.seed,
+        imus=imus,
+        references=refs,
+        cutoff=args.cutoff,
+        n_blocks=args.blocks,
+        alpha=args.alpha,
+        min_gain=args.min_gain,
+        progress=sys.stderr.isatty(),
     )

@@ -19,15 +19,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("robot", metavar="ROBOT")
     p.add_argument("--seconds", type=float, default=10.0, help="simulated duration (default 10)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--imu-model", default="mpu6050", metavar="ideal|mpu6050|FILE.json",
-                   help="IMU error model: a preset or a JSON file (default mpu6050)")
-    p.add_argument("--excitation", default="observable",
-                   choices=("random-torque", "sine", "observable", "poses", "hold"),
-                   help="how the robot moves (default observable: every joint moves)")
-    p.add_argument("--damage", action="append", default=[], metavar="KIND[:key=value,...]",
-                   help="damage to inject, e.g. imu_moved:imu=imu3,to=j4,at=5 (repeatable; at= seconds "
-                   "into the run, default 0). Kinds: imu_moved, imu_detached, imu_dead, joint_locked, "
-                   "encoder_fault, link_lost")
+    p.add_argument(
+        "--imu-model",
+        default="mpu6050",
+        metavar="ideal|mpu6050|FILE.json",
+        help="IMU error model: a preset or a JSON file (default mpu6050)",
+    )
+    p.add_argument(
+        "--excitation",
+        default="observable",
+        choices=("random-torque", "sine", "observable", "poses", "hold"),
+        help="how the robot moves (default observable: every joint moves)",
+    )
+    p.add_argument(
+        "--damage",
+        action="append",
+        default=[],
+        metavar="KIND[:key=value,...]",
+        help="damage to inject, e.g. imu_moved:imu=imu3,to=j4,at=5 (repeatable; at= seconds "
+        "into the run, default 0). Kinds: imu_moved, imu_detached, imu_dead, joint_locked, "
+        "encoder_fault, link_lost",
+    )
     p.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz (default 100)")
     p.add_argument("--out", type=Path, default=Path("rec.npz"), help="recording to write (default rec.npz)")
     p.set_defaults(func=_simulate)
@@ -37,13 +49,22 @@ def _simulate(args: argparse.Namespace) -> int:
     from simulators.recording_io import save_recording
     from simulators.simulation import simulate
 
-    rec = simulate(args.robot, seconds=args.seconds, seed=args.seed, imu_model=args.imu_model,
-                   excitation=args.excitation, damage=args.damage or None, rate=args.rate)
+    rec = simulate(
+        args.robot,
+        seconds=args.seconds,
+        seed=args.seed,
+        imu_model=args.imu_model,
+        excitation=args.excitation,
+        damage=args.damage or None,
+        rate=args.rate,
+    )
     save_recording(rec, args.out)
     exc = rec.extra["excitation"]
-    print(f"{args.out}: {args.robot}, {rec.n_samples} samples at {rec.sample_rate:.0f} Hz, "
-          f"{rec.n_joints} joints, {rec.n_imus} IMUs; excitation (RMS rad/s) "
-          f"min {exc.min():.3f} max {exc.max():.3f}")
+    print(
+        f"{args.out}: {args.robot}, {rec.n_samples} samples at {rec.sample_rate:.0f} Hz, "
+        f"{rec.n_joints} joints, {rec.n_imus} IMUs; excitation (RMS rad/s) "
+        f"min {exc.min():.3f} max {exc.max():.3f}"
+    )
     if "truth_diff" in rec.extra:
         print("damage:", json.dumps(json.loads(str(rec.extra["truth_diff"]))["findings"]))
     return 0

@@ -26,9 +26,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "encoders and IMUs of a DESIGN §2 recording.",
     )
     p.add_argument("recording", type=Path, metavar="REC.npz")
-    p.add_argument("--method", choices=METHODS, default="fast",
-                   help="fast (gyro tests, ~1 s), network (the paper's sensor networks), network-paper "
-                   "(with the paper's variance statistic), mlp (the paper's baseline); default fast")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="fast",
+        help="fast (gyro tests, ~1 s), network (the paper's sensor networks), network-paper "
+        "(with the paper's variance statistic), mlp (the paper's baseline); default fast",
+    )
     p.add_argument("--json", action="store_true", help="print the DESIGN §2 topology JSON")
     p.add_argument("--plot", type=Path, metavar="tree.png", help="draw the learned tree (and the truth)")
     p.add_argument("--seed", type=int, default=0, help="seed of the network methods (default 0)")
@@ -146,19 +150,40 @@ def plot_trees(topo: Topology, path: Path, truth: Topology | None = None, title:
             ax.plot([pos[a][0], pos[b][0]], [pos[a][1], pos[b][1]], color="0.6", zorder=1)
         for node, (x, y) in pos.items():
             wrong = (
-                name == "learned" and truth is not None and node != "base"
-                and (truth.joint_parent.get(node, "?") != t.joint_parent.get(node)
-                     or sorted(imus.get(node, [])) != sorted(_imus_by_joint(truth).get(node, [])))
+                name == "learned"
+                and truth is not None
+                and node != "base"
+                and (
+                    truth.joint_parent.get(node, "?") != t.joint_parent.get(node)
+                    or sorted(imus.get(node, [])) != sorted(_imus_by_joint(truth).get(node, []))
+                )
             )
             color = "tab:red" if wrong else ("0.85" if node in t.undetermined else "tab:blue")
             ax.scatter([x], [y], s=60, color=color, zorder=2)
-            ax.annotate(node, (x, y), xytext=(5, 2), textcoords="offset points", ha="left", va="bottom",
-                        fontsize=7, color=color if wrong else "black", zorder=3)
+            ax.annotate(
+                node,
+                (x, y),
+                xytext=(5, 2),
+                textcoords="offset points",
+                ha="left",
+                va="bottom",
+                fontsize=7,
+                color=color if wrong else "black",
+                zorder=3,
+            )
             riders = imus.get(None if node == "base" else node, [])
             if riders:
                 label = ", ".join(riders[:3]) + (f" +{len(riders) - 3}" if len(riders) > 3 else "")
-                ax.annotate(label, (x, y), xytext=(5, -3), textcoords="offset points", ha="left", va="top",
-                            fontsize=6, color="0.35")
+                ax.annotate(
+                    label,
+                    (x, y),
+                    xytext=(5, -3),
+                    textcoords="offset points",
+                    ha="left",
+                    va="top",
+                    fontsize=6,
+                    color="0.35",
+                )
         sub = f"{name}" + ("" if t.unique else f" (not unique, {1 + len(t.candidates)} trees)")
         ax.set_title(sub)
         ax.axis("off")

@@ -30,8 +30,14 @@ def _recording(args: argparse.Namespace) -> Recording:
         return load_recording(args.recording)
     from simulators import simulate  # type: ignore[attr-defined]
 
-    return simulate(args.robot, args.seconds, args.seed, imu_model=args.imu_model, excitation=args.excitation,
-                    rate=args.rate)
+    return simulate(
+        args.robot,
+        args.seconds,
+        args.seed,
+        imu_model=args.imu_model,
+        excitation=args.excitation,
+        rate=args.rate,
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,15 +62,18 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     rec = _recording(args)
     if args.kind == "can":
-        em: SlcanEmulator | SerialEmulator = SlcanEmulator(rec, fd=args.can_fd, robot=args.robot,
-                                                           speed=args.speed, link=args.link)
+        em: SlcanEmulator | SerialEmulator = SlcanEmulator(
+            rec, fd=args.can_fd, robot=args.robot, speed=args.speed, link=args.link
+        )
     else:
         em = SerialEmulator(rec, robot=args.robot, speed=args.speed, link=args.link)
-    cfg_path = Path(args.config_out or os.path.join(tempfile.mkdtemp(prefix="bodyhealth-emu-"),
-                                                    f"{args.robot}.json"))
+    cfg_path = Path(
+        args.config_out or os.path.join(tempfile.mkdtemp(prefix="bodyhealth-emu-"), f"{args.robot}.json")
+    )
     em.device_config().save(cfg_path)
-    spec = (f"can:slcan:{em.port.name}" if args.kind == "can" else f"serial:{em.port.name}") + \
-        f"?config={cfg_path}"
+    spec = (
+        f"can:slcan:{em.port.name}" if args.kind == "can" else f"serial:{em.port.name}"
+    ) + f"?config={cfg_path}"
     print(f"pty={em.port.name} config={cfg_path} source={spec}", flush=True)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

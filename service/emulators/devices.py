@@ -63,8 +63,15 @@ class _PtyEmulator:
     #: Seconds a reader must have had the port open before data flows (pyserial flushes input on open).
     SETTLE_S = 0.1
 
-    def __init__(self, rec: Recording, *, robot: str = "robot", speed: float = 0.0, link: str | None = None,
-                 port: PtyPort | None = None) -> None:
+    def __init__(
+        self,
+        rec: Recording,
+        *,
+        robot: str = "robot",
+        speed: float = 0.0,
+        link: str | None = None,
+        port: PtyPort | None = None,
+    ) -> None:
         self.rec = rec
         self.robot = robot
         self._replies = b""
@@ -232,8 +239,9 @@ class SlcanEmulator(_PtyEmulator):
             ids, data = encode_samples(self.counters, q, rec.acc, rec.gyro)
             lengths = np.full(len(ids), 8)
         kind = "d" if self.fd else "t"
-        prefixes = [f"{kind}{int(i):03X}{len2dlc(int(n)):X}".encode()
-                    for i, n in zip(ids, lengths, strict=True)]
+        prefixes = [
+            f"{kind}{int(i):03X}{len2dlc(int(n)):X}".encode() for i, n in zip(ids, lengths, strict=True)
+        ]
         width = data.shape[2]
         hexed = data.reshape(-1).tobytes().hex().upper().encode()
         spans = [(f * width * 2, f * width * 2 + int(n) * 2) for f, n in enumerate(lengths)]
@@ -241,8 +249,9 @@ class SlcanEmulator(_PtyEmulator):
         chunks = []
         for s in range(rec.n_samples):
             base = s * F * width * 2
-            chunks.append(b"".join(prefixes[f] + hexed[base + a:base + b] + b"\r"
-                                   for f, (a, b) in enumerate(spans)))
+            chunks.append(
+                b"".join(prefixes[f] + hexed[base + a : base + b] + b"\r" for f, (a, b) in enumerate(spans))
+            )
         return chunks
 
     def _on_input(self, data: bytes) -> None:

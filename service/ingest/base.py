@@ -102,8 +102,13 @@ class Counters:
 
     def as_dict(self) -> dict[str, int]:
         with self._lock:
-            return {"received": self.received, "stored": self.stored, "dropped": self.dropped,
-                    "malformed": self.malformed, **self.extra}
+            return {
+                "received": self.received,
+                "stored": self.stored,
+                "dropped": self.dropped,
+                "malformed": self.malformed,
+                **self.extra,
+            }
 
 
 class Source(ABC):

@@ -96,7 +96,7 @@ class BufferedSlcanBus(slcanBus):
                     buf = self._rest + data.decode("ascii", "replace")
                     lines = _LINE.findall(buf)
                     if lines:
-                        self._rest = buf[max(buf.rfind("\r"), buf.rfind("\a")) + 1:]
+                        self._rest = buf[max(buf.rfind("\r"), buf.rfind("\a")) + 1 :]
                         self._lines.extend(lines)
                         return self._lines.popleft()
                     self._rest = buf
@@ -111,10 +111,17 @@ class BufferedSlcanBus(slcanBus):
             try:
                 fd = kind == "d"
                 n = CAN_FD_DLC[int(line[4], 16)] if fd else int(line[4])
-                data = bytearray.fromhex(line[5:5 + 2 * n])
+                data = bytearray.fromhex(line[5 : 5 + 2 * n])
                 if len(data) == n:
-                    return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, dlc=n,
-                                       data=data, is_fd=fd, timestamp=time.time(), check=False)
+                    return can.Message(
+                        arbitration_id=int(line[1:4], 16),
+                        is_extended_id=False,
+                        dlc=n,
+                        data=data,
+                        is_fd=fd,
+                        timestamp=time.time(),
+                        check=False,
+                    )
             except (ValueError, IndexError):
                 pass
         return None
@@ -354,8 +361,13 @@ def open_from_spec(rest: str) -> Source:
     params = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
     config = config_from_params(params)
     if "dbc" in params:
-        config = DeviceConfig(config.robot, config.period_s, config.joints, config.imus,
-                              {**config.extra, "can": {**config.extra.get("can", {}), "dbc": params["dbc"]}})
+        config = DeviceConfig(
+            config.robot,
+            config.period_s,
+            config.joints,
+            config.imus,
+            {**config.extra, "can": {**config.extra.get("can", {}), "dbc": params["dbc"]}},
+        )
     kwargs: dict[str, Any] = {}
     if "bitrate" in params:
         kwargs["bitrate"] = int(params["bitrate"])
@@ -363,6 +375,10 @@ def open_from_spec(rest: str) -> Source:
         kwargs["sleep_after_open"] = float(params["sleep_after_open"])
     signal_map = SignalMap.for_config(config, load_dbc(config.extra.get("can", {}).get("dbc")))
     can_section = config.extra.get("can", {})
-    return CanSource(config, lambda: open_bus(interface, channel, **kwargs), signal_map=signal_map,
-                     horizon=int(params.get("horizon", can_section.get("horizon", 4))),
-                     incomplete=params.get("incomplete", can_section.get("incomplete", "drop")))
+    return CanSource(
+        config,
+        lambda: open_bus(interface, channel, **kwargs),
+        signal_map=signal_map,
+        horizon=int(params.get("horizon", can_section.get("horizon", 4))),
+        incomplete=params.get("incomplete", can_section.get("incomplete", "drop")),
+    )

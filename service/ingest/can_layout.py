@@ -88,9 +88,17 @@ DBC_RESOURCE = "bodyhealth.dbc"
 def _sig(name: str, start: int, length: int, scale: float, unit: str, signed: bool = True) -> Signal:
     lo = -(1 << (length - 1)) if signed else 0
     hi = (1 << (length - 1)) - 1 if signed else (1 << length) - 1
-    return Signal(name=name, start=start, length=length, byte_order="little_endian", is_signed=signed,
-                  conversion=BaseConversion.factory(scale=scale, offset=0),
-                  minimum=round(lo * scale, 9), maximum=round(hi * scale, 9), unit=unit)
+    return Signal(
+        name=name,
+        start=start,
+        length=length,
+        byte_order="little_endian",
+        is_signed=signed,
+        conversion=BaseConversion.factory(scale=scale, offset=0),
+        minimum=round(lo * scale, 9),
+        maximum=round(hi * scale, 9),
+        unit=unit,
+    )
 
 
 def _counter(start: int = COUNTER_START) -> Signal:
@@ -106,8 +114,10 @@ def _fd_specifics() -> object:
     from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 
     bus_type = DbcAttributeDefinition("BusType", default_value="", kind=None, type_name="STRING")
-    return DbcSpecifics(attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
-                        attribute_definitions=OrderedDict(BusType=bus_type))
+    return DbcSpecifics(
+        attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
+        attribute_definitions=OrderedDict(BusType=bus_type),
+    )
 
 
 def project_database() -> Database:
@@ -115,34 +125,73 @@ def project_database() -> Database:
     msgs: list[Message] = []
     for m in range(JOINT_FRAMES):
         sigs = [_sig(f"q{j}", 24 * j, 24, Q_LSB, "rad") for j in range(JOINTS_PER_FRAME)]
-        msgs.append(Message(frame_id=JOINT_BASE + m, name=f"JOINTS_{m}", length=8,
-                            signals=[*sigs, _counter()], senders=["ROBOT"], cycle_time=10,
-                            comment=f"joint positions {2 * m} and {2 * m + 1} of the device config"))
-    for base, kind, lsb, unit in ((IMU_ACC_BASE, "ACC", ACC_LSB, "m/s2"), (IMU_GYRO_BASE, "GYRO", GYRO_LSB,
-                                                                          "rad/s")):
+        msgs.append(
+            Message(
+                frame_id=JOINT_BASE + m,
+                name=f"JOINTS_{m}",
+                length=8,
+                signals=[*sigs, _counter()],
+                senders=["ROBOT"],
+                cycle_time=10,
+                comment=f"joint positions {2 * m} and {2 * m + 1} of the device config",
+            )
+        )
+    for base, kind, lsb, unit in (
+        (IMU_ACC_BASE, "ACC", ACC_LSB, "m/s2"),
+        (IMU_GYRO_BASE, "GYRO", GYRO_LSB, "rad/s"),
+    ):
         for k in range(MAX_IMUS):
             sigs = [_sig(a, 16 * i, 16, lsb, unit) for i, a in enumerate("xyz")]
             what = "specific force" if kind == "ACC" else "angular velocity"
-            msgs.append(Message(frame_id=base + k, name=f"IMU_{kind}_{k}", length=8,
-                                signals=[*sigs, _counter()], senders=["ROBOT"], cycle_time=10,
-                                comment=f"IMU {k} {what} in the sensor frame"))
+            msgs.append(
+                Message(
+                    frame_id=base + k,
+                    name=f"IMU_{kind}_{k}",
+                    length=8,
+                    signals=[*sigs, _counter()],
+                    senders=["ROBOT"],
+                    cycle_time=10,
+                    comment=f"IMU {k} {what} in the sensor frame",
+                )
+            )
     for m in range(FD_JOINT_FRAMES):
         sigs = [_sig(f"q{j}", 32 * j, 32, Q_LSB, "rad") for j in range(FD_JOINTS_PER_FRAME)]
         first = FD_JOINTS_PER_FRAME * m
-        msgs.append(Message(frame_id=FD_JOINT_BASE + m, name=f"JOINTS_FD_{m}", length=FD_JOINT_LEN,
-                            is_fd=True, signals=[*sigs, _counter(32 * FD_JOINTS_PER_FRAME)],
-                            senders=["ROBOT"], cycle_time=10,
-                            comment=f"CAN FD layout: joint positions {first}..{first + 14}"))
+        msgs.append(
+            Message(
+                frame_id=FD_JOINT_BASE + m,
+                name=f"JOINTS_FD_{m}",
+                length=FD_JOINT_LEN,
+                is_fd=True,
+                signals=[*sigs, _counter(32 * FD_JOINTS_PER_FRAME)],
+                senders=["ROBOT"],
+                cycle_time=10,
+                comment=f"CAN FD layout: joint positions {first}..{first + 14}",
+            )
+        )
     for k in range(MAX_IMUS):
         sigs = [_sig(f"acc_{a}", 16 * i, 16, ACC_LSB, "m/s2") for i, a in enumerate("xyz")]
         sigs += [_sig(f"gyro_{a}", 48 + 16 * i, 16, GYRO_LSB, "rad/s") for i, a in enumerate("xyz")]
-        msgs.append(Message(frame_id=FD_IMU_BASE + k, name=f"IMU_FD_{k}", length=FD_IMU_LEN, is_fd=True,
-                            signals=[*sigs, _counter(96)], senders=["ROBOT"], cycle_time=10,
-                            comment=f"CAN FD layout: IMU {k} specific force and angular velocity"))
+        msgs.append(
+            Message(
+                frame_id=FD_IMU_BASE + k,
+                name=f"IMU_FD_{k}",
+                length=FD_IMU_LEN,
+                is_fd=True,
+                signals=[*sigs, _counter(96)],
+                senders=["ROBOT"],
+                cycle_time=10,
+                comment=f"CAN FD layout: IMU {k} specific force and angular velocity",
+            )
+        )
     from cantools.database.can import Node
 
-    db = Database(messages=msgs, nodes=[Node("ROBOT"), Node("HOST")], version="bodyhealth 1",
-                  dbc_specifics=_fd_specifics())  # type: ignore[arg-type]
+    db = Database(
+        messages=msgs,
+        nodes=[Node("ROBOT"), Node("HOST")],
+        version="bodyhealth 1",
+        dbc_specifics=_fd_specifics(),
+    )  # type: ignore[arg-type]
     db.refresh()
     return db
 
@@ -162,8 +211,9 @@ def frame_ids(n_joints: int, n_imus: int, layout: str = "classic") -> np.ndarray
         ids = np.concatenate([FD_JOINT_BASE + np.arange(nj), FD_IMU_BASE + np.arange(n_imus)])
         return ids.astype(np.int64)
     nj = -(-n_joints // JOINTS_PER_FRAME)
-    return np.concatenate([JOINT_BASE + np.arange(nj), IMU_ACC_BASE + np.arange(n_imus),
-                           IMU_GYRO_BASE + np.arange(n_imus)]).astype(np.int64)
+    return np.concatenate(
+        [JOINT_BASE + np.arange(nj), IMU_ACC_BASE + np.arange(n_imus), IMU_GYRO_BASE + np.arange(n_imus)]
+    ).astype(np.int64)
 
 
 def _check(n_joints: int, n_imus: int, layout: str) -> None:
@@ -180,12 +230,19 @@ def project_signal_map(joints: tuple[str, ...], imus: tuple[str, ...], layout: s
     if layout == "fd":
         per = FD_JOINTS_PER_FRAME
         jm = {j: f"JOINTS_FD_{i // per}.q{i % per}" for i, j in enumerate(joints)}
-        im = {name: {"acc": [f"IMU_FD_{k}.acc_{a}" for a in "xyz"],
-                     "gyro": [f"IMU_FD_{k}.gyro_{a}" for a in "xyz"]} for k, name in enumerate(imus)}
+        im = {
+            name: {
+                "acc": [f"IMU_FD_{k}.acc_{a}" for a in "xyz"],
+                "gyro": [f"IMU_FD_{k}.gyro_{a}" for a in "xyz"],
+            }
+            for k, name in enumerate(imus)
+        }
     else:
         jm = {j: f"JOINTS_{i // JOINTS_PER_FRAME}.q{i % JOINTS_PER_FRAME}" for i, j in enumerate(joints)}
-        im = {name: {"acc": [f"IMU_ACC_{k}.{a}" for a in "xyz"], "gyro": [f"IMU_GYRO_{k}.{a}" for a in "xyz"]}
-              for k, name in enumerate(imus)}
+        im = {
+            name: {"acc": [f"IMU_ACC_{k}.{a}" for a in "xyz"], "gyro": [f"IMU_GYRO_{k}.{a}" for a in "xyz"]}
+            for k, name in enumerate(imus)
+        }
     return {"joints": jm, "imus": im, "counter": {"signal": "counter", "bits": COUNTER_BITS}}
 
 
@@ -195,8 +252,9 @@ def _pack(counts: np.ndarray, nbytes: int) -> np.ndarray:
     return ((u[..., None] >> (8 * np.arange(nbytes))) & 0xFF).astype(np.uint8)
 
 
-def encode_samples(counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def encode_samples(
+    counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Frames of T samples: ``ids`` (F,) and ``data`` (T, F, 8) uint8, values saturated to range.
 
     ``counter`` (T,) raw device counters (taken mod 2^16), ``q`` (T,N), ``acc``/``gyro`` (T,K,3).
@@ -211,13 +269,14 @@ def encode_samples(counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro: np
     data[:, :nj, :6] = _pack(qc.reshape(T, nj, JOINTS_PER_FRAME), 3).reshape(T, nj, 6)
     for off, v, lsb in ((nj, acc, ACC_LSB), (nj + K, gyro, GYRO_LSB)):
         c = np.clip(np.rint(v / lsb), -(1 << 15), (1 << 15) - 1)
-        data[:, off:off + K, :6] = _pack(c, 2).reshape(T, K, 6)
+        data[:, off : off + K, :6] = _pack(c, 2).reshape(T, K, 6)
     data[:, :, 6:8] = _pack(np.asarray(counter, dtype=np.int64) % (1 << COUNTER_BITS), 2)[:, None, :]
     return ids, data
 
 
-def encode_samples_fd(counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def encode_samples_fd(
+    counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CAN FD frames of T samples: ``ids`` (F,), ``lengths`` (F,) bytes, ``data`` (T, F, 64) uint8.
 
     Bytes past a frame's length are zero and not sent.
@@ -235,6 +294,6 @@ def encode_samples_fd(counter: np.ndarray, q: np.ndarray, acc: np.ndarray, gyro:
     data[:, :nj, 60:62] = c[:, None, :]
     for off, v, lsb in ((0, acc, ACC_LSB), (6, gyro, GYRO_LSB)):
         cnt = np.clip(np.rint(v / lsb), -(1 << 15), (1 << 15) - 1)
-        data[:, nj:, off:off + 6] = _pack(cnt, 2).reshape(T, K, 6)
+        data[:, nj:, off : off + 6] = _pack(cnt, 2).reshape(T, K, 6)
     data[:, nj:, 12:14] = c[:, None, :]
     return ids, lengths, data

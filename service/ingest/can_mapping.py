@@ -70,8 +70,11 @@ class SignalMap:
         self.counter_signal = str(counter.get("signal", "counter"))
         self.counter_bits = int(counter.get("bits", 16))
         units = section.get("units", {})
-        factor = {Q: float(units.get("q", 1.0)), ACC: float(units.get("acc", 1.0)),
-                  GYRO: float(units.get("gyro", 1.0))}
+        factor = {
+            Q: float(units.get("q", 1.0)),
+            ACC: float(units.get("acc", 1.0)),
+            GYRO: float(units.get("gyro", 1.0)),
+        }
         jmap: dict = section.get("joints", {})
         imap: dict = section.get("imus", {})
         missing = [j for j in config.joints if j not in jmap] + [i for i in config.imus if i not in imap]
@@ -93,14 +96,16 @@ class SignalMap:
             if sname not in names:
                 raise DeviceConfigError(f"CAN mapping: message {mname!r} has no signal {sname!r}")
             if self.counter_signal not in names:
-                raise DeviceConfigError(f"CAN mapping: message {mname!r} lacks the counter signal "
-                                        f"{self.counter_signal!r}")
+                raise DeviceConfigError(
+                    f"CAN mapping: message {mname!r} lacks the counter signal {self.counter_signal!r}"
+                )
             return msg
 
         def add(ref: str, kind: int, index: int, axis: int) -> int:
             msg = resolve(ref)
-            routes.setdefault(msg.frame_id, []).append((ref.partition(".")[2], kind, index, axis,
-                                                        factor[kind]))
+            routes.setdefault(msg.frame_id, []).append(
+                (ref.partition(".")[2], kind, index, axis, factor[kind])
+            )
             self._messages[msg.frame_id] = msg
             return msg.frame_id
 
@@ -111,8 +116,9 @@ class SignalMap:
         for k, name in enumerate(config.imus):
             spec = imap[name]
             if not (isinstance(spec, dict) and all(len(spec.get(k, ())) == 3 for k in ("acc", "gyro"))):
-                raise DeviceConfigError(f"CAN mapping: IMU {name!r} needs 'acc' and 'gyro' lists of "
-                                        "3 signals")
+                raise DeviceConfigError(
+                    f"CAN mapping: IMU {name!r} needs 'acc' and 'gyro' lists of 3 signals"
+                )
             fids = set()
             for kind, key in ((ACC, "acc"), (GYRO, "gyro")):
                 for axis, ref in enumerate(spec[key]):
@@ -121,8 +127,12 @@ class SignalMap:
                     imus_of.setdefault(fid, set()).add(k)
             self.imu_frames.append(frozenset(fids))
         self.by_id: dict[int, FrameRoute] = {
-            fid: FrameRoute(self._messages[fid], tuple(t), tuple(sorted(joints_of.get(fid, ()))),
-                            tuple(sorted(imus_of.get(fid, ()))))
+            fid: FrameRoute(
+                self._messages[fid],
+                tuple(t),
+                tuple(sorted(joints_of.get(fid, ()))),
+                tuple(sorted(imus_of.get(fid, ()))),
+            )
             for fid, t in routes.items()
         }
         self.joint_frames = frozenset(joints_of)

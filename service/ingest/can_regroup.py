@@ -120,8 +120,9 @@ class SampleAssembler:
 
     Not thread-safe: one thread feeds and takes (the CAN source's reader thread)."""
 
-    def __init__(self, signal_map: SignalMap, horizon: int = 4, reset_after: int = 256,
-                 incomplete: str = "drop") -> None:
+    def __init__(
+        self, signal_map: SignalMap, horizon: int = 4, reset_after: int = 256, incomplete: str = "drop"
+    ) -> None:
         if horizon < 1:
             raise ValueError("horizon must be >= 1")
         if incomplete not in ("drop", "partial"):
@@ -338,8 +339,8 @@ class SampleAssembler:
             V = np.stack([r[1] for r in run])
             sel = np.flatnonzero(mask)
             T = len(run)
-            acc = V[:, N:N + 3 * K].reshape(T, K, 3)[:, sel]
-            gyro = V[:, N + 3 * K:].reshape(T, K, 3)[:, sel]
+            acc = V[:, N : N + 3 * K].reshape(T, K, 3)[:, sel]
+            gyro = V[:, N + 3 * K :].reshape(T, K, 3)[:, sel]
             names = tuple(cfg.imus[s] for s in sel)
             out.append(FrameBatch(cfg.robot, t, cfg.joints, V[:, :N].copy(), names, acc, gyro))
             i = j

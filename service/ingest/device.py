@@ -93,8 +93,13 @@ class DeviceConfig:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"robot": self.robot, "period_s": self.period_s, "joints": list(self.joints),
-                "imus": list(self.imus), **self.extra}
+        return {
+            "robot": self.robot,
+            "period_s": self.period_s,
+            "joints": list(self.joints),
+            "imus": list(self.imus),
+            **self.extra,
+        }
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DeviceConfig:

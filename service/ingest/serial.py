@@ -167,8 +167,12 @@ class SerialSource(Source):
 
     def _sync_counters(self) -> None:
         """Mirror the decoder's and clock's totals into ``counters.extra`` (as increments)."""
-        now = {"crc_errors": self._decoder.crc_errors, "bad_headers": self._decoder.bad_headers,
-               "bytes_discarded": self._decoder.bytes_discarded, "counter_resets": self._clock.resets}
+        now = {
+            "crc_errors": self._decoder.crc_errors,
+            "bad_headers": self._decoder.bad_headers,
+            "bytes_discarded": self._decoder.bytes_discarded,
+            "counter_resets": self._clock.resets,
+        }
         for k, v in now.items():
             d = v - self._synced.get(k, 0)
             if d:
@@ -208,8 +212,9 @@ def config_from_params(params: dict[str, str]) -> DeviceConfig:
     if "config" in params:
         return DeviceConfig.load(params["config"])
     if "robot" not in params:
-        raise DeviceConfigError("give config=PATH (a JSON device description) "
-                                "or robot=NAME&joints=..&imus=..")
+        raise DeviceConfigError(
+            "give config=PATH (a JSON device description) or robot=NAME&joints=..&imus=.."
+        )
 
     def names(key: str) -> tuple[str, ...]:
         return tuple(n for n in params.get(key, "").split(",") if n)

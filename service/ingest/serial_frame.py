@@ -117,15 +117,24 @@ class FrameEncoder:
         self.clipped = 0
         self._dtype = payload_dtype(n_joints, n_imus)
 
-    def encode(self, counter: int, q: Sequence[float] | np.ndarray, acc: np.ndarray | Sequence,
-               gyro: np.ndarray | Sequence) -> bytes:
+    def encode(
+        self,
+        counter: int,
+        q: Sequence[float] | np.ndarray,
+        acc: np.ndarray | Sequence,
+        gyro: np.ndarray | Sequence,
+    ) -> bytes:
         rec = np.zeros((), dtype=self._dtype)
         rec["q"], c1 = quantize(np.reshape(q, (self.n_joints,)), Q_LSB, "<i4")
         rec["acc"], c2 = quantize(np.reshape(acc, (self.n_imus, 3)), ACC_LSB, "<i2")
         rec["gyro"], c3 = quantize(np.reshape(gyro, (self.n_imus, 3)), GYRO_LSB, "<i2")
         self.clipped += c1 + c2 + c3
-        body = HEADER.pack(SYNC, self._dtype.itemsize, self.seq, int(counter) & 0xFFFFFFFF,
-                           self.n_joints, self.n_imus) + rec.tobytes()
+        body = (
+            HEADER.pack(
+                SYNC, self._dtype.itemsize, self.seq, int(counter) & 0xFFFFFFFF, self.n_joints, self.n_imus
+            )
+            + rec.tobytes()
+        )
         self.seq = (self.seq + 1) & 0xFFFF
         return body + CRC.pack(binascii.crc32(body[2:]))
 
@@ -189,22 +198,26 @@ class FrameDecoder:
             if n < end:
                 break
             (crc,) = CRC.unpack_from(buf, end - 4)
-            if binascii.crc32(buf[i + 2:end - 4]) != crc:
+            if binascii.crc32(buf[i + 2 : end - 4]) != crc:
                 self.crc_errors += 1
                 self.bytes_discarded += 1
                 pos = i + 1
                 continue
-            out.append(DecodedFrame(seq, counter, bytes(buf[i + hsize:end - 4])))
+            out.append(DecodedFrame(seq, counter, bytes(buf[i + hsize : end - 4])))
             self.bytes_accepted += flen
             pos = end
         del buf[:pos]
         return out
 
 
-def decode_payloads(payloads: Sequence[bytes], n_joints: int, n_imus: int
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def decode_payloads(
+    payloads: Sequence[bytes], n_joints: int, n_imus: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Payloads of T frames -> ``q`` (T,N) rad, ``acc`` (T,K,3) m/s², ``gyro`` (T,K,3) rad/s, at once."""
     dt = payload_dtype(n_joints, n_imus)
     rec = np.frombuffer(b"".join(payloads), dtype=dt)
-    return (rec["q"].astype(np.float64) * Q_LSB, rec["acc"].astype(np.float64) * ACC_LSB,
-            rec["gyro"].astype(np.float64) * GYRO_LSB)
+    return (
+        rec["q"].astype(np.float64) * Q_LSB,
+        rec["acc"].astype(np.float64) * ACC_LSB,
+        rec["gyro"].astype(np.float64) * GYRO_LSB,
+    )

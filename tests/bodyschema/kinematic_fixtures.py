@@ -33,11 +33,13 @@ def rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:
     q = rng.normal(size=4)
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 class KinematicTree:
@@ -154,8 +156,10 @@ def random_robot_recording(
     if noise:
         deg = np.pi / 180
         for k in range(K):
-            Sg = np.eye(3) + np.diag(rng.uniform(-0.03, 0.03, 3)) + rng.uniform(-0.02, 0.02, (3, 3)) * (
-                1 - np.eye(3)
+            Sg = (
+                np.eye(3)
+                + np.diag(rng.uniform(-0.03, 0.03, 3))
+                + rng.uniform(-0.02, 0.02, (3, 3)) * (1 - np.eye(3))
             )
             Sa = np.eye(3) + np.diag(rng.uniform(-0.03, 0.03, 3))
             gyro_a[:, k] = gyro_a[:, k] @ Sg.T + rng.uniform(-20, 20, 3) * deg

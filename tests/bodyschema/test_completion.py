@@ -126,8 +126,9 @@ def test_complete_square_and_invalid_inputs() -> None:
     D = tree_to_matrix(t)
     c = complete(D)
     assert c.matrix == D and c.unique and c.hidden == ()
-    crossing = DependencyMatrix([[1, 1, 0, 0], [0, 1, 1, 0], [1, 0, 1, 0]], ["a", "b", "c"],
-                                ["e1", "e2", "e3", "e4"])
+    crossing = DependencyMatrix(
+        [[1, 1, 0, 0], [0, 1, 1, 0], [1, 0, 1, 0]], ["a", "b", "c"], ["e1", "e2", "e3", "e4"]
+    )
     with pytest.raises(InvalidMatrixError) as err:
         complete(crossing)
     assert err.value.report.failed == (5,)

@@ -59,8 +59,9 @@ def test_exhaustive_small_matrices_valid_count_is_property_5(n: int) -> None:
     assert int(p.sum()) == count_trees(n)
     if n <= 3:
         names_r, names_c = [f"r{i}" for i in range(n)], [f"c{k}" for k in range(n)]
-        from_trees = {tree_to_matrix(t).reorder(names_r, names_c).values.tobytes()
-                      for t in iter_trees(names_c, names_r)}
+        from_trees = {
+            tree_to_matrix(t).reorder(names_r, names_c).values.tobytes() for t in iter_trees(names_c, names_r)
+        }
         assert from_trees == {m.tobytes() for m in batch[p]}
 
 

@@ -11,14 +11,23 @@ from simulators.recording_io import load_recording, save_recording
 
 def _rec(T=10, N=2, K=3, **kw):
     t = np.arange(T) * 0.01
-    return Recording(t=t, joint_names=[f"j{i}" for i in range(N)], q=np.sin(t)[:, None] * np.ones(N),
-                     imu_names=[f"imu{i}" for i in range(K)], acc=np.ones((T, K, 3)),
-                     gyro=np.zeros((T, K, 3)), **kw)
+    return Recording(
+        t=t,
+        joint_names=[f"j{i}" for i in range(N)],
+        q=np.sin(t)[:, None] * np.ones(N),
+        imu_names=[f"imu{i}" for i in range(K)],
+        acc=np.ones((T, K, 3)),
+        gyro=np.zeros((T, K, 3)),
+        **kw,
+    )
 
 
 def test_recording_roundtrip(tmp_path):
-    rec = _rec(truth_joint_parent=["", "j0"], truth_imu_joint=["j0", "j1", ""],
-               extra={"excitation": np.array([0.1, 0.2])})
+    rec = _rec(
+        truth_joint_parent=["", "j0"],
+        truth_imu_joint=["j0", "j1", ""],
+        extra={"excitation": np.array([0.1, 0.2])},
+    )
     save_recording(rec, tmp_path / "r.npz")
     back = load_recording(tmp_path / "r.npz")
     assert back.joint_names == ("j0", "j1")
@@ -35,13 +44,21 @@ def test_recording_derives_velocity():
 
 @pytest.mark.parametrize(
     ("field", "value", "msg"),
-    [("acc", np.ones((10, 2, 3)), "acc must have shape"),
-     ("q", np.full((10, 2), np.nan), "q contains NaN"),
-     ("t", np.zeros(10), "strictly increasing")],
+    [
+        ("acc", np.ones((10, 2, 3)), "acc must have shape"),
+        ("q", np.full((10, 2), np.nan), "q contains NaN"),
+        ("t", np.zeros(10), "strictly increasing"),
+    ],
 )
 def test_recording_rejects_bad_input(field, value, msg):
-    kw = {"t": np.arange(10) * 0.01, "joint_names": ["a", "b"], "q": np.zeros((10, 2)),
-          "imu_names": ["i0", "i1", "i2"], "acc": np.zeros((10, 3, 3)), "gyro": np.zeros((10, 3, 3))}
+    kw = {
+        "t": np.arange(10) * 0.01,
+        "joint_names": ["a", "b"],
+        "q": np.zeros((10, 2)),
+        "imu_names": ["i0", "i1", "i2"],
+        "acc": np.zeros((10, 3, 3)),
+        "gyro": np.zeros((10, 3, 3)),
+    }
     kw[field] = value
     with pytest.raises(RecordingError, match=msg):
         Recording(**kw)
@@ -54,11 +71,18 @@ def test_load_rejects_non_recording(tmp_path):
 
 
 def test_topology_json_roundtrip_and_checks():
-    topo = Topology(joint_parent={"j1": None, "j2": "j1", "j3": "j1"}, imu_joint={"a": "j2", "b": None},
-                    unique=False, confidence={"imu:a": 0.9}, method="fast", seconds=0.5,
-                    undetermined=("j3",),
-                    candidates=(Topology(joint_parent={"j1": None, "j2": "j1", "j3": "j2"},
-                                         imu_joint={"a": "j2", "b": None}),))
+    topo = Topology(
+        joint_parent={"j1": None, "j2": "j1", "j3": "j1"},
+        imu_joint={"a": "j2", "b": None},
+        unique=False,
+        confidence={"imu:a": 0.9},
+        method="fast",
+        seconds=0.5,
+        undetermined=("j3",),
+        candidates=(
+            Topology(joint_parent={"j1": None, "j2": "j1", "j3": "j2"}, imu_joint={"a": "j2", "b": None}),
+        ),
+    )
     data = json.loads(json.dumps(topo.to_json()))
     assert data["joints"]["j2"] == {"parent": "j1"}
     assert data["insufficient_excitation"] == ["j3"]
@@ -73,8 +97,10 @@ def test_topology_json_roundtrip_and_checks():
 
 def test_diff_json():
     d = Diff(findings=(Finding(kind="insufficient_excitation", joint="j2"),))
-    assert d.to_json() == {"changed": False, "findings": [
-        {"kind": "insufficient_excitation", "joint": "j2", "confidence": 1.0}]}
+    assert d.to_json() == {
+        "changed": False,
+        "findings": [{"kind": "insufficient_excitation", "joint": "j2", "confidence": 1.0}],
+    }
     d2 = Diff(findings=(Finding(kind="imu_moved", imu="imu3", from_="j2", to="j4", confidence=0.97),))
     assert d2.to_json()["changed"] is True
     assert Diff.from_json(d2.to_json()) == d2

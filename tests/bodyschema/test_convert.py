@@ -42,7 +42,13 @@ def test_matrix_to_tree_rejects_invalid_and_partial() -> None:
     with pytest.raises(InvalidMatrixError) as err:
         matrix_to_tree(bad)
     assert err.value.report.failed == (5,)
-    partial = DependencyMatrix([[1, 0], ], ["a"], ["e1", "e2"])
+    partial = DependencyMatrix(
+        [
+            [1, 0],
+        ],
+        ["a"],
+        ["e1", "e2"],
+    )
     with pytest.raises(InvalidMatrixError) as err:
         matrix_to_tree(partial)
     assert 0 in err.value.report.failed
@@ -84,7 +90,10 @@ def test_networkx_graph() -> None:
     g = tree_to_networkx(chain_and_branch())
     assert g.graph["root"] == "base"
     assert set(g.edges(data="joint")) == {
-        ("base", "a", "j1"), ("a", "b", "j2"), ("a", "c", "j3"), ("b", "d", "j4")
+        ("base", "a", "j1"),
+        ("a", "b", "j2"),
+        ("a", "c", "j3"),
+        ("b", "d", "j4"),
     }
     assert g.nodes["d"]["depth"] == 3 and g.nodes["base"]["kind"] == "root"
     import networkx as nx

@@ -59,8 +59,11 @@ def test_distance_equals_brute_force_for_small_n(n: int, rng: np.random.Generato
             t = random_tree(n, rng, nodes=[f"s{i}" for i in range(n)])
             D = _flip(rng, tree_to_matrix(t), max(1, n // 4))
         else:  # any binary matrix
-            D = DependencyMatrix(rng.random((n, n)) < rng.uniform(0.2, 0.8), [f"s{i}" for i in range(n)],
-                                 [f"j{i}" for i in range(n)])
+            D = DependencyMatrix(
+                rng.random((n, n)) < rng.uniform(0.2, 0.8),
+                [f"s{i}" for i in range(n)],
+                [f"j{i}" for i in range(n)],
+            )
         fix = correct(D, beam=16)
         assert fix.distance == brute_force_distance(D), D
         assert all(check_p(c).ok and D.hamming(c) == fix.distance for c in fix.candidates)
@@ -116,8 +119,11 @@ def test_exact_milp_equals_brute_force(n: int, rng: np.random.Generator) -> None
             t = random_tree(n, rng, nodes=[f"s{i}" for i in range(n)])
             D = _flip(rng, tree_to_matrix(t), int(rng.integers(1, n // 2 + 2)))
         else:  # any binary matrix (dense ones take the MILP many rounds: kept small)
-            D = DependencyMatrix(rng.random((n, n)) < rng.uniform(0.2, 0.8), [f"s{i}" for i in range(n)],
-                                 [f"j{i}" for i in range(n)])
+            D = DependencyMatrix(
+                rng.random((n, n)) < rng.uniform(0.2, 0.8),
+                [f"s{i}" for i in range(n)],
+                [f"j{i}" for i in range(n)],
+            )
         v = D.values
         res = nearest_tree_matrix(v)
         best = brute_force_distance(D)

@@ -89,8 +89,16 @@ def test_delta_keeps_a_weak_dependency_shared_by_a_link():
     """Measured features of a 3-joint robot (2 IMUs per link): the first two IMUs ride a link two
     joints down, so their dependency on the upper joint is weak (0.18-0.20) but shared; the noise
     floor is below 0.04. Two empty bands are equally wide; the lower one is the noise floor."""
-    feats = np.array([[0.982, 0.038, 0.183], [0.002, 0.009, 1.0], [0.978, 0.034, 0.204],
-                      [0.002, 1.0, 0.004], [0.002, 0.004, 1.0], [0.008, 1.0, 0.027]])
+    feats = np.array(
+        [
+            [0.982, 0.038, 0.183],
+            [0.002, 0.009, 1.0],
+            [0.978, 0.034, 0.204],
+            [0.002, 1.0, 0.004],
+            [0.002, 0.004, 1.0],
+            [0.008, 1.0, 0.027],
+        ]
+    )
     truth = np.array([[1, 0, 1], [0, 0, 1], [1, 0, 1], [0, 1, 0], [0, 0, 1], [0, 1, 0]], dtype=bool)
     delta, _ = choose_delta(feats, rng=np.random.default_rng(0))
     assert 0.04 < delta < 0.18
@@ -100,8 +108,16 @@ def test_delta_keeps_a_weak_dependency_shared_by_a_link():
 def test_a_lone_spurious_entry_does_not_set_delta():
     """One IMU's network picked up 0.122 on a joint its link-mate shows at 0.028: δ must stay in the
     band between that and the weakest true dependency, not drop to the narrow band under 0.028."""
-    feats = np.array([[0.575, 0.818, 0.001], [1.0, 0.01, 0.001], [1.0, 0.016, 0.002],
-                      [0.837, 0.028, 0.547], [0.67, 0.742, 0.003], [0.256, 0.122, 0.959]])
+    feats = np.array(
+        [
+            [0.575, 0.818, 0.001],
+            [1.0, 0.01, 0.001],
+            [1.0, 0.016, 0.002],
+            [0.837, 0.028, 0.547],
+            [0.67, 0.742, 0.003],
+            [0.256, 0.122, 0.959],
+        ]
+    )
     delta, _ = choose_delta(feats, rng=np.random.default_rng(0))
     assert 0.122 < delta < 0.256
 

@@ -54,8 +54,10 @@ def test_pack_unpack_round_trip_and_bad_names(rng) -> None:
     x = rng.normal(size=pack({}, names).size)
     assert np.allclose(pack(unpack(x, names), names), x)
     with pytest.raises(ValueError, match="unknown effects"):
-        predict(reference_motion(np.arange(5) * 0.1, np.tile([1.0, 0, 0, 0], (5, 1)), np.zeros((5, 3))),
-                {"warp": {}})
+        predict(
+            reference_motion(np.arange(5) * 0.1, np.tile([1.0, 0, 0, 0], (5, 1)), np.zeros((5, 3))),
+            {"warp": {}},
+        )
     with pytest.raises(ValueError, match="needs 3 values"):
         EFFECTS["gyro_bias"].from_params({"vector": [1.0, 2.0]})
 
@@ -84,8 +86,16 @@ def test_residual_structure_points_at_the_cause(motion) -> None:
 
 def test_estimator_api(motion) -> None:
     g = motion["gyro"] + [0.0, 0.0, 0.05]
-    rec = Recording(t=motion["t"], joint_names=(), q=None, imu_names=("imu0",), acc=motion["acc"][:, None],
-                    gyro=g[:, None], ref_quat=motion["quat"], ref_pos=motion["pos"])
+    rec = Recording(
+        t=motion["t"],
+        joint_names=(),
+        q=None,
+        imu_names=("imu0",),
+        acc=motion["acc"][:, None],
+        gyro=g[:, None],
+        ref_quat=motion["quat"],
+        ref_pos=motion["pos"],
+    )
     est = DiscrepancyAnalyzer(n_blocks=6)
     assert est.fit(rec) is est
     assert est.causes_ == ["gyro_bias"]

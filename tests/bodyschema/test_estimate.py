@@ -18,8 +18,15 @@ def test_unknown_method_and_missing_positions_are_refused(rng):
     rec = random_robot_recording(rng, n_joints=3, seconds=2.0)
     with pytest.raises(ValueError, match="unknown method"):
         estimate_topology(rec, method="magic")
-    no_q = Recording(t=rec.t, joint_names=rec.joint_names, q=None, imu_names=rec.imu_names, acc=rec.acc,
-                     gyro=rec.gyro, ref_quat=np.tile([1.0, 0, 0, 0], (rec.n_samples, 1)))
+    no_q = Recording(
+        t=rec.t,
+        joint_names=rec.joint_names,
+        q=None,
+        imu_names=rec.imu_names,
+        acc=rec.acc,
+        gyro=rec.gyro,
+        ref_quat=np.tile([1.0, 0, 0, 0], (rec.n_samples, 1)),
+    )
     with pytest.raises(ValueError, match="joint positions"):
         estimate_topology(no_q)
     assert METHODS == ("fast", "network", "network-paper", "mlp")
@@ -32,8 +39,9 @@ def test_truth_is_never_read(rng):
     assert a.same_structure(b)
     assert a.method == "fast" and a.seconds > 0 and b.seconds == 0.0
     assert set(a.excitation) == set(rec.joint_names)
-    np.testing.assert_allclose([a.excitation[j] for j in rec.joint_names],
-                               np.sqrt(np.mean(rec.qd**2, axis=0)))
+    np.testing.assert_allclose(
+        [a.excitation[j] for j in rec.joint_names], np.sqrt(np.mean(rec.qd**2, axis=0))
+    )
 
 
 def test_dependency_rows_merge_and_complete():
@@ -67,8 +75,9 @@ def test_dependency_shape_is_checked():
 def test_a_noisy_matrix_is_corrected_to_the_nearest_tree():
     # chain j1 -> j2 -> j3 with one IMU per link; IMU c's row lost its j2 entry (a false 0)
     D = np.array([[1, 0, 0], [1, 1, 0], [1, 0, 1]], dtype=bool)
-    topo = topology_from_dependency(D, ["a", "b", "c"], ["j1", "j2", "j3"],
-                                    imu_confidence={"a": 1.0, "b": 1.0, "c": 1.0})
+    topo = topology_from_dependency(
+        D, ["a", "b", "c"], ["j1", "j2", "j3"], imu_confidence={"a": 1.0, "b": 1.0, "c": 1.0}
+    )
     # one flip away: either j3 hangs on j2 (c's row was missing j2) or on j1 (a sibling of j2)
     assert topo.joint_parent["j1"] is None and topo.joint_parent["j2"] == "j1"
     assert topo.imu_joint == {"a": "j1", "b": "j2", "c": "j3"}

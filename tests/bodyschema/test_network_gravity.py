@@ -15,7 +15,10 @@ from simulators.simulation import simulate
 def test_topology_accuracy_counts_parents_and_imus() -> None:
     truth_p, truth_i = {"a": None, "b": "a", "c": "b"}, {"i0": "a", "i1": "b", "i2": "c", "i3": None}
     assert topology_accuracy(truth_p, truth_i, truth_p, truth_i) == {
-        "exact": True, "joint_parent": 1.0, "imu_joint": 1.0}
+        "exact": True,
+        "joint_parent": 1.0,
+        "imu_joint": 1.0,
+    }
     acc = topology_accuracy({"a": None, "b": None, "c": "b"}, {**truth_i, "i2": "b"}, truth_p, truth_i)
     assert acc == {"exact": False, "joint_parent": pytest.approx(2 / 3), "imu_joint": 0.75}
 

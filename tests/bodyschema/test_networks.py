@@ -71,8 +71,18 @@ def test_threads_default_to_one(monkeypatch):
 
 def test_training_lowers_the_loss(rng):
     rec = random_robot_recording(rng, n_joints=2, seconds=5.0).derived()
-    _, hist = train_sensor_networks(rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, rec.gravity,
-                                    hidden=(16, 16, 16), epochs=10, batch_size=64, seed=1)
+    _, hist = train_sensor_networks(
+        rec.q,
+        rec.qd,
+        rec.qdd,
+        rec.gyro,
+        rec.acc,
+        rec.gravity,
+        hidden=(16, 16, 16),
+        epochs=10,
+        batch_size=64,
+        seed=1,
+    )
     assert hist[-1] < 0.1 * hist[0]
 
 
@@ -85,8 +95,14 @@ def test_networks_recover_a_small_robot_exactly():
     noise floor, or features of two links too close to split), so a random draw would make this test
     fail by chance rather than by regression. The catalog robots (12 IMUs per link, 60 s) are
     measured by ``bodyhealth bench topology``."""
-    rec = random_robot_recording(np.random.default_rng(1), n_joints=3, seconds=20.0, imus_per_link=(2, 2),
-                                 base_imus=0, parent=[-1, 0, 0])
+    rec = random_robot_recording(
+        np.random.default_rng(1),
+        n_joints=3,
+        seconds=20.0,
+        imus_per_link=(2, 2),
+        base_imus=0,
+        parent=[-1, 0, 0],
+    )
     jbar, _ = network_jacobian(rec, kind="network", epochs=40, seed=0)
     res = dependency_from_jacobian(jbar, "moment", rng=np.random.default_rng(0))
     np.testing.assert_array_equal(res.dependency, truth_dependency(rec))

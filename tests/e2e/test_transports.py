@@ -43,11 +43,31 @@ def recording_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Path, tmp_path: Path) -> None:
     rec = load_recording(recording_path)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.emulators", kind, "--recording", str(recording_path),
-         "--robot", "ur5e", "--speed", "0", "--linger", "120", "--config-out", str(tmp_path / "ur5e.json")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    settings = Settings(database_url=f"sqlite:///{tmp_path / 'e2e.db'}", window_seconds=rec.duration + 1.0,
-                        retention_seconds=3600.0)
+        [
+            sys.executable,
+            "-m",
+            "service.emulators",
+            kind,
+            "--recording",
+            str(recording_path),
+            "--robot",
+            "ur5e",
+            "--speed",
+            "0",
+            "--linger",
+            "120",
+            "--config-out",
+            str(tmp_path / "ur5e.json"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path / 'e2e.db'}",
+        window_seconds=rec.duration + 1.0,
+        retention_seconds=3600.0,
+    )
     store = Store(settings=settings)
     source = None
     try:
@@ -98,20 +118,48 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
     emulators, specs = [], []
     for kind in ("can", "serial"):
         p = subprocess.Popen(
-            [sys.executable, "-m", "service.emulators", kind, "--recording", str(recording_path),
-             "--robot", f"arm-{kind}", "--speed", "0", "--linger", "120",
-             "--config-out", str(tmp_path / f"{kind}.json")],
-            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            [
+                sys.executable,
+                "-m",
+                "service.emulators",
+                kind,
+                "--recording",
+                str(recording_path),
+                "--robot",
+                f"arm-{kind}",
+                "--speed",
+                "0",
+                "--linger",
+                "120",
+                "--config-out",
+                str(tmp_path / f"{kind}.json"),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
         emulators.append(p)
         assert p.stdout is not None
         specs.append(dict(kv.split("=", 1) for kv in p.stdout.readline().split())["source"])
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    env = {**os.environ, "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
-           "BODYHEALTH_WINDOW_SECONDS": str(rec.duration + 1.0)}
-    cmd = [sys.executable, "-m", "service", "serve", "--port", str(port), "--text-logs",
-           "--database-url", f"sqlite:///{tmp_path / 'serve.db'}"]
+    env = {
+        **os.environ,
+        "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
+        "BODYHEALTH_WINDOW_SECONDS": str(rec.duration + 1.0),
+    }
+    cmd = [
+        sys.executable,
+        "-m",
+        "service",
+        "serve",
+        "--port",
+        str(port),
+        "--text-logs",
+        "--database-url",
+        f"sqlite:///{tmp_path / 'serve.db'}",
+    ]
     for spec in specs:
         cmd += ["--source", spec]
     err = (tmp_path / "serve.err").open("w")

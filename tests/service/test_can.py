@@ -90,7 +90,7 @@ def test_fd_layout_agrees_with_cantools_and_regroups(rng):
     db = load_project_database()
     for t in range(T):
         for f, fid in enumerate(ids.tolist()):
-            v = db.decode_message(fid, data[t, f, :lengths[f]].tobytes())
+            v = db.decode_message(fid, data[t, f, : lengths[f]].tobytes())
             assert v["counter"] == (65530 + t) % 65536
             if fid >= FD_IMU_BASE:
                 kk = fid - FD_IMU_BASE
@@ -100,11 +100,14 @@ def test_fd_layout_agrees_with_cantools_and_regroups(rng):
                 j = 15 * (fid - 0x200) + 14
                 if j < n:
                     assert abs(v["q14"] - q[t, j]) <= Q_LSB / 2 + 1e-12
-    cfg = DeviceConfig("fd", 0.01, [f"j{i}" for i in range(n)], [f"i{i}" for i in range(k)],
-                       {"can": {"layout": "fd"}})
+    cfg = DeviceConfig(
+        "fd", 0.01, [f"j{i}" for i in range(n)], [f"i{i}" for i in range(k)], {"can": {"layout": "fd"}}
+    )
     asm = SampleAssembler(SignalMap.for_config(cfg))
-    asm.add_many([int(i) for t in range(T) for i in ids],
-                 [data[t, f, :lengths[f]].tobytes() for t in range(T) for f in range(len(ids))])
+    asm.add_many(
+        [int(i) for t in range(T) for i in ids],
+        [data[t, f, : lengths[f]].tobytes() for t in range(T) for f in range(len(ids))],
+    )
     (batch,) = asm.take(flush=True)
     np.testing.assert_allclose(batch.t, (np.arange(T) + 65530) * 0.01)
     np.testing.assert_allclose(batch.q, q, atol=Q_LSB / 2 + 1e-12)
@@ -129,9 +132,18 @@ BO_ 101 Wide: 8 DEV
  SG_ counter : 48|16@1+ (1,0) [0|0] "" Vector__XXX
 """
     db = cantools.database.load_string(dbc, "dbc")
-    cfg = DeviceConfig("mix", 0.01, ["a", "b", "c", "w"], [],
-                       {"can": {"counter": {"signal": "counter", "bits": 8},
-                                "joints": {"a": "Mixed.a", "b": "Mixed.b", "c": "Mixed.c", "w": "Wide.w"}}})
+    cfg = DeviceConfig(
+        "mix",
+        0.01,
+        ["a", "b", "c", "w"],
+        [],
+        {
+            "can": {
+                "counter": {"signal": "counter", "bits": 8},
+                "joints": {"a": "Mixed.a", "b": "Mixed.b", "c": "Mixed.c", "w": "Wide.w"},
+            }
+        },
+    )
     asm = SampleAssembler(SignalMap(db, cfg, cfg.extra["can"]), horizon=1)
     T = 200
     mixed = [bytearray(rng.integers(0, 256, 6, dtype=np.uint8).tobytes()) for _ in range(T)]
@@ -144,8 +156,12 @@ BO_ 101 Wide: 8 DEV
     datas = [d for pair in zip(mixed, wide, strict=True) for d in pair]
     asm.add_many(ids, datas)
     (batch,) = asm.take(flush=True)
-    ref = np.array([[db.decode_message(100, bytes(m))[s] for s in "abc"]
-                    + [db.decode_message(101, bytes(w))["w"]] for m, w in zip(mixed, wide, strict=True)])
+    ref = np.array(
+        [
+            [db.decode_message(100, bytes(m))[s] for s in "abc"] + [db.decode_message(101, bytes(w))["w"]]
+            for m, w in zip(mixed, wide, strict=True)
+        ]
+    )
     np.testing.assert_allclose(batch.q, ref, rtol=0, atol=1e-9)
 
 
@@ -177,12 +193,24 @@ BO_ 1281 ImuAll: 8 DEV
  SG_ SeqCnt : 56|8@1+ (1,0) [0|255] "" Vector__XXX
 """
     (tmp_path / "dev.dbc").write_text(dbc)
-    cfg = {"robot": "rover", "period_s": 0.005, "joints": ["hip"], "imus": ["thigh"],
-           "can": {"dbc": "dev.dbc", "counter": {"signal": "SeqCnt", "bits": 8},
-                   "joints": {"hip": "EncHip.Angle"},
-                   "imus": {"thigh": {"acc": ["ImuAll.Zero", "ImuAll.Zero", "ImuAll.AccZ"],
-                                      "gyro": ["ImuAll.RateX", "ImuAll.Zero", "ImuAll.Zero"]}},
-                   "units": {"q": np.pi / 180, "acc": 9.80665, "gyro": np.pi / 180}}}
+    cfg = {
+        "robot": "rover",
+        "period_s": 0.005,
+        "joints": ["hip"],
+        "imus": ["thigh"],
+        "can": {
+            "dbc": "dev.dbc",
+            "counter": {"signal": "SeqCnt", "bits": 8},
+            "joints": {"hip": "EncHip.Angle"},
+            "imus": {
+                "thigh": {
+                    "acc": ["ImuAll.Zero", "ImuAll.Zero", "ImuAll.AccZ"],
+                    "gyro": ["ImuAll.RateX", "ImuAll.Zero", "ImuAll.Zero"],
+                }
+            },
+            "units": {"q": np.pi / 180, "acc": 9.80665, "gyro": np.pi / 180},
+        },
+    }
     (tmp_path / "rover.json").write_text(json.dumps(cfg))
     src = open_from_spec(f"virtual:user-dbc?config={tmp_path / 'rover.json'}")
     tx = can.Bus(interface="virtual", channel="user-dbc")
@@ -191,11 +219,20 @@ BO_ 1281 ImuAll: 8 DEV
     db = cantools.database.load_file(str(tmp_path / "dev.dbc"))
     hip = rng.uniform(-170, 170, 300)
     for i in range(300):  # counter wraps at 256
-        tx.send(can.Message(arbitration_id=1280, is_extended_id=False,
-                            data=db.encode_message(1280, {"Angle": hip[i], "SeqCnt": i % 256})))
-        tx.send(can.Message(arbitration_id=1281, is_extended_id=False,
-                            data=db.encode_message(1281, {"AccZ": 1.0, "RateX": 90.0, "Zero": 0,
-                                                          "SeqCnt": i % 256})))
+        tx.send(
+            can.Message(
+                arbitration_id=1280,
+                is_extended_id=False,
+                data=db.encode_message(1280, {"Angle": hip[i], "SeqCnt": i % 256}),
+            )
+        )
+        tx.send(
+            can.Message(
+                arbitration_id=1281,
+                is_extended_id=False,
+                data=db.encode_message(1281, {"AccZ": 1.0, "RateX": 90.0, "Zero": 0, "SeqCnt": i % 256}),
+            )
+        )
     batches = _collect(src, lambda out: sum(b.n_samples for b in out) >= 300)
     src.close()
     tx.shutdown()
@@ -217,10 +254,11 @@ def test_faults_are_counted_and_never_stored(rng, policy):
     q, acc, gyro = _data(rng, T)
     ids, data = encode_samples(np.arange(T) + 1000, q, acc, gyro)
     F = len(ids)
-    src = CanSource(CFG, lambda: can.Bus(interface="virtual", channel=channel), idle_flush_s=0.2,
-                    incomplete=policy)
+    src = CanSource(
+        CFG, lambda: can.Bus(interface="virtual", channel=channel), idle_flush_s=0.2, incomplete=policy
+    )
     tx = can.Bus(interface="virtual", channel=channel)
-    lost = rng.random((T, F)) < 0.01          # 1 % of frames never arrive
+    lost = rng.random((T, F)) < 0.01  # 1 % of frames never arrive
     short = (rng.random((T, F)) < 0.003) & ~lost  # these arrive with a short DLC instead
     n_err = n_remote = n_unknown = 0
     for t in range(T):
@@ -230,8 +268,9 @@ def test_faults_are_counted_and_never_stored(rng, policy):
                 tx.send(can.Message(is_error_frame=True, arbitration_id=0x004, data=bytes(8)))
                 n_err += 1
             elif r < 0.015:
-                tx.send(can.Message(arbitration_id=int(ids[f]), is_remote_frame=True, dlc=8,
-                                    is_extended_id=False))
+                tx.send(
+                    can.Message(arbitration_id=int(ids[f]), is_remote_frame=True, dlc=8, is_extended_id=False)
+                )
                 n_remote += 1
             elif r < 0.02:
                 tx.send(can.Message(arbitration_id=0x555, data=data[t, f].tobytes(), is_extended_id=False))
@@ -243,9 +282,15 @@ def test_faults_are_counted_and_never_stored(rng, policy):
     missing = lost | short
     joint_cols = np.flatnonzero(ids < IMU_ACC_BASE)
     dropped = missing[:, joint_cols].any(axis=1) if policy == "partial" else missing.any(axis=1)
-    imu_missing = np.stack([missing[:, [np.flatnonzero(ids == IMU_ACC_BASE + k)[0],
-                                        np.flatnonzero(ids == 0x180 + k)[0]]].any(axis=1)
-                            for k in range(N_I)], axis=1)
+    imu_missing = np.stack(
+        [
+            missing[:, [np.flatnonzero(ids == IMU_ACC_BASE + k)[0], np.flatnonzero(ids == 0x180 + k)[0]]].any(
+                axis=1
+            )
+            for k in range(N_I)
+        ],
+        axis=1,
+    )
     incomplete = ~dropped & imu_missing.any(axis=1)
     want = int((~dropped).sum())
     batches = _collect(src, lambda out: sum(b.n_samples for b in out) >= want)
@@ -329,8 +374,9 @@ def test_bus_off_and_bus_error_reconnect(rng):
     def send(lo, hi):
         for t in range(lo, hi):
             for f in range(len(ids)):
-                tx.send(can.Message(arbitration_id=int(ids[f]), data=data[t, f].tobytes(),
-                                    is_extended_id=False))
+                tx.send(
+                    can.Message(arbitration_id=int(ids[f]), data=data[t, f].tobytes(), is_extended_id=False)
+                )
 
     send(0, 100)
     got = _collect(src, lambda out: sum(b.n_samples for b in out) >= 100)
@@ -361,8 +407,17 @@ def test_buffered_slcan_parses_every_line_kind_and_survives_garbage():
             pass
         fd_data = bytes(range(16))
         bus.serialPortOrig.write(
-            b"t1232AABB\r" + b"T1ABCDEF03112233\r" + b"r1230\r" + b"\a" + b"t12\r" + b"tZZZ8\r"
-            + b"d123A" + fd_data.hex().upper().encode() + b"\r" + b"t7FF0\r")
+            b"t1232AABB\r"
+            + b"T1ABCDEF03112233\r"
+            + b"r1230\r"
+            + b"\a"
+            + b"t12\r"
+            + b"tZZZ8\r"
+            + b"d123A"
+            + fd_data.hex().upper().encode()
+            + b"\r"
+            + b"t7FF0\r"
+        )
         got: list[can.Message] = []
         for _ in range(20):
             m = bus.recv(0.1)

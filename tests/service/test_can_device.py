@@ -17,8 +17,12 @@ from service.ingest.device import DeviceClock, DeviceConfig, DeviceConfigError
 
 
 @settings(max_examples=200, deadline=None)
-@given(bits=st.sampled_from([8, 16, 32]), start=st.integers(0, 2**32),
-       steps=st.lists(st.integers(-300, 300), min_size=1, max_size=60), split=st.integers(0, 60))
+@given(
+    bits=st.sampled_from([8, 16, 32]),
+    start=st.integers(0, 2**32),
+    steps=st.lists(st.integers(-300, 300), min_size=1, max_size=60),
+    split=st.integers(0, 60),
+)
 def test_vectorised_unwrap_equals_one_by_one(bits, start, steps, split):
     """index_many gives exactly what index gives frame by frame, batches cut anywhere, restarts included."""
     raw = (start + np.cumsum(steps)) % (1 << bits)

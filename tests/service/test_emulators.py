@@ -19,9 +19,14 @@ from simulators.recording_io import save_recording
 
 
 def _rec(rng, T, n=6, k=12):
-    return Recording(t=np.arange(T) * 0.01 + 2.0, joint_names=[f"j{i}" for i in range(n)],
-                     q=rng.uniform(-3, 3, (T, n)), imu_names=[f"imu{i}" for i in range(k)],
-                     acc=rng.normal(0, 10, (T, k, 3)), gyro=rng.normal(0, 2, (T, k, 3)))
+    return Recording(
+        t=np.arange(T) * 0.01 + 2.0,
+        joint_names=[f"j{i}" for i in range(n)],
+        q=rng.uniform(-3, 3, (T, n)),
+        imu_names=[f"imu{i}" for i in range(k)],
+        acc=rng.normal(0, 10, (T, k, 3)),
+        gyro=rng.normal(0, 2, (T, k, 3)),
+    )
 
 
 def test_slcan_adapter_answers_commands_and_streams_only_when_open(rng):
@@ -82,9 +87,24 @@ def test_command_line_prints_a_usable_source_spec(tmp_path, rng):
     rec = _rec(rng, 200, n=2, k=3)
     save_recording(rec, tmp_path / "r.npz")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.emulators", "serial", "--recording", str(tmp_path / "r.npz"),
-         "--robot", "bench-arm", "--speed", "0", "--linger", "5"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "service.emulators",
+            "serial",
+            "--recording",
+            str(tmp_path / "r.npz"),
+            "--robot",
+            "bench-arm",
+            "--speed",
+            "0",
+            "--linger",
+            "5",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         fields = dict(kv.split("=", 1) for kv in line.split())

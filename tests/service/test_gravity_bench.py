@@ -39,8 +39,9 @@ def test_kept_runs_are_reported_not_retrained(tmp_path, monkeypatch) -> None:
 
 @pytest.mark.slow
 def test_a_short_run_names_gravity_on_the_kinematics(tmp_path) -> None:
-    md = bench.run(_args("--robots", "ur5e", "--seeds", "3", "--seconds", "12", "--epochs", "3",
-                         "--out", str(tmp_path)))
+    md = bench.run(
+        _args("--robots", "ur5e", "--seeds", "3", "--seconds", "12", "--epochs", "3", "--out", str(tmp_path))
+    )
     (d,) = json.loads((tmp_path / "gravity.json").read_text())
     assert (d["robot"], d["seed"], d["settings"]["seconds"], d["settings"]["epochs"]) == ("ur5e", 3, 12.0, 3)
     # the kinematic reference lacks only gravity (Eq. 11): whatever the networks learned in 3 epochs,

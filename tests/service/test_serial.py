@@ -15,10 +15,14 @@ from service.ingest.serial_frame import ACC_LSB, Q_LSB, FrameEncoder
 
 
 def _rec(rng, T, n=3, k=4):
-    return Recording(t=np.arange(T) * 0.01, joint_names=[f"j{i}" for i in range(n)],
-                     q=rng.uniform(-3, 3, (T, n)), imu_names=[f"imu{i}" for i in range(k)],
-                     acc=rng.normal(0, 10, (T, k, 3)),
-                     gyro=rng.normal(0, 2, (T, k, 3)))
+    return Recording(
+        t=np.arange(T) * 0.01,
+        joint_names=[f"j{i}" for i in range(n)],
+        q=rng.uniform(-3, 3, (T, n)),
+        imu_names=[f"imu{i}" for i in range(k)],
+        acc=rng.normal(0, 10, (T, k, 3)),
+        gyro=rng.normal(0, 2, (T, k, 3)),
+    )
 
 
 def test_stale_and_restarted_counters_keep_time_increasing():

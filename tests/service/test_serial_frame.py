@@ -79,7 +79,7 @@ def _reference_rejections(stream: bytes, accepted_spans: list[tuple[int, int]], 
         if length != plen or nj != N_J or ni != N_I:
             bad += 1
             continue
-        body = stream[p + 2:p + flen - 4]
+        body = stream[p + 2 : p + flen - 4]
         (crc,) = struct.unpack_from("<I", stream, p + flen - 4)
         assert binascii.crc32(body) != crc, "a forged frame with a valid CRC: the test data is unlucky"
         crc_err += 1
@@ -117,7 +117,7 @@ def test_fuzz_garbage_bit_flips_random_reads(seed):
                 n_forged += 1
             parts.append(g)
             pos += len(g)
-        body = HEADER.pack(SYNC, plen, i & 0xFFFF, i, N_J, N_I) + raw[i * plen:(i + 1) * plen]
+        body = HEADER.pack(SYNC, plen, i & 0xFFFF, i, N_J, N_I) + raw[i * plen : (i + 1) * plen]
         frame = body + struct.pack("<I", binascii.crc32(body[2:]))
         parts.append(frame)
         spans.append((pos, pos + flen))
@@ -143,7 +143,7 @@ def test_fuzz_garbage_bit_flips_random_reads(seed):
     off = 0
     while off < len(stream):
         size = int(np.exp(rng.uniform(0, np.log(8192))))
-        for batch in src.decode(stream[off:off + size]):
+        for batch in src.decode(stream[off : off + size]):
             got_t.append(batch.t)
             got_q.append(batch.q)
             got_acc.append(batch.acc)

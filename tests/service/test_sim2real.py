@@ -29,8 +29,14 @@ def _recording(rng: np.random.Generator, hidden: dict | None = None, seconds: fl
     m = {k: (v[::8] if v.ndim and v.shape[0] == m["t"].shape[0] else v) for k, v in m.items()}
     gyro, acc = gyro[::8], acc[::8]
     return Recording(
-        t=m["t"], joint_names=(), q=None, imu_names=("imu0",), acc=acc[:, None], gyro=gyro[:, None],
-        ref_quat=m["quat"], ref_pos=m["pos"],
+        t=m["t"],
+        joint_names=(),
+        q=None,
+        imu_names=("imu0",),
+        acc=acc[:, None],
+        gyro=gyro[:, None],
+        ref_quat=m["quat"],
+        ref_pos=m["pos"],
         extra={"ref_valid": np.ones(m["t"].shape[0], dtype=bool), "attribution": np.array("synthetic")},
     )
 
@@ -58,8 +64,17 @@ def test_cli_names_the_causes_writes_model_report_and_transfers(
     fit_rec, other = _recording(rng, HIDDEN), _recording(rng, HIDDEN)
     save_recording(fit_rec, tmp_path / "fit.npz")
     save_recording(other, tmp_path / "other.npz")
-    args = ["sim2real", str(tmp_path / "fit.npz"), "--json", "--out", str(tmp_path / "imu.json"),
-            "--report", str(tmp_path / "rep"), "--transfer", str(tmp_path / "other.npz")]
+    args = [
+        "sim2real",
+        str(tmp_path / "fit.npz"),
+        "--json",
+        "--out",
+        str(tmp_path / "imu.json"),
+        "--report",
+        str(tmp_path / "rep"),
+        "--transfer",
+        str(tmp_path / "other.npz"),
+    ]
     assert main(args) == 0
     doc = json.loads(capsys.readouterr().out)
     assert {c["effect"] for c in doc["causes"]} == set(HIDDEN)
@@ -87,8 +102,14 @@ def test_transfer_of_the_ideal_model_gains_nothing(rng: np.random.Generator) -> 
 def test_cli_refuses_a_recording_without_reference(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    rec = Recording(t=np.arange(50) * 0.01, joint_names=("j1",), q=np.zeros((50, 1)), imu_names=("imu0",),
-                    acc=np.zeros((50, 1, 3)), gyro=np.zeros((50, 1, 3)))
+    rec = Recording(
+        t=np.arange(50) * 0.01,
+        joint_names=("j1",),
+        q=np.zeros((50, 1)),
+        imu_names=("imu0",),
+        acc=np.zeros((50, 1, 3)),
+        gyro=np.zeros((50, 1, 3)),
+    )
     save_recording(rec, tmp_path / "robot.npz")
     assert main(["sim2real", str(tmp_path / "robot.npz")]) == 1
     assert "reference motion" in capsys.readouterr().err
@@ -149,8 +170,20 @@ def test_cli_gravity_case_adds_both_network_forms_to_json_and_report(
 
     rec = simulate("ur5e", seconds=8.0, seed=2, imu_model="ideal")
     save_recording(rec, tmp_path / "ur5e.npz")
-    args = ["sim2real", str(tmp_path / "ur5e.npz"), "--model", "ur5e", "--imu", "imu11", "--json",
-            "--gravity-case", "--epochs", "30", "--report", str(tmp_path / "rep")]
+    args = [
+        "sim2real",
+        str(tmp_path / "ur5e.npz"),
+        "--model",
+        "ur5e",
+        "--imu",
+        "imu11",
+        "--json",
+        "--gravity-case",
+        "--epochs",
+        "30",
+        "--report",
+        str(tmp_path / "rep"),
+    ]
     assert main(args) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["causes"] == []  # the ideal IMU against the exact model: nothing

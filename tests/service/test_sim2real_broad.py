@@ -59,8 +59,10 @@ def test_an_effect_hidden_in_measured_data_is_named_and_measured(effect: str, tr
         true = {"matrix": (1.0 + dev).tolist()}
     if effect == "noise":
         # the sensor's own noise must not swamp the injected one: inject at least its level
-        true = {"gyro_density": [float(rng.uniform(2e-3, 5e-3))] * 3,
-                "acc_density": [float(rng.uniform(2e-2, 5e-2))] * 3}
+        true = {
+            "gyro_density": [float(rng.uniform(2e-3, 5e-3))] * 3,
+            "acc_density": [float(rng.uniform(2e-2, 5e-2))] * 3,
+        }
     g, a = inject(effect, true, rec.t, rec.gyro[:, 0], rec.acc[:, 0], rec.ref_quat, rng)
     rep = analyze_recording(replace(rec, gyro=g[:, None], acc=a[:, None]))
     assert effect in rep.names, f"injected {effect} {true}, named {rep.names}"

@@ -97,8 +97,11 @@ def test_ur5e_follows_published_dh() -> None:
     robot = Robot.from_catalog("ur5e")
     m, d = robot.model, mujoco.MjData(robot.model)
     mujoco.mj_forward(m, d)
-    dh = {"d": [0.1625, 0, 0, 0.1333, 0.0997, 0.0996], "a": [0, -0.425, -0.3922, 0, 0, 0],
-          "alpha": [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0]}
+    dh = {
+        "d": [0.1625, 0, 0, 0.1333, 0.0997, 0.0996],
+        "a": [0, -0.425, -0.3922, 0, 0, 0],
+        "alpha": [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0],
+    }
     T = np.eye(4)
     for d_, a_, al in zip(dh["d"], dh["a"], dh["alpha"], strict=True):
         ca, sa = np.cos(al), np.sin(al)
@@ -107,8 +110,10 @@ def test_ur5e_follows_published_dh() -> None:
     # the flange is the end of the wrist_3 link segment
     end = d.xpos[wrist3] + d.xmat[wrist3].reshape(3, 3) @ np.array([0, 0, 0.0996])
     assert np.allclose(end, T[:3, 3], atol=1e-9)
-    masses = [m.body_mass[m.body(f"{j}_link").id] for j in
-              ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")]
+    masses = [
+        m.body_mass[m.body(f"{j}_link").id]
+        for j in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+    ]
     assert np.allclose(masses, [3.761, 8.058, 2.846, 1.37, 1.3, 0.365])
 
 

@@ -24,8 +24,24 @@ def test_robots_lists_the_catalog_with_counts(capsys) -> None:
 
 def test_simulate_writes_a_recording_with_truth_from_the_model(tmp_path, capsys) -> None:
     out = tmp_path / "rec.npz"
-    rc = main(["simulate", "ur5e", "--seconds", "0.5", "--seed", "3", "--imu-model", "ideal",
-               "--excitation", "sine", "--damage", "encoder_fault:joint=elbow,at=0.2", "--out", str(out)])
+    rc = main(
+        [
+            "simulate",
+            "ur5e",
+            "--seconds",
+            "0.5",
+            "--seed",
+            "3",
+            "--imu-model",
+            "ideal",
+            "--excitation",
+            "sine",
+            "--damage",
+            "encoder_fault:joint=elbow,at=0.2",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     rec = load_recording(out)
     truth = Robot.from_catalog("ur5e").truth()
@@ -42,11 +58,29 @@ def test_simulate_writes_a_recording_with_truth_from_the_model(tmp_path, capsys)
 
 def test_simulate_with_an_imu_model_file_and_bad_input(tmp_path, capsys) -> None:
     model = tmp_path / "m.json"
-    model.write_text(json.dumps({"name": "biased", "effects": [
-        {"effect": "gyro_bias", "params": {"vector": [0.5, 0, 0]}}]}))
+    model.write_text(
+        json.dumps(
+            {"name": "biased", "effects": [{"effect": "gyro_bias", "params": {"vector": [0.5, 0, 0]}}]}
+        )
+    )
     out = tmp_path / "r.npz"
-    assert main(["simulate", "paper-1", "--seconds", "0.2", "--excitation", "hold",
-                 "--imu-model", str(model), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "paper-1",
+                "--seconds",
+                "0.2",
+                "--excitation",
+                "hold",
+                "--imu-model",
+                str(model),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert np.allclose(load_recording(out).gyro[..., 0], 0.5, atol=1e-6)
     assert main(["simulate", "paper-9", "--seconds", "0.2", "--out", str(out)]) == 1
     assert main(["simulate", "paper-1", "--damage", "imu_moved:imu=imu99", "--out", str(out)]) == 1

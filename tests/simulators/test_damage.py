@@ -120,8 +120,13 @@ def test_link_lost_subtree_no_longer_follows_its_joint(seed: int) -> None:
 
 
 def test_combined_damage_mid_run_via_simulate(seed: int) -> None:
-    rec = simulate("paper-6", seconds=2.0, seed=seed, imu_model="ideal",
-                   damage=["imu_moved:imu=imu0,to=j5,at=1.0", "joint_locked:joint=j4,at=0.5"])
+    rec = simulate(
+        "paper-6",
+        seconds=2.0,
+        seed=seed,
+        imu_model="ideal",
+        damage=["imu_moved:imu=imu0,to=j5,at=1.0", "joint_locked:joint=j4,at=0.5"],
+    )
     diff = Diff.from_json(json.loads(str(rec.extra["truth_diff"])))
     assert [f.kind for f in diff.findings] == ["joint_locked", "imu_moved"]
     assert np.allclose(rec.extra["damage_time"], [0.5, 1.0])

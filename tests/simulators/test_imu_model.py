@@ -131,8 +131,16 @@ def test_lever_arm_and_mounting_rotation_match_a_physically_moved_sensor(
     key = "meters" if effect == "lever_arm" else "rotvec"
     model = ImuModel("one", ((effect, {key: (r if effect == "lever_arm" else rv).tolist()}),))
     p = model.instantiate(("imu13",), rng)
-    acc, gyro = apply(p, s.t, s.acc[:, [src]], s.gyro[:, [src]], rate=robot.rate, rng=rng,
-                      gyro_dot=s.gyro_dot[:, [src]], R=s.R[:, [src]])
+    acc, gyro = apply(
+        p,
+        s.t,
+        s.acc[:, [src]],
+        s.gyro[:, [src]],
+        rate=robot.rate,
+        rng=rng,
+        gyro_dot=s.gyro_dot[:, [src]],
+        R=s.R[:, [src]],
+    )
     scale = np.abs(s.acc[:, twin]).max()
     assert np.abs(acc[:, 0] - s.acc[:, twin]).max() <= 1e-6 * scale
     assert np.abs(gyro[:, 0] - s.gyro[:, twin]).max() <= 1e-6 * max(np.abs(s.gyro[:, twin]).max(), 1.0)
@@ -167,24 +175,32 @@ def test_json_round_trip_and_drawn_parameters_reproduce(tmp_path, rng: np.random
 
 
 def test_fitted_model_in_discrepancy_style_applies(rng: np.random.Generator) -> None:
-    model = ImuModel.from_json({"name": "fitted", "effects": [
-        {"effect": "gyro_bias", "params": {"vector": [0.01, -0.02, 0.0]}},
-        {"effect": "acc_scale", "params": {"matrix": [1.02, 0.98, 1.0]}},
-        {"effect": "sample_rate", "params": {"hz": 200}},
-    ]})
+    model = ImuModel.from_json(
+        {
+            "name": "fitted",
+            "effects": [
+                {"effect": "gyro_bias", "params": {"vector": [0.01, -0.02, 0.0]}},
+                {"effect": "acc_scale", "params": {"matrix": [1.02, 0.98, 1.0]}},
+                {"effect": "sample_rate", "params": {"hz": 200}},
+            ],
+        }
+    )
     assert model.rate == 200.0
     p = model.instantiate(("imu0",), rng)
     acc, gyro = apply(p, np.arange(2) * 0.005, np.ones((2, 1, 3)), np.zeros((2, 1, 3)), rate=200.0, rng=rng)
     assert np.allclose(gyro[0, 0], [0.01, -0.02, 0.0]) and np.allclose(acc[0, 0], [1.02, 0.98, 1.0])
 
 
-@pytest.mark.parametrize("bad", [
-    {"effects": [{"effect": "warp_drive", "params": {}}]},
-    {"effects": [{"effect": "gyro_bias", "params": {"vector": [1, 2]}}]},
-    {"effects": [{"effect": "gyro_bias", "params": {"per_imu": {"nope": {"vector": [0, 0, 0]}}}}]},
-    {"format": "other/2", "effects": []},
-    {"effects": [{"params": {}}]},
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"effects": [{"effect": "warp_drive", "params": {}}]},
+        {"effects": [{"effect": "gyro_bias", "params": {"vector": [1, 2]}}]},
+        {"effects": [{"effect": "gyro_bias", "params": {"per_imu": {"nope": {"vector": [0, 0, 0]}}}}]},
+        {"format": "other/2", "effects": []},
+        {"effects": [{"params": {}}]},
+    ],
+)
 def test_malformed_models_are_rejected(bad: dict) -> None:
     with pytest.raises(ValueError):
         ImuModel.from_json(bad).instantiate(("imu0",), np.random.default_rng(0))
@@ -193,9 +209,14 @@ def test_malformed_models_are_rejected(bad: dict) -> None:
 def test_stream_in_chunks_equals_one_batch(rng: np.random.Generator) -> None:
     names = ("imu0", "imu1")
     offsets = {"imu0": {"seconds": 0.013}, "imu1": {"seconds": 0.031}}
-    model = ImuModel("s", (("time_offset", {"per_imu": offsets}),
-                           ("gyro_bias", {"uniform": 0.1}),
-                           ("noise", {"gyro_density": 0.001, "acc_density": 0.01})))
+    model = ImuModel(
+        "s",
+        (
+            ("time_offset", {"per_imu": offsets}),
+            ("gyro_bias", {"uniform": 0.1}),
+            ("noise", {"gyro_density": 0.001, "acc_density": 0.01}),
+        ),
+    )
     p = model.instantiate(names, rng)
     t = np.arange(300) / 100.0
     acc = np.sin(t)[:, None, None] * rng.normal(size=(1, 2, 3))

@@ -57,10 +57,20 @@ def test_qdd_is_the_same_in_chunks_with_readahead_and_through_derived(seed: int)
 
 def test_a_stuck_encoder_reads_no_acceleration_an_offset_keeps_it(seed: int) -> None:
     base = simulate("paper-1", seconds=0.5, seed=seed, imu_model="ideal")
-    stuck = simulate("paper-1", seconds=0.5, seed=seed, imu_model="ideal",
-                     damage="encoder_fault:joint=j2,mode=stuck,at=0.2")
-    off = simulate("paper-1", seconds=0.5, seed=seed, imu_model="ideal",
-                   damage="encoder_fault:joint=j3,mode=offset,value=0.3")
+    stuck = simulate(
+        "paper-1",
+        seconds=0.5,
+        seed=seed,
+        imu_model="ideal",
+        damage="encoder_fault:joint=j2,mode=stuck,at=0.2",
+    )
+    off = simulate(
+        "paper-1",
+        seconds=0.5,
+        seed=seed,
+        imu_model="ideal",
+        damage="encoder_fault:joint=j3,mode=offset,value=0.3",
+    )
     j2, j3 = base.joint_names.index("j2"), base.joint_names.index("j3")
     assert stuck.qdd is not None and base.qdd is not None and off.qdd is not None
     after = stuck.t >= 0.2 - 1e-9
