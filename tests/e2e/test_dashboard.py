@@ -8,7 +8,6 @@ Skipped only when no Chromium is installed.
 from __future__ import annotations
 
 import shutil
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -23,6 +22,7 @@ from service.api import create_app
 from service.ingest.base import FrameBatch
 from service.settings import Settings
 from service.store import Store
+from tests.e2e.processes import free_port, serve_command
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = [
@@ -44,12 +44,6 @@ pytestmark = [
         reason="Debian's chromium is not installed (make setup-browser installs it)",
     ),
 ]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +197,6 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(browser: 
     import os
     import signal
     import subprocess
-    import sys
 
     import httpx
 
@@ -216,19 +209,7 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(browser: 
     }
     err = (tmp_path / "serve.err").open("w")
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "service",
-            "serve",
-            "--demo",
-            "--speed",
-            "20",
-            "--port",
-            str(port),
-            "--database-url",
-            f"sqlite:///{tmp_path / 'demo.db'}",
-        ],
+        serve_command(port, f"sqlite:///{tmp_path / 'demo.db'}", "--demo", "--speed", "20"),
         cwd=tmp_path,
         env=env,
         stdout=subprocess.DEVNULL,

@@ -6,10 +6,8 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,34 +17,18 @@ import pytest
 from service.store import Store
 from simulators.recording_io import save_recording
 from tests.bodyschema.test_health import synth
+from tests.e2e.processes import free_port, serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 ROBOT = "arm"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def start(tmp: Path, db: str, rec_path: Path, log: Path, speed: float) -> subprocess.Popen:
     env = {**os.environ, "BODYHEALTH_WORKER_INTERVAL_SECONDS": "1", "BODYHEALTH_WINDOW_SECONDS": "5"}
-    cmd = [
-        sys.executable,
-        "-m",
-        "service",
-        "serve",
-        "--port",
-        str(free_port()),
-        "--database-url",
-        db,
-        "--source",
-        f"replay:{rec_path}@{speed:g}?robot={ROBOT}",
-        "--commit-log",
-        str(log),
-    ]
+    cmd = serve_command(
+        free_port(), db, "--source", f"replay:{rec_path}@{speed:g}?robot={ROBOT}", "--commit-log", str(log)
+    )
     return subprocess.Popen(
         cmd, cwd=tmp, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp / f"{log.stem}.err", "w")
     )

@@ -11,9 +11,7 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,6 +19,8 @@ from typing import Any
 
 import httpx
 import pytest
+
+from tests.e2e.processes import free_port, serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -39,12 +39,6 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
 ]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class Service:
     def __init__(self, tmp: Path) -> None:
         self.port = free_port()
@@ -57,19 +51,7 @@ class Service:
             "BODYHEALTH_ALERT_HYSTERESIS_M": "2",
             "BODYHEALTH_BASELINE_REPEAT_K": "3",
         }
-        cmd = [
-            sys.executable,
-            "-m",
-            "service",
-            "serve",
-            "--demo",
-            "--speed",
-            "20",
-            "--port",
-            str(self.port),
-            "--database-url",
-            f"sqlite:///{tmp / 'serve.db'}",
-        ]
+        cmd = serve_command(self.port, f"sqlite:///{tmp / 'serve.db'}", "--demo", "--speed", "20")
         self.proc = subprocess.Popen(
             cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, text=True, stderr=self.err_path.open("w")
         )
@@ -189,20 +171,14 @@ def test_signal_drains_and_exits_zero(tmp_path: Path, sig: signal.Signals) -> No
     port = free_port()
     log = tmp_path / "commits.jsonl"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "service",
-            "serve",
-            "--port",
-            str(port),
-            "--database-url",
+        serve_command(
+            port,
             f"sqlite:///{tmp_path / 'db.sqlite'}",
             "--source",
             f"replay:{rec_path}@5?robot=arm",
             "--commit-log",
             str(log),
-        ],
+        ),
         cwd=tmp_path,
         stdout=subprocess.DEVNULL,
         stderr=(tmp_path / "err.txt").open("w"),

@@ -13,7 +13,6 @@ derived from ``q``; the fast estimator needs about a minute of UR5e motion for t
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from service.store import Store
 from service.worker import Worker
 from simulators import simulate
 from simulators.recording_io import load_recording, save_recording
+from tests.e2e.processes import emulator_command, free_port, serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -43,22 +43,7 @@ def recording_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Path, tmp_path: Path) -> None:
     rec = load_recording(recording_path)
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "service.emulators",
-            kind,
-            "--recording",
-            str(recording_path),
-            "--robot",
-            "ur5e",
-            "--speed",
-            "0",
-            "--linger",
-            "120",
-            "--config-out",
-            str(tmp_path / "ur5e.json"),
-        ],
+        emulator_command(kind, recording_path, "ur5e", tmp_path / "ur5e.json"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -109,7 +94,6 @@ def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Pat
 def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path) -> None:
     """``bodyhealth serve --source can:slcan:PTY --source serial:PTY``: the daemon learns both robots."""
     import os
-    import socket
 
     import httpx
 
@@ -118,22 +102,7 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
     emulators, specs = [], []
     for kind in ("can", "serial"):
         p = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "service.emulators",
-                kind,
-                "--recording",
-                str(recording_path),
-                "--robot",
-                f"arm-{kind}",
-                "--speed",
-                "0",
-                "--linger",
-                "120",
-                "--config-out",
-                str(tmp_path / f"{kind}.json"),
-            ],
+            emulator_command(kind, recording_path, f"arm-{kind}", tmp_path / f"{kind}.json"),
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
@@ -141,25 +110,13 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
         emulators.append(p)
         assert p.stdout is not None
         specs.append(dict(kv.split("=", 1) for kv in p.stdout.readline().split())["source"])
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     env = {
         **os.environ,
         "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
         "BODYHEALTH_WINDOW_SECONDS": str(rec.duration + 1.0),
     }
-    cmd = [
-        sys.executable,
-        "-m",
-        "service",
-        "serve",
-        "--port",
-        str(port),
-        "--text-logs",
-        "--database-url",
-        f"sqlite:///{tmp_path / 'serve.db'}",
-    ]
+    cmd = serve_command(port, f"sqlite:///{tmp_path / 'serve.db'}", "--text-logs")
     for spec in specs:
         cmd += ["--source", spec]
     err = (tmp_path / "serve.err").open("w")
