@@ -29,6 +29,7 @@ from bodyschema.imu_effects import rotation_matrix, specific_force
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import ReferenceMotion
 from service.broad import BROAD_ATTRIBUTION
+from service.figures import save_figure
 from simulators.imu_model import ImuModel, distort, resolve_imu_model, save_imu_model
 
 if TYPE_CHECKING:
@@ -289,18 +290,6 @@ def _residuals(report: DiscrepancyReport) -> tuple[Any, np.ndarray, np.ndarray]:
     return prob, before, after
 
 
-def _save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
-    """Lay out, write (PNG, creating the folder) and close ``fig``."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
-    return out
-
-
 def _save_time_axes(fig: Any, axes: Any, path: str | os.PathLike[str], title: str) -> Path:
     """Finish a column of traces against time (legend on top, time label below) and save it."""
     for ax in axes:
@@ -308,7 +297,7 @@ def _save_time_axes(fig: Any, axes: Any, path: str | os.PathLike[str], title: st
     axes[0].legend(loc="upper right", fontsize=7)
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(title, fontsize=10)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_residuals(report: DiscrepancyReport, path: str | os.PathLike[str], title: str = "") -> Path:
@@ -369,7 +358,7 @@ def plot_structure(report: DiscrepancyReport, path: str | os.PathLike[str], titl
         ax.set_ylabel(f"{name} residual PSD", fontsize=8)
         ax.legend(fontsize=7)
     fig.suptitle(title or "residual structure", fontsize=10)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------------------- report

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 
 __all__ = ["add_arguments", "run"]
 
@@ -96,23 +97,7 @@ def run(args: argparse.Namespace) -> Path:
                 f" | {time.perf_counter() - started:6.1f} s elapsed",
                 flush=True,
             )
-        rows.append(
-            {
-                "n": n,
-                "k": int(statistics.median(rec["k"])),
-                "t": statistics.median(rec["t"]),
-                "tmin": min(rec["t"]),
-                "tmax": max(rec["t"]),
-                "d": statistics.median(rec["d"]),
-                "hit": int(sum(rec["hit"])),
-                "tt": statistics.median(rec["tt"]),
-                "td": statistics.median(rec["td"]),
-                "tm": statistics.median(rec["tm"]),
-                "cands": statistics.median(rec["cands"]),
-                "true": int(sum(rec["true"])),
-                "cert": int(sum(rec["cert"])),
-            }
-        )
+        rows.append(_summary(n, rec))
     sparse = _sparse(args, rng)
     args.out.mkdir(parents=True, exist_ok=True)
     png = args.out / "algebra.png"
@@ -120,6 +105,19 @@ def run(args: argparse.Namespace) -> Path:
     md = args.out / "algebra.md"
     md.write_text(_report(rows, args, png.name, sparse), encoding="utf-8")
     return md
+
+
+_COUNTS = ("hit", "true", "cert")
+
+
+def _summary(n: int, rec: dict[str, list[float]]) -> dict:
+    """One table row from the per-tree records of size ``n``: counts of the yes/no columns
+    (``_COUNTS``), medians of the rest, and the range of the correction time ``t``."""
+    row: dict = {"n": n, "tmin": min(rec["t"]), "tmax": max(rec["t"])}
+    for key, values in rec.items():
+        row[key] = int(sum(values)) if key in _COUNTS else statistics.median(values)
+    row["k"] = int(row["k"])
+    return row
 
 
 def _sparse(args: argparse.Namespace, rng: np.random.Generator) -> list[dict]:
@@ -148,20 +146,7 @@ def _sparse(args: argparse.Namespace, rng: np.random.Generator) -> list[dict]:
                 f" certified {fix.certified} | search alone {t2 - t1:7.3f} s",
                 flush=True,
             )
-        out.append(
-            {
-                "n": n,
-                "k": int(statistics.median(rec["k"])),
-                "t": statistics.median(rec["t"]),
-                "tmin": min(rec["t"]),
-                "tmax": max(rec["t"]),
-                "ts": statistics.median(rec["ts"]),
-                "d": statistics.median(rec["d"]),
-                "hit": int(sum(rec["hit"])),
-                "cert": int(sum(rec["cert"])),
-                "true": int(sum(rec["true"])),
-            }
-        )
+        out.append(_summary(n, rec))
     return out
 
 
@@ -245,6 +230,4 @@ def _plot(rows: list[dict], path: Path) -> None:
     a2.set_ylabel("Hamming distance to noisy input")
     a2.legend()
     a2.set_title("distance")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 
 __all__ = ["add_arguments", "run", "run_one", "runs_table", "summary_table"]
 
@@ -57,6 +58,12 @@ def run_one(robot: str, seed: int, seconds: float, imu_model: str, epochs: int) 
 
 def _gravity(analysis: dict) -> dict | None:
     return next((c for c in analysis["causes"] if c["effect"] == "gravity"), None)
+
+
+def _named(runs: list[dict], reference: str) -> list[dict]:
+    """The gravity causes named on the Eq. 11 residual against ``reference`` (kinematics or network),
+    one per run that named gravity."""
+    return [c for c in (_gravity(d["analyses"][reference]) for d in runs) if c is not None]
 
 
 def _span(values: list[float], fmt: str = ".2f") -> str:
@@ -107,7 +114,7 @@ def summary_table(runs: list[dict]) -> str:
     for robot in dict.fromkeys(d["robot"] for d in runs):
         rs = [d for d in runs if d["robot"] == robot]
         f = {k: [d["forms"][k] for d in rs] for k in ("eq11", "eq24")}
-        named = [c for c in (_gravity(d["analyses"]["kinematics"]) for d in rs) if c is not None]
+        named = _named(rs, "kinematics")
         gtext = (
             f"{len(named)}/{len(rs)} runs: {_span([c['params']['norm'] for c in named])}, "
             f"{_span([c['params']['angle_to_recording_deg'] for c in named], '.1f')}°"
@@ -132,8 +139,7 @@ def summary_table(runs: list[dict]) -> str:
 def _findings(runs: list[dict]) -> list[str]:
     """What the runs say, computed from them (the numbers in docs/sim2real.md come from here)."""
     n = len(runs)
-    kin = [c for c in (_gravity(d["analyses"]["kinematics"]) for d in runs) if c is not None]
-    net = [c for c in (_gravity(d["analyses"]["network"]) for d in runs) if c is not None]
+    kin, net = _named(runs, "kinematics"), _named(runs, "network")
     f11 = [d["forms"]["eq11"] for d in runs]
     f24 = [d["forms"]["eq24"] for d in runs]
     lines = [
@@ -203,9 +209,7 @@ def _plot(runs: list[dict], path: Path) -> None:
         ax.set_xticks(x, [f"{d['robot']}\ns{d['seed']}" for d in runs], fontsize=7)
         ax.legend(fontsize=8, loc="lower right", framealpha=0.9)
     fig.suptitle("sensor networks without (Eq. 11) and with (Eq. 24) gravity", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def _settings_text(runs: list[dict], args: argparse.Namespace) -> str:

@@ -30,6 +30,7 @@ import numpy as np
 
 from bodyschema.recording import Recording
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 
 __all__ = ["add_arguments", "run"]
 
@@ -329,9 +330,7 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.set_xlabel("× real time (humanoid, 26 joints, 54 IMUs, 100 Hz)")
     ax.invert_yaxis()
     ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 if __name__ == "__main__":  # pragma: no cover

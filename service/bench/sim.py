@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 
 __all__ = ["add_arguments", "run"]
 
@@ -131,9 +132,7 @@ def _plot(path: Path, robots: dict[str, dict[str, float]], farms: list[dict[str,
     ax.set_title("Simulation speed (MPU-6050 IMU model, observable excitation, 100 Hz)")
     ax.legend()
     fig.text(0.01, 0.01, note, fontsize=7, color="gray")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def run(args: argparse.Namespace) -> Path:

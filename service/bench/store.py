@@ -30,6 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 from service.ingest.base import FrameBatch, Source
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
@@ -307,6 +308,4 @@ def _plot(path: Path, rows: list[Row], note: str) -> None:
     ax2.set_ylabel("ms")
     ax2.set_title("read a 60 s window")
     fig.suptitle(note, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from service.bench import RESULTS_DIR, machine_note
+from service.figures import save_figure
 
 __all__ = ["add_arguments", "run"]
 
@@ -347,6 +348,4 @@ def _plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> None:
     a2.set_ylabel("CPU seconds (median)")
     a2.set_yscale("log")
     a1.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

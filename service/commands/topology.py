@@ -14,6 +14,7 @@ from typing import Any
 
 from bodyschema.estimate import METHODS
 from bodyschema.topology import Topology
+from service.figures import save_figure
 
 __all__ = ["format_tree", "plot_trees", "register", "run"]
 
@@ -189,7 +190,4 @@ def plot_trees(topo: Topology, path: Path, truth: Topology | None = None, title:
         ax.axis("off")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
