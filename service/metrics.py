@@ -4,8 +4,9 @@ Each :class:`Metrics` owns its own ``CollectorRegistry`` (not the process-global
 in one test process do not collide. Frame counters are not incremented here: a collector reads them
 from the ingest pipeline's :class:`~service.ingest.base.Counters` at scrape time, so the numbers on
 ``/metrics`` are exactly those the pipeline keeps. Transport-specific counters (CAN error frames,
-serial CRC failures, reconnects, ...) come out as ``bodyhealth_ingest_events_total{event=...}``, summed
-over sources, and the queue between readers and the store writer as a gauge.
+serial CRC failures, reconnects, ...) summed over sources, and the store writer's own (transactions,
+retries, write errors, pruned samples) come out as ``bodyhealth_ingest_events_total{event=...}``; the
+queue between readers and the store writer as a gauge.
 
 Example
 -------
@@ -60,7 +61,7 @@ class _FrameCollector(Collector):
             )
         events = CounterMetricFamily(
             "bodyhealth_ingest_events",
-            "transport events counted by the ingest sources (summed over sources)",
+            "events counted by the ingest sources (summed over sources) and the store writer",
             labels=["event"],
         )
         for name, value in sorted(values.items()):
