@@ -11,7 +11,16 @@ from pathlib import Path
 
 __all__ = ["BENCHMARKS", "RESULTS_DIR", "machine_note"]
 
-BENCHMARKS: tuple[str, ...] = ("algebra", "sim", "topology", "store", "ingest", "sim2real", "gravity")
+BENCHMARKS: tuple[str, ...] = (
+    "algebra",
+    "sim",
+    "topology",
+    "scaling",
+    "store",
+    "ingest",
+    "sim2real",
+    "gravity",
+)
 
 #: Where results files and plots go (relative to the working directory: the repo root under make).
 RESULTS_DIR = Path("docs/bench")

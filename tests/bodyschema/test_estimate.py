@@ -10,8 +10,7 @@ import pytest
 
 from bodyschema.estimate import METHODS, estimate_topology, topology_from_dependency
 from bodyschema.recording import Recording
-
-from .kinematic_fixtures import random_robot_recording
+from simulators.kinematic_tree import random_robot_recording
 
 
 def test_unknown_method_and_missing_positions_are_refused(rng):

@@ -9,8 +9,7 @@ import pytest
 
 from bodyschema.estimate import estimate_topology
 from bodyschema.fast import FastEstimator, fast_fit, noise_level
-
-from .kinematic_fixtures import random_robot_recording
+from simulators.kinematic_tree import random_robot_recording
 
 
 def truth_dependency(rec) -> np.ndarray:

@@ -15,8 +15,8 @@ from bodyschema.networks import (
     set_torch_threads,
     train_sensor_networks,
 )
+from simulators.kinematic_tree import random_robot_recording
 
-from .kinematic_fixtures import random_robot_recording
 from .test_fast import truth_dependency
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from bodyschema.topology import Topology
 from service.cli import main
+from simulators.kinematic_tree import random_robot_recording
 from simulators.recording_io import save_recording
-from tests.bodyschema.kinematic_fixtures import random_robot_recording
 
 
 @pytest.fixture

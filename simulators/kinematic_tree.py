@@ -1,9 +1,9 @@
-"""Random kinematic trees with IMUs, simulated by plain forward kinematics (no dynamics).
+"""Random kinematic trees with IMUs, simulated by plain forward kinematics (no dynamics, no MuJoCo).
 
-Test data for the topology estimators that does not need MuJoCo: a random out-tree of hinge joints with
-random axes and offsets, IMUs at random poses on the links, smooth random joint trajectories (sums of
-sinusoids), and an MPU-6050-like error model (bias, scale, cross-axis, white noise). Gyro and
-accelerometer follow the rigid-body equations exactly: ``gyro = Rᵀ ω_link`` and
+Data for the topology estimators' tests and the scaling benchmark (any size, in milliseconds): a random
+out-tree of hinge joints with random axes and offsets, IMUs at random poses on the links, smooth random
+joint trajectories (sums of sinusoids), and an MPU-6050-like error model (bias, scale, cross-axis,
+white noise). Gyro and accelerometer follow the rigid-body equations exactly: ``gyro = Rᵀ ω_link`` and
 ``acc = Rᵀ (p̈ − g)`` with ``p̈`` from a fine central difference of the analytic trajectory.
 
 >>> import numpy as np
