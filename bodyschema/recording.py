@@ -182,6 +182,22 @@ class Recording:
             return None
         return {i: (j or None) for i, j in zip(self.imu_names, self.truth_imu_joint, strict=True)}
 
+    @property
+    def truth_dependency(self) -> np.ndarray | None:
+        """Ground-truth dependency matrix (IMUs x joints): IMU k moves with joint j exactly when j lies
+        on the path from k's joint to the base (paper Def. 4; what the estimators try to find)."""
+        par, imu = self.truth_parent_map, self.truth_imu_map
+        if par is None or imu is None:
+            return None
+        names = list(self.joint_names)
+        D = np.zeros((self.n_imus, self.n_joints), dtype=bool)
+        for k, name in enumerate(self.imu_names):
+            cur = imu[name]
+            while cur is not None:
+                D[k, names.index(cur)] = True
+                cur = par[cur]
+        return D
+
 
 def _gradient(x: np.ndarray, t: np.ndarray) -> np.ndarray:
     if x.shape[0] < 2:

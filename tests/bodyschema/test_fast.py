@@ -12,18 +12,6 @@ from bodyschema.fast import FastEstimator, fast_fit, noise_level
 from simulators.kinematic_tree import random_robot_recording
 
 
-def truth_dependency(rec) -> np.ndarray:
-    par = rec.truth_parent_map
-    names = list(rec.joint_names)
-    D = np.zeros((rec.n_imus, rec.n_joints), dtype=bool)
-    for k, j in enumerate(rec.truth_imu_joint):
-        cur = j or None
-        while cur is not None:
-            D[k, names.index(cur)] = True
-            cur = par[cur]
-    return D
-
-
 def contract(joint_parent, imu_joint, u):
     """The truth with joint ``u`` removed: its child link merged into its parent link."""
     jp = {j: (joint_parent[u] if p == u else p) for j, p in joint_parent.items() if j != u}
@@ -45,7 +33,7 @@ def test_random_trees_are_recovered_exactly(rng):
         n = int(rng.integers(5, 26))
         rec = random_robot_recording(rng, n_joints=n, seconds=20.0)
         fit = fast_fit(rec.q, rec.qd, rec.gyro)
-        np.testing.assert_array_equal(fit.dependency, truth_dependency(rec))
+        np.testing.assert_array_equal(fit.dependency, rec.truth_dependency)
         topo = estimate_topology(rec)
         assert topo.joint_parent == rec.truth_parent_map
         assert topo.imu_joint == rec.truth_imu_map

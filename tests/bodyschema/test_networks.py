@@ -17,8 +17,6 @@ from bodyschema.networks import (
 )
 from simulators.kinematic_tree import random_robot_recording
 
-from .test_fast import truth_dependency
-
 
 def _net(seed: int) -> SensorNetworks:
     net = SensorNetworks(3, 4, hidden=(8, 8, 8), seed=seed).double()
@@ -105,7 +103,7 @@ def test_networks_recover_a_small_robot_exactly():
     )
     jbar, _ = network_jacobian(rec, kind="network", epochs=40, seed=0)
     res = dependency_from_jacobian(jbar, "moment", rng=np.random.default_rng(0))
-    np.testing.assert_array_equal(res.dependency, truth_dependency(rec))
+    np.testing.assert_array_equal(res.dependency, rec.truth_dependency)
 
 
 def test_invariant_jacobian_shape(rng):
