@@ -67,6 +67,10 @@ STATISTICS = ("moment", "variance")
 #: "none" as to a strong one, so two links' IMUs could share a cluster.
 CLUSTER_FLOOR = 0.03
 
+#: A feature 20 times above or below δ is as sure as evidence gets: one entry far from δ must not
+#: outweigh several entries that agree with each other.
+EVIDENCE_CAP = float(np.log(20.0))
+
 
 def invariant_jacobian(net: Any, theta: torch.Tensor) -> torch.Tensor:
     """Eq. 14 at each sample: (K, S, 4, N) column norms of the pose Jacobian of every IMU network.
@@ -216,7 +220,9 @@ def _lowest_wide_band(
 
 @dataclass
 class NetworkDependency:
-    """What :func:`network_dependency` found: matrix (K, N) bool, per-IMU features, δ, confidences."""
+    """What :func:`network_dependency` found: matrix (K, N) bool, per-IMU features, δ, confidences,
+    and per-entry evidence: how far (log ratio, capped at :data:`EVIDENCE_CAP`) each feature sits
+    from δ, for the correction to overrule the weakest entries first."""
 
     dependency: np.ndarray
     features: np.ndarray
@@ -226,6 +232,7 @@ class NetworkDependency:
     imu_confidence: np.ndarray
     joint_confidence: np.ndarray
     loss: list[float]
+    evidence: np.ndarray
 
 
 def network_jacobian(
@@ -369,6 +376,7 @@ def dependency_from_jacobian(
         imu_confidence=np.clip(margin.min(axis=1) * 2, 0.0, 1.0),
         joint_confidence=np.clip(margin.min(axis=0) * 2, 0.0, 1.0),
         loss=list(loss or []),
+        evidence=np.clip(np.abs(np.log(np.maximum(feats, 1e-6) / delta)), 0.0, EVIDENCE_CAP),
     )
 
 

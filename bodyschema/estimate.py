@@ -77,7 +77,7 @@ def estimate_topology(
         from bodyschema.fast import fast_fit
 
         fit = fast_fit(rec.q, rec.qd, rec.gyro, **kw)
-        dep = fit.dependency
+        dep, evidence = fit.dependency, None
         undetermined = [rec.joint_names[j] for j in fit.undetermined]
         imu_conf = dict(zip(rec.imu_names, fit.imu_confidence.tolist(), strict=True))
         joint_conf = dict(zip(rec.joint_names, fit.joint_confidence.tolist(), strict=True))
@@ -85,7 +85,7 @@ def estimate_topology(
         from bodyschema.dependency import network_dependency
 
         res = network_dependency(rec, method=method, **kw)
-        dep = res.dependency
+        dep, evidence = res.dependency, res.evidence
         undetermined = [rec.joint_names[j] for j in res.undetermined]
         imu_conf = dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True))
         joint_conf = dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True))
@@ -98,6 +98,7 @@ def estimate_topology(
         joint_confidence=joint_conf,
         method=method,
         excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
+        evidence=evidence,
     )
     return _with(topo, seconds=(timer() - start) if timer is not None else 0.0)
 
@@ -118,6 +119,7 @@ def topology_from_dependency(
     method: str = "",
     excitation: Mapping[str, float] | None = None,
     max_candidates: int = MAX_CANDIDATES,
+    evidence: np.ndarray | None = None,
 ) -> Topology:
     """Turn a 0/1 IMU x joint dependency matrix into a topology (merge, correct, complete, convert).
 
@@ -127,6 +129,10 @@ def topology_from_dependency(
     joint's confidence is scaled by how many entries had to change. ``unique`` is False when several
     trees explain the data; ``candidates`` then lists up to ``max_candidates`` of them and each joint's
     confidence is scaled by the share of candidates that agree with the chosen parent.
+
+    ``evidence`` (same shape as ``dependency``, >= 0) says how strongly the data back each entry; when
+    noise has split a link's IMUs over more rows than there are joints, the stray row joins the row
+    that overrules the least evidence of its IMUs. None counts every entry alike (Hamming distance).
     """
     dependency = np.asarray(dependency, dtype=bool)
     imu_names = list(imu_names)
@@ -134,6 +140,9 @@ def topology_from_dependency(
     if dependency.shape != (len(imu_names), len(joint_names)):
         expected = (len(imu_names), len(joint_names))
         raise ValueError(f"dependency has shape {dependency.shape}, expected {expected}")
+    evidence = np.ones(dependency.shape) if evidence is None else np.asarray(evidence, dtype=float)
+    if evidence.shape != dependency.shape or not np.all(evidence >= 0):
+        raise ValueError(f"evidence must be non-negative with shape {dependency.shape}")
     undetermined = [j for j in joint_names if j in set(undetermined)]
     keep = [k for k, j in enumerate(joint_names) if j not in set(undetermined)]
     cols = [joint_names[k] for k in keep]
@@ -153,7 +162,8 @@ def topology_from_dependency(
         M = merged.matrix
         corrected = 0
         if not check_p_minus(M).ok:
-            M, imu_nodes, corrected = _correct(M, merged.groups, imu_nodes)
+            weight = dict(zip(imu_names, evidence[:, keep], strict=True))
+            M, imu_nodes, corrected = _correct(M, merged.groups, imu_nodes, weight)
         comp = complete(M)
         unique = comp.unique
         trees = [comp.tree()]
@@ -198,13 +208,17 @@ def topology_from_dependency(
 
 
 def _correct(
-    M: DependencyMatrix, groups: Mapping[str, Sequence[str]], imu_nodes: dict[str, str | None]
+    M: DependencyMatrix,
+    groups: Mapping[str, Sequence[str]],
+    imu_nodes: dict[str, str | None],
+    evidence: Mapping[str, np.ndarray],
 ) -> tuple[DependencyMatrix, dict[str, str | None], int]:
     """Nearest valid matrix to a noisy one (paper III-H), with the IMU -> node map carried along.
 
     A matrix with more distinct rows than joints (noise split one link in two) is first reduced: the row
-    with the fewest IMUs is merged into its nearest row (Hamming) until K <= N. Returns the matrix, the
-    IMU -> row map and how many entries or rows had to change.
+    with the fewest IMUs is merged into the row that overrules the least ``evidence`` of its IMUs (per
+    IMU, one weight per column) until K <= N. Returns the matrix, the IMU -> row map and how many
+    entries or rows had to change.
     """
     from bodyschema.correction import correct
 
@@ -212,13 +226,18 @@ def _correct(
     vals = M.values.copy()
     mapping = dict(imu_nodes)
     size = {r: len(groups.get(r, (r,))) for r in rows}
+    weight = {r: np.zeros(M.shape[1]) for r in rows}
+    for imu, node in mapping.items():
+        if node in weight:
+            weight[node] = weight[node] + evidence[imu]
     while len(rows) > M.shape[1]:
-        # the row carried by the fewest IMUs is the likeliest noise: merge it into its nearest row
-        # (Hamming; ties go to the row with more IMUs)
+        # the row carried by the fewest IMUs is the likeliest noise: merge it into the row that
+        # contradicts the least of its evidence (ties go to the row with more IMUs)
         drop = min(range(len(rows)), key=lambda i: size[rows[i]])
-        dist = (vals != vals[drop]).sum(axis=1)
+        dist = (vals != vals[drop]) @ weight[rows[drop]]
         keep = min((i for i in range(len(rows)) if i != drop), key=lambda i: (dist[i], -size[rows[i]]))
         size[rows[keep]] += size[rows[drop]]
+        weight[rows[keep]] = weight[rows[keep]] + weight[rows[drop]]
         for imu, node in mapping.items():
             if node == rows[drop]:
                 mapping[imu] = rows[keep]
