@@ -113,11 +113,18 @@ def binary_lp(
 
 
 def quiet_highs() -> Any:
-    """A HiGHS solver that prints nothing."""
+    """A HiGHS solver that prints nothing and runs on one thread.
+
+    One thread for every solver made here, not only some: HiGHS starts one task scheduler per process,
+    sized by the first solve that needs it, and a later solver asking for another thread count fails
+    with an error status instead of solving. The correction's Eq. 22 solve ran on the default (all
+    cores) and the exact stage after it asked for one thread, which left a drawn 6 x 6 case uncertified.
+    """
     import highspy
 
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
+    h.setOptionValue("threads", 1)
     return h
 
 
@@ -217,14 +224,16 @@ def _solve(
     )
     lp = binary_lp(c, integer, np.array(mdl.lo), np.array(mdl.hi), a, offset=offset)
     h = quiet_highs()
-    h.setOptionValue("threads", 1)
     h.setOptionValue("mip_rel_gap", 0.0)
     h.setOptionValue("mip_abs_gap", 0.5)  # the distance is an integer
     h.setOptionValue("mip_max_nodes", max_nodes)
     # these models are decided at the root, where primal heuristics only cost time
     h.setOptionValue("mip_heuristic_effort", 0.0)
     h.passModel(lp)
-    h.run()
+    if h.run() == highspy.HighsStatus.kError:
+        raise RuntimeError(
+            f"HiGHS failed on the exact stage's model: {h.modelStatusToString(h.getModelStatus())}"
+        )
     status = h.getModelStatus()
     if status == highspy.HighsModelStatus.kInfeasible:
         return "infeasible", None, float(upper if upper is not None else np.inf)

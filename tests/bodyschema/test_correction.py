@@ -199,3 +199,18 @@ def test_bad_input() -> None:
         correct(DependencyMatrix([[1, 1], [0, 1]], ["a", "b"], ["j1", "j2"]), solver="gurobi")
     with pytest.raises(ValueError, match="beam"):
         correct(DependencyMatrix([[1]], ["a"], ["j"]), beam=0)
+
+
+def test_every_highs_solver_runs_on_one_thread() -> None:
+    # HiGHS sizes one scheduler per process on first use; a solver asking for another thread count
+    # fails to solve. This drawn case was left uncertified when Eq. 22 ran on all cores first.
+    from bodyschema.tree_milp import quiet_highs
+
+    assert quiet_highs().getOptionValue("threads")[1] == 1
+    rows = [[1, 1, 1, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 1, 1, 0, 0, 0]]
+    rows += [[0, 0, 0, 1, 0, 0], [1, 1, 1, 0, 1, 0], [0, 1, 0, 0, 0, 0]]
+    noisy = DependencyMatrix(
+        np.array(rows, dtype=bool), [f"imu{i}" for i in range(6)], [f"j{i}" for i in range(6)]
+    )
+    fix = correct(noisy, beam=16)
+    assert fix.distance == 1 and fix.certified and fix.lower_bound == 1
