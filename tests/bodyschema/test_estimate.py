@@ -82,6 +82,24 @@ def test_a_noisy_matrix_is_corrected_to_the_nearest_tree():
     assert topo.imu_joint == {"a": "j1", "b": "j2", "c": "j3"}
 
 
+def test_a_stray_row_joins_the_row_that_overrules_the_least_evidence():
+    # chain j0 -> j1 -> j2, three IMUs per link; IMU "a" of the first link shows a weak false j2
+    # entry: its row is one flip from its own link's and one flip from the last link's
+    D = np.array([[1, 0, 1], [1, 0, 0], [1, 0, 0]] + [[1, 1, 0]] * 3 + [[1, 1, 1]] * 3, dtype=bool)
+    names = ["a", "a2", "a3", "b", "b2", "b3", "c", "c2", "c3"]
+    joints = ["j0", "j1", "j2"]
+    # counted alike, the tie goes to the bigger row (the last link): the weak entry wins
+    plain = topology_from_dependency(D, names, joints)
+    assert plain.imu_joint["a"] == "j2"
+    evidence = np.full(D.shape, 2.0)
+    evidence[0, 2] = 0.1  # the false j2 entry sat just above delta; a's j1 entry far below it
+    topo = topology_from_dependency(D, names, joints, evidence=evidence)
+    assert topo.joint_parent == {"j0": None, "j1": "j0", "j2": "j1"}
+    assert topo.imu_joint == dict(zip(names, ["j0"] * 3 + ["j1"] * 3 + ["j2"] * 3, strict=True))
+    with pytest.raises(ValueError, match="evidence"):
+        topology_from_dependency(D, names, joints, evidence=-evidence)
+
+
 def test_more_distinct_rows_than_joints_are_merged_then_corrected():
     # two links with two IMUs each, and one IMU whose row lost its j1 entry: 3 rows for 2 joints
     D = np.array([[1, 0], [1, 0], [1, 1], [1, 1], [0, 1]], dtype=bool)
