@@ -101,7 +101,9 @@ def test_wrong_encoder_is_caught(rng: np.random.Generator) -> None:
         LAYOUT,
     )
     assert h.joints["j2"].state == "wrong_encoder"
-    assert h.joints["j2"].explained < 0.5
+    # below the threshold; how far below depends on the draw: the other joint's motion, shifted by 7 s,
+    # is a sum of slow sines and can share much of j2's (0.66 explained on one draw)
+    assert h.joints["j2"].explained < HealthThresholds().explained
 
 
 def test_lost_link_is_unfollowed(rng: np.random.Generator) -> None:
