@@ -148,8 +148,9 @@ def test_ideal_robot_recording_through_its_model_has_no_residual_and_no_cause(
     for imu, doc in docs.items():
         assert doc["causes"] == [], imu
         # what is left is the low-pass applied in the world frame on one side and in the sensor frame
-        # on the other (~1e-5 m/s²); differences of qd instead of the recorded qdd leave 0.02-0.5 m/s²
-        assert doc["residual_before"]["acc_rms"] < 2e-4, imu
+        # on the other (1e-7 to 2.5e-4 m/s² over six seeds, growing with the motion's rotation rate);
+        # differences of qd instead of the recorded qdd leave 0.02-0.5 m/s²
+        assert doc["residual_before"]["acc_rms"] < 1e-3, imu
         assert doc["residual_before"]["gyro_rms"] < 1e-9, imu
     from service.sim2real_report import robot_references
 
