@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from bodyschema.topology import Topology
+
 __all__ = ["GRAVITY", "Recording", "RecordingError"]
 
 #: Standard world gravity (z up), m/s².
@@ -189,13 +191,12 @@ class Recording:
         par, imu = self.truth_parent_map, self.truth_imu_map
         if par is None or imu is None:
             return None
-        names = list(self.joint_names)
+        tree = Topology(joint_parent=par, imu_joint=imu)  # checks the truth is an out-tree
+        col = {j: i for i, j in enumerate(self.joint_names)}
         D = np.zeros((self.n_imus, self.n_joints), dtype=bool)
         for k, name in enumerate(self.imu_names):
-            cur = imu[name]
-            while cur is not None:
-                D[k, names.index(cur)] = True
-                cur = par[cur]
+            if imu[name] is not None:
+                D[k, [col[j] for j in tree.ancestors(imu[name])]] = True
         return D
 
 

@@ -123,7 +123,7 @@ def _exact(topo: Any, rec: Any) -> bool:
 def _separation(res: Any, rec: Any) -> dict[str, float | int]:
     """How well a run's dependency features split true from false entries (decided joints only):
     the entries the extraction got wrong, the smallest true feature and the largest false one."""
-    truth = rec.truth_dependency.copy()
+    truth = rec.truth_dependency
     decided = np.ones(truth.shape[1], dtype=bool)
     decided[res.undetermined] = False
     feats, truth = res.features[:, decided], truth[:, decided]
