@@ -1,6 +1,7 @@
 """Fast topology estimator: which joints move each IMU, from exact linear gyro models.
 
-Why it works (DESIGN §3): a gyro on link ``g`` reads ``ω_g = R_gᵀ Σ_{j ∈ anc(g)} a_j q̇_j``. Between two
+Why it works (docs/design.md §3):
+a gyro on link ``g`` reads ``ω_g = R_gᵀ Σ_{j ∈ anc(g)} a_j q̇_j``. Between two
 links joined by one hinge ``j`` (``g`` the child of ``h``) this collapses to a model that is *exact and
 linear in a handful of features*::
 

@@ -1,4 +1,4 @@
-"""Typed differences between a baseline body and the current one: the DESIGN §2 diff JSON.
+"""Typed differences between a baseline body and the current one: the docs/design.md §2 diff JSON.
 
 Example
 -------

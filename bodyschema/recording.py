@@ -1,6 +1,6 @@
 """The in-memory recording: encoder and IMU time series of one robot.
 
-This is the exchange format of DESIGN §2 held as arrays. Reading and writing ``.npz`` files lives in
+This is the exchange format of docs/design.md §2 held as arrays. Reading and writing ``.npz`` files lives in
 :mod:`simulators.recording_io`; this module only validates and derives (pure).
 
 Example
@@ -31,7 +31,7 @@ GRAVITY = np.array([0.0, 0.0, -9.81])
 
 
 class RecordingError(ValueError):
-    """A recording whose arrays do not fit the DESIGN §2 contract (shape, order, finiteness)."""
+    """A recording whose arrays do not fit the docs/design.md §2 contract (shape, order, finiteness)."""
 
 
 def _as_names(names: Any) -> tuple[str, ...]:
@@ -40,7 +40,7 @@ def _as_names(names: Any) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class Recording:
-    """Encoder and IMU time series of one robot (DESIGN §2).
+    """Encoder and IMU time series of one robot (docs/design.md §2).
 
     Shapes: ``t`` (T,), ``q``/``qd``/``qdd`` (T,N) rad, ``acc``/``gyro`` (T,K,3) in the sensor frame,
     ``acc`` as specific force (reads about +9.81 up at rest). ``truth_*`` are ground truth for tests and

@@ -1,4 +1,4 @@
-"""The learned body schema as exchanged with the outside: the DESIGN §2 topology JSON.
+"""The learned body schema as exchanged with the outside: the docs/design.md §2 topology JSON.
 
 A :class:`Topology` says, for each joint, which joint it hangs under (``None`` = the base) and, for each
 IMU, the joint whose child link carries it (``None`` = the base link). Estimators return it, the store
@@ -93,7 +93,7 @@ class Topology:
 
     # --------------------------------------------------------------- JSON
     def to_json(self) -> dict[str, Any]:
-        """The DESIGN §2 topology JSON (plain dicts, ready for ``json.dumps``)."""
+        """The docs/design.md §2 topology JSON (plain dicts, ready for ``json.dumps``)."""
         out: dict[str, Any] = {
             "joints": {j: {"parent": p} for j, p in self.joint_parent.items()},
             "imus": dict(self.imu_joint),
@@ -115,7 +115,7 @@ class Topology:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Topology:
-        """Parse the DESIGN §2 topology JSON; raise :class:`TopologyError` when malformed."""
+        """Parse the docs/design.md §2 topology JSON; raise :class:`TopologyError` when malformed."""
         try:
             joints = {
                 str(j): (None if v.get("parent") is None else str(v["parent"]))

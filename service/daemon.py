@@ -49,7 +49,7 @@ def farm_injector(sources: Sequence[Source]) -> DamageInjector | None:
     """A damage injector over every farm source among ``sources`` (None when there is none).
 
     The API passes ``(robot, kind, params)``; the farm that simulates ``robot`` applies the damage and
-    answers its ground-truth diff, returned as DESIGN §2 diff JSON. ``KeyError`` means no farm here
+    answers its ground-truth diff, returned as docs/design.md §2 diff JSON. ``KeyError`` means no farm here
     simulates that robot.
     """
     farms = [s for s in sources if callable(getattr(s, "inject", None)) and hasattr(s, "robot_names")]

@@ -112,7 +112,7 @@ class TopologyRecord:
 
 @dataclass(frozen=True)
 class AlertRecord:
-    """One alert on one part; ``finding`` is the DESIGN §2 finding JSON that raised or last updated it."""
+    """One alert on a part; ``finding`` is the finding JSON (docs/design.md §2) that raised or updated it."""
 
     id: int
     robot: str

@@ -1,4 +1,4 @@
-"""Damage scenarios: change a running simulation's body or sensors and say, as a DESIGN §2 diff, what
+"""Damage scenarios: change a running simulation's body or sensors and say, as a docs/design.md §2 diff, what
 changed.
 
 Physical damage edits the MuJoCo spec and recompiles with the state kept, so the change shows up in

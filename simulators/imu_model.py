@@ -92,7 +92,7 @@ __all__ = [
 
 FORMAT = "bodyhealth-imu-model/1"
 
-#: Effect names (DESIGN §2 discrepancy names plus ``quantization`` and ``sample_rate``), in the order
+#: Effect names (docs/design.md §2 discrepancy names plus ``quantization`` and ``sample_rate``), in the order
 #: they are applied.
 EFFECTS: tuple[str, ...] = (
     "gravity",

@@ -1,4 +1,4 @@
-"""Read and write recordings as ``.npz`` files (DESIGN §2, a contract with outside tools).
+"""Read and write recordings as ``.npz`` files (docs/design.md §2, a contract with outside tools).
 
 Example
 -------
@@ -47,7 +47,7 @@ def save_recording(rec: Recording, path: str | os.PathLike[str]) -> None:
 
 
 def load_recording(path: str | os.PathLike[str]) -> Recording:
-    """Read a DESIGN §2 ``.npz`` recording; raise :class:`RecordingError` saying why when it is not one."""
+    """Read a ``.npz`` recording (docs/design.md §2); raise :class:`RecordingError` saying why if not one."""
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

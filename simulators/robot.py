@@ -256,7 +256,7 @@ class Robot:
         return Topology(joint_parent=parents, imu_joint=imus, method="ground-truth")
 
     def truth_arrays(self) -> tuple[tuple[str, ...], tuple[str, ...], np.ndarray]:
-        """DESIGN §2 truth arrays ('' = base) plus a (K,) bool mask of detached IMUs.
+        """docs/design.md §2 truth arrays ('' = base) plus a (K,) bool mask of detached IMUs.
 
         A detached IMU keeps the last robot joint above its tether in ``truth_imu_joint``: the mask says
         it no longer follows it.

@@ -10,7 +10,7 @@ error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertain
 * :mod:`~bodyschema.discrepancy.fit` — data preparation and least-squares fits on sample subsets;
 * :mod:`~bodyschema.discrepancy.residuals` — residual structure and noise;
 * :mod:`~bodyschema.discrepancy.selection` — the greedy held-out selection (:func:`analyze`);
-* :mod:`~bodyschema.discrepancy.report` — the result as data (DESIGN §2 discrepancy JSON);
+* :mod:`~bodyschema.discrepancy.report` — the result as data (docs/design.md §2 discrepancy JSON);
 * :mod:`~bodyschema.discrepancy.network_gravity` — the robot gravity case: the paper's sensor networks
   without gravity (Eq. 11) against with it (Eq. 24), the cause named for the difference and the
   topology each form learns (imported on its own: it needs torch).

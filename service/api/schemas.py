@@ -1,6 +1,6 @@
 """Response and request bodies of the REST API (they make the OpenAPI document at ``/docs``).
 
-Topologies and findings are passed through as the DESIGN §2 JSON (plain dicts): that format is the
+Topologies and findings are passed through as the docs/design.md §2 JSON (plain dicts): that format is the
 contract, and a second model of it here would drift.
 """
 
@@ -54,7 +54,7 @@ class TopologyOut(BaseModel):
     window_end_t: float | None
     method: str
     source: str | None = None
-    topology: dict[str, Any] = Field(description="DESIGN §2 topology JSON")
+    topology: dict[str, Any] = Field(description="docs/design.md §2 topology JSON")
 
     @classmethod
     def of(cls, r: TopologyRecord) -> TopologyOut:
@@ -69,13 +69,13 @@ class TopologyOut(BaseModel):
 
 
 class TopologyPair(BaseModel):
-    current: dict[str, Any] | None = Field(description="newest learned topology (DESIGN §2 JSON)")
+    current: dict[str, Any] | None = Field(description="newest learned topology (docs/design.md §2 JSON)")
     baseline: dict[str, Any] | None = Field(description="the baseline it is compared with")
     current_meta: TopologyOut | None = None
     baseline_meta: TopologyOut | None = None
     diff: dict[str, Any] | None = Field(
         None,
-        description="DESIGN §2 diff JSON of current vs baseline "
+        description="docs/design.md §2 diff JSON of current vs baseline "
         "(structure only; alerts also use signal health)",
     )
 
@@ -132,7 +132,7 @@ class DamageIn(BaseModel):
 class DamageOut(BaseModel):
     robot: str
     kind: str
-    truth: dict[str, Any] = Field(description="DESIGN §2 diff JSON of what was injected")
+    truth: dict[str, Any] = Field(description="docs/design.md §2 diff JSON of what was injected")
 
 
 class FramesIn(BaseModel):

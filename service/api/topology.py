@@ -23,7 +23,7 @@ Method = Literal["fast", "network", "network-paper", "mlp"]
 @router.get(
     "/topology",
     response_model=TopologyPair,
-    summary="the newest learned topology and the baseline (DESIGN §2 JSON)",
+    summary="the newest learned topology and the baseline (docs/design.md §2 JSON)",
 )
 def topology(
     info: RobotInfo = Depends(get_robot),

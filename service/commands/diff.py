@@ -1,7 +1,7 @@
 """``bodyhealth diff BASELINE.npz CURRENT.npz [--json]``: the monitoring diff, offline.
 
 Both recordings are estimated with the same method, the current one's signal health is judged with the
-baseline as layout, and :func:`bodyschema.diff.diff_bodies` names the differences: DESIGN §2 diff JSON
+baseline as layout, and :func:`bodyschema.diff.diff_bodies` names the differences: docs/design.md §2 diff JSON
 with ``--json``, a readable listing otherwise.
 """
 
@@ -22,19 +22,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diff",
         help="compare the body learned from two recordings (baseline, current): typed damage findings",
-        description="Learn the body from each recording and list what changed (DESIGN §2 diff JSON "
+        description="Learn the body from each recording and list what changed (docs/design.md §2 diff JSON "
         "with --json).",
     )
     p.add_argument("baseline", help="recording (.npz) of the healthy body")
     p.add_argument("current", help="recording (.npz) to check")
-    p.add_argument("--json", action="store_true", help="print the DESIGN §2 diff JSON")
+    p.add_argument("--json", action="store_true", help="print the docs/design.md §2 diff JSON")
     p.add_argument("--method", choices=METHODS, default="fast", help="topology estimator (default fast)")
     p.add_argument("--exit-code", action="store_true", help="exit 1 when a damage is found (like git diff)")
     p.set_defaults(func=run)
 
 
 def format_diff(diff: dict[str, Any]) -> str:
-    """A readable listing of a DESIGN §2 diff JSON.
+    """A readable listing of a docs/design.md §2 diff JSON.
 
     >>> print(format_diff({"changed": True, "findings": [
     ...     {"kind": "imu_moved", "imu": "imu3", "from": "j2", "to": "j4", "confidence": 0.97}]}))

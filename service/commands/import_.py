@@ -1,4 +1,4 @@
-"""``bodyhealth import FORMAT FILE --out rec.npz``: convert measured data into a DESIGN §2 recording.
+"""``bodyhealth import FORMAT FILE --out rec.npz``: convert measured data into a docs/design.md §2 recording.
 
 Formats: ``broad`` (a BROAD trial, HDF5: one IMU plus optical motion capture; see :mod:`service.broad`).
 """

@@ -33,7 +33,7 @@ class _Hinge:
 
 
 def test_variance_drops_the_own_joint_and_the_second_moment_keeps_it(rng):
-    """DESIGN §3: a link turning about one fixed axis has a constant Jacobian-column norm."""
+    """docs/design.md §3: a link turning about one fixed axis has a constant Jacobian-column norm."""
     theta = torch.as_tensor(rng.uniform(-2, 2, size=(200, 2)))
     jbar = invariant_jacobian(_Hinge(), theta).numpy()
     var = jacobian_statistic(jbar, "variance").max(axis=1)
