@@ -107,12 +107,22 @@ def test_all_joints_still_is_all_undetermined(rng):
     assert all(v is None for v in topo.imu_joint.values())
 
 
-def test_estimator_class_matches_functional_core(rng):
+def test_estimator_class_learns_the_tree_and_passes_its_settings_on(rng):
     rec = random_robot_recording(rng, n_joints=5, seconds=10.0)
-    est = FastEstimator(fit_ratio=30.0).fit(rec.q, rec.qd, rec.gyro)
-    fit = fast_fit(rec.q, rec.qd, rec.gyro, fit_ratio=30.0)
-    np.testing.assert_array_equal(est.dependency_, fit.dependency)
-    np.testing.assert_array_equal(est.group_, fit.group)
+    est = FastEstimator().fit(rec.q, rec.qd, rec.gyro)
+    np.testing.assert_array_equal(est.dependency_, rec.truth_dependency)
+    assert est.undetermined_.size == 0 and est.result_.dependency is est.dependency_
+    # IMUs share a group exactly when they ride the same link; base IMUs are group -1
+    same_link = np.equal.outer(np.array(rec.truth_imu_joint), np.array(rec.truth_imu_joint))
+    np.testing.assert_array_equal(np.equal.outer(est.group_, est.group_), same_link)
+    np.testing.assert_array_equal(est.group_ == -1, np.array(rec.truth_imu_joint) == "")
+    # each setting reaches the fit: an excitation floor above every joint's RMS velocity (absolute or
+    # in gyro-noise units) leaves every joint undetermined; a fit ratio no model meets attaches nothing
+    top = float(np.sqrt(np.mean(rec.qd**2, axis=0)).max())
+    for kw in ({"min_excitation": 2 * top}, {"min_excitation_snr": 1e9}):
+        assert FastEstimator(**kw).fit(rec.q, rec.qd, rec.gyro).undetermined_.tolist() == list(range(5)), kw
+    strict = FastEstimator(fit_ratio=1e-6).fit(rec.q, rec.qd, rec.gyro)
+    assert not strict.dependency_.any()
 
 
 @pytest.mark.parametrize(

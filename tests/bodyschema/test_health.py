@@ -7,6 +7,8 @@ a wrong judgement here is the code's fault, not the data's.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -180,9 +182,16 @@ def test_relative_motion_with_moving_parent(rng: np.random.Generator) -> None:
 
 
 def test_to_json_round_numbers(rng: np.random.Generator) -> None:
-    js = signal_health(synth(rng), LAYOUT).to_json()
-    assert set(js["joints"]) == {"j1", "j2", "j3"}
-    assert js["imus"]["a1"]["state"] == "ok"
+    h = signal_health(synth(rng, locked="j2"), LAYOUT)
+    js = json.loads(json.dumps(h.to_json()))  # plain JSON types only
+    assert set(js["joints"]) == {"j1", "j2", "j3"} and set(js["imus"]) == set(h.imus)
+    assert js["joints"]["j2"]["state"] == "still" and js["joints"]["j1"]["state"] == "ok"
+    for name, j in h.joints.items():
+        for field in ("excitation", "relative_motion", "explained"):
+            value = getattr(j, field)
+            assert js["joints"][name][field] == round(float(value), 6), (name, field)
+    for name, imu in h.imus.items():
+        assert js["imus"][name] == {"state": imu.state, "gyro_rms": round(float(imu.gyro_rms), 6)}
 
 
 def test_drop_impacts_removes_only_the_jump(rng: np.random.Generator) -> None:

@@ -143,10 +143,16 @@ def test_damage_picks_parts_reproducibly(seed: int) -> None:
 
 
 @pytest.mark.parametrize(
-    "text", ["imu_moved:imu=imu999", "joint_locked:joint=nope", "warp:x=1", "imu_dead:imu"]
+    ("text", "message"),
+    [
+        ("imu_moved:imu=imu999", "unknown IMU 'imu999'"),
+        ("joint_locked:joint=nope", "unknown joint 'nope'"),
+        ("warp:x=1", "unknown damage 'warp'"),
+        ("imu_dead:imu", "'imu' is not key=value"),
+    ],
 )
-def test_bad_damage_is_a_clear_error(text: str, seed: int) -> None:
-    with pytest.raises(ValueError):
+def test_bad_damage_is_a_clear_error(text: str, message: str, seed: int) -> None:
+    with pytest.raises(ValueError, match=message):
         kind, kw = parse_damage(text)
         _sim(seed).inject(kind, **kw)
 

@@ -68,11 +68,11 @@ def test_stream_paces_faster_than_real_time() -> None:
 
 
 def test_rejects_bad_configuration() -> None:
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="at least one robot"):
         Farm({}, seed=0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="unknown robot 'not-a-robot'"):
         Farm({"a": "not-a-robot"}, seed=0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="unknown excitation 'dance'"):
         Farm({"a": "ur5e"}, seed=0, excitation="dance")
 
 

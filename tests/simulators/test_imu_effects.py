@@ -12,7 +12,8 @@ from bodyschema import imu_effects as fx
 
 
 def test_doctests() -> None:
-    assert doctest.testmod(fx).failed == 0
+    result = doctest.testmod(fx)
+    assert result.attempted >= 10 and result.failed == 0  # the module's examples ran, and held
 
 
 def test_time_shift_recovers_delayed_sine(rng: np.random.Generator) -> None:
