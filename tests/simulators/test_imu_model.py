@@ -192,17 +192,20 @@ def test_fitted_model_in_discrepancy_style_applies(rng: np.random.Generator) -> 
 
 
 @pytest.mark.parametrize(
-    "bad",
+    ("bad", "message"),
     [
-        {"effects": [{"effect": "warp_drive", "params": {}}]},
-        {"effects": [{"effect": "gyro_bias", "params": {"vector": [1, 2]}}]},
-        {"effects": [{"effect": "gyro_bias", "params": {"per_imu": {"nope": {"vector": [0, 0, 0]}}}}]},
-        {"format": "other/2", "effects": []},
-        {"effects": [{"params": {}}]},
+        ({"effects": [{"effect": "warp_drive", "params": {}}]}, "unknown IMU effect 'warp_drive'"),
+        ({"effects": [{"effect": "gyro_bias", "params": {"vector": [1, 2]}}]}, "scalar or 3-vector"),
+        (
+            {"effects": [{"effect": "gyro_bias", "params": {"per_imu": {"nope": {"vector": [0, 0, 0]}}}}]},
+            r"unknown IMUs \['nope'\]",
+        ),
+        ({"format": "other/2", "effects": []}, "unsupported IMU model format 'other/2'"),
+        ({"effects": [{"params": {}}]}, "malformed IMU model JSON"),
     ],
 )
-def test_malformed_models_are_rejected(bad: dict) -> None:
-    with pytest.raises(ValueError):
+def test_malformed_models_are_rejected(bad: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
         ImuModel.from_json(bad).instantiate(("imu0",), np.random.default_rng(0))
 
 
