@@ -107,11 +107,23 @@ def test_networks_recover_a_small_robot_exactly():
     np.testing.assert_array_equal(res.dependency, rec.truth_dependency)
 
 
-def test_invariant_jacobian_shape(rng):
-    net = SensorNetworks(2, 3, hidden=(4, 4, 4), seed=0)
-    jb = invariant_jacobian(net, torch.as_tensor(rng.normal(size=(7, 3)), dtype=torch.float32))
-    assert tuple(jb.shape) == (2, 7, 4, 3)
-    assert bool((jb >= 0).all())
+def test_invariant_jacobian_equals_central_differences(seed, rng):
+    """Eq. 14 on an untrained network: column norms of ∂R/∂θ_j and the norm of ∂b/∂θ_j, per sample."""
+    net = _net(seed)  # 3 IMUs, 4 joints, float64
+    theta = torch.as_tensor(rng.normal(size=(7, 4)))
+    jb = invariant_jacobian(net, theta)
+    assert tuple(jb.shape) == (3, 7, 4, 4)
+    h = 1e-6
+    for j in range(4):
+        e = torch.zeros_like(theta)
+        e[:, j] = h
+        (R1, b1), (R0, b0) = net.pose(theta + e), net.pose(theta - e)
+        dR, db = (R1 - R0) / (2 * h), (b1 - b0) / (2 * h)
+        fd = torch.cat(
+            [torch.linalg.vector_norm(dR, dim=-2), torch.linalg.vector_norm(db, dim=-1)[..., None]], -1
+        )
+        assert torch.allclose(jb[..., j], fd, rtol=1e-5, atol=1e-9), j
+    assert float(jb.min()) > 1e-5  # an untrained network depends on every input, a little
 
 
 def test_loss_scale_is_one_per_sensor_type_not_per_imu(rng):
