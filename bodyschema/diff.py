@@ -44,7 +44,7 @@ from bodyschema.findings import Diff, Finding
 from bodyschema.health import SignalHealth
 from bodyschema.topology import Topology
 
-__all__ = ["STRUCTURAL_KINDS", "DiffThresholds", "diff_bodies", "is_ambiguous"]
+__all__ = ["STRUCTURAL_KINDS", "DiffThresholds", "diff_bodies", "is_ambiguous", "undetermined_reasons"]
 
 #: Kinds read from where the estimate places parts; an ambiguous estimate cannot make them.
 STRUCTURAL_KINDS: tuple[str, ...] = ("imu_moved", "imu_detached", "joint_reparented", "link_lost")
@@ -53,6 +53,50 @@ STRUCTURAL_KINDS: tuple[str, ...] = ("imu_moved", "imu_detached", "joint_reparen
 def is_ambiguous(topo: Topology) -> bool:
     """True when several trees fit the data (not unique, or alternatives given)."""
     return not topo.unique or bool(topo.candidates)
+
+
+def undetermined_reasons(topo: Topology) -> tuple[str, ...]:
+    """Why ``topo`` cannot back a "no change": how many trees fit, where they differ, what would decide.
+
+    Empty when the tree is unique. The parts named are those whose parent differs between the
+    candidate trees; the motion that decides between them moves each joint involved on its own.
+
+    >>> a = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+    >>> b = Topology({"j1": None, "j2": None}, {"i1": "j1", "i2": "j2"})
+    >>> amb = Topology(a.joint_parent, a.imu_joint, unique=False, candidates=(b,))
+    >>> for r in undetermined_reasons(amb):
+    ...     print(r)
+    2 trees fit the data; they differ in joint j2 (parent base or j1)
+    to decide, move each of these joints on its own with the others still: j1, j2
+    >>> undetermined_reasons(a)
+    ()
+    """
+    if not is_ambiguous(topo):
+        return ()
+    trees = [topo, *topo.candidates]
+    count = f"{len(trees)} trees fit the data" if topo.candidates else "more than one tree fits the data"
+    parts: list[str] = []
+    involved: set[str] = set(topo.undetermined)
+    for j in topo.joint_parent:
+        options = {t.joint_parent.get(j) for t in trees}
+        if len(options) > 1:
+            parts.append(f"joint {j} (parent {' or '.join(sorted(o or 'base' for o in options))})")
+            involved.add(j)
+            involved.update(o for o in options if o)
+    for imu in topo.imu_joint:
+        options = {t.imu_joint.get(imu) for t in trees}
+        if len(options) > 1:
+            parts.append(f"IMU {imu} (on {' or '.join(sorted(o or 'base' for o in options))})")
+            involved.update(o for o in options if o)
+    head = count + (f"; they differ in {', '.join(parts)}" if parts else "")
+    reasons = [head]
+    if involved:
+        order = list(topo.joint_parent)
+        names = sorted(involved & set(order), key=order.index)
+        reasons.append(
+            f"to decide, move each of these joints on its own with the others still: {', '.join(names)}"
+        )
+    return tuple(reasons)
 
 
 @dataclass(frozen=True)
@@ -263,4 +307,4 @@ def diff_bodies(
             continue
         findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf(f"joint:{j}")))
 
-    return Diff(findings=tuple(findings))
+    return Diff(findings=tuple(findings), reasons=undetermined_reasons(current))

@@ -78,17 +78,37 @@ class Finding:
 
 @dataclass(frozen=True)
 class Diff:
-    """All findings of one comparison; ``changed`` is true when any finding is a damage."""
+    """All findings of one comparison, and the three-valued answer (docs/design.md §1, §2).
+
+    ``changed`` is True when any finding is a damage, None (undetermined) when there is none but
+    ``reasons`` says the data cannot decide (several trees fit), and False only when the current body
+    was decided uniquely and matches the baseline.
+
+    >>> Diff().changed, Diff(reasons=("3 trees fit the data",)).changed
+    (False, None)
+    >>> Diff(findings=(Finding("imu_dead", imu="imu1"),), reasons=("3 trees fit",)).changed
+    True
+    """
 
     findings: tuple[Finding, ...] = ()
+    #: why the comparison cannot say "no change": how many trees fit, which motion would decide
+    reasons: tuple[str, ...] = ()
 
     @property
-    def changed(self) -> bool:
-        return any(f.kind in DAMAGE_KINDS for f in self.findings)
+    def changed(self) -> bool | None:
+        if any(f.kind in DAMAGE_KINDS for f in self.findings):
+            return True
+        return None if self.reasons else False
 
     def to_json(self) -> dict[str, Any]:
-        return {"changed": self.changed, "findings": [f.to_json() for f in self.findings]}
+        out: dict[str, Any] = {"changed": self.changed, "findings": [f.to_json() for f in self.findings]}
+        if self.reasons:
+            out["reasons"] = list(self.reasons)
+        return out
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Diff:
-        return cls(findings=tuple(Finding.from_json(f) for f in d.get("findings", [])))
+        return cls(
+            findings=tuple(Finding.from_json(f) for f in d.get("findings", [])),
+            reasons=tuple(str(r) for r in d.get("reasons", [])),
+        )

@@ -13,6 +13,8 @@ import logging
 import sys
 from collections.abc import Sequence
 
+from service.machine_output import json_stdout
+
 __all__ = ["COMMAND_MODULES", "build_parser", "main"]
 
 #: Subcommand modules, in the order ``--help`` lists them.
@@ -59,6 +61,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        if getattr(args, "json", False):  # the JSON alone on stdout; solver logs go to stderr
+            with json_stdout():
+                return int(args.func(args) or 0)
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130

@@ -27,7 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     bsub = p.add_subparsers(dest="bench", metavar="NAME", required=True)
     mods = _available()
     for name, mod in mods.items():
-        bp = bsub.add_parser(name, help=(mod.__doc__ or "").strip().splitlines()[0] if mod.__doc__ else None)
+        # argparse %-formats help strings; a docstring's '%' (e.g. "10 % of bits") must reach it escaped
+        summary = (mod.__doc__ or "").strip().splitlines()[0] if mod.__doc__ else None
+        bp = bsub.add_parser(name, help=summary.replace("%", "%%") if summary else None)
         mod.add_arguments(bp)  # type: ignore[attr-defined]
         bp.set_defaults(func=_runner(mod))
     ap = bsub.add_parser("all", help="every benchmark with its default settings")

@@ -13,9 +13,11 @@ import sys
 import time
 from typing import Any
 
-__all__ = ["format_diff", "register", "run"]
+__all__ = ["EXIT_UNDETERMINED", "format_diff", "register", "run"]
 
 METHODS = ("fast", "network", "network-paper", "mlp")
+#: ``--exit-code`` answer when several bodies fit (0 = unchanged, 1 = changed, 2 = usage error)
+EXIT_UNDETERMINED = 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("current", help="recording (.npz) to check")
     p.add_argument("--json", action="store_true", help="print the docs/design.md §2 diff JSON")
     p.add_argument("--method", choices=METHODS, default="fast", help="topology estimator (default fast)")
-    p.add_argument("--exit-code", action="store_true", help="exit 1 when a damage is found (like git diff)")
+    p.add_argument(
+        "--exit-code",
+        action="store_true",
+        help=f"exit 0 when the body is unchanged, 1 when a damage is found (like git diff), "
+        f"{EXIT_UNDETERMINED} when the data cannot decide (several bodies fit)",
+    )
     p.set_defaults(func=run)
 
 
@@ -42,10 +49,13 @@ def format_diff(diff: dict[str, Any]) -> str:
       imu_moved                imu:imu3      j2 -> j4  (confidence 0.97)
     >>> print(format_diff({"changed": False, "findings": []}))
     no change: the current body matches the baseline
+    >>> print(format_diff({"changed": None, "findings": [], "reasons": ["2 trees fit the data"]}))
+    undetermined: 2 trees fit the data
     """
     findings = diff.get("findings", [])
+    reasons = [f"undetermined: {r}" for r in diff.get("reasons", [])] if diff.get("changed") is None else []
     if not findings:
-        return "no change: the current body matches the baseline"
+        return "\n".join(reasons) or "no change: the current body matches the baseline"
     head = "body changed" if diff.get("changed") else "no damage"
     lines = [f"{head}: {len(findings)} finding{'s' if len(findings) != 1 else ''}"]
     for f in findings:
@@ -56,7 +66,7 @@ def format_diff(diff: dict[str, Any]) -> str:
         elif f.get("detail"):
             what = str(f["detail"])
         lines.append(f"  {f['kind']:<24} {part:<13} {what}  (confidence {float(f.get('confidence', 1)):.2f})")
-    return "\n".join(lines)
+    return "\n".join(lines + reasons)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -85,4 +95,6 @@ def run(args: argparse.Namespace) -> int:
             f"({cur.method}, {cur.seconds:.2f} s)"
         )
         print(format_diff(out))
-    return 1 if args.exit_code and diff.changed else 0
+    if not args.exit_code:
+        return 0
+    return {True: 1, False: 0, None: EXIT_UNDETERMINED}[diff.changed]
