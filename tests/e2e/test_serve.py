@@ -1,6 +1,8 @@
-"""The whole service as a process: ``bodyhealth serve --demo`` at 20× real time on a temporary SQLite.
+"""The whole service as a process: ``bodyhealth serve --demo`` at 20× real time, on a temporary SQLite
+file and on a PostgreSQL database.
 
-Baselines are learned for every robot; then each damage kind is injected in turn into ``paper-3-1``
+Baselines are learned for every robot and must equal each robot's true body (every joint's parent,
+every IMU's joint, unique); then each damage kind is injected in turn into ``paper-3-1``
 over the REST API, and within 3 worker cycles an active alert must name the kind and the part. The
 other robots stay undamaged and must not raise a single alert during the whole run. SIGTERM ends it
 with exit code 0.
@@ -20,6 +22,7 @@ from typing import Any
 import httpx
 import pytest
 
+from simulators.robot import Robot
 from tests.e2e.processes import free_port, serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
@@ -40,7 +43,7 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
 
 
 class Service:
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, db_url: str) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.err_path = tmp / "serve.err"
@@ -51,7 +54,7 @@ class Service:
             "BODYHEALTH_ALERT_HYSTERESIS_M": "2",
             "BODYHEALTH_BASELINE_REPEAT_K": "3",
         }
-        cmd = serve_command(self.port, f"sqlite:///{tmp / 'serve.db'}", "--demo", "--speed", "20")
+        cmd = serve_command(self.port, db_url, "--demo", "--speed", "20")
         self.proc = subprocess.Popen(
             cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, text=True, stderr=self.err_path.open("w")
         )
@@ -71,9 +74,14 @@ class Service:
         return int(float(m.group(1))) if m else 0
 
 
-@pytest.fixture
-def service(tmp_path: Path) -> Iterator[Service]:
-    svc = Service(tmp_path)
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
+def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Service]:
+    """The demo service on its own SQLite file, or on a PostgreSQL database made for this test."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'serve.db'}"
+    else:
+        url = request.getfixturevalue("new_pg_database")()
+    svc = Service(tmp_path, url)
     try:
         yield svc
     finally:
@@ -116,10 +124,14 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
     print(f"baselines after {time.monotonic() - t0:.0f} s, {service.cycles()} worker cycles")
     assert {r["name"] for r in robots} == {DAMAGED, *HEALTHY}
     assert all(r["simulated"] for r in robots)
-    for r in robots:  # the learned baseline is the true body: same joints, every IMU placed
+    for r in robots:  # the learned baseline is the true body: every joint's parent, every IMU's joint
         topo = service.get(f"/api/v1/robots/{r['name']}/topology")
-        assert set(topo["baseline"]["joints"]) == set(r["joints"])
-        assert set(topo["baseline"]["imus"]) == set(r["imus"])
+        truth = Robot.from_catalog(r["name"].rsplit("-", 1)[0]).truth()
+        learned = {j: v["parent"] for j, v in topo["baseline"]["joints"].items()}
+        assert learned == truth.joint_parent, r["name"]
+        assert topo["baseline"]["imus"] == truth.imu_joint, r["name"]
+        assert topo["baseline"]["unique"] is True, r["name"]
+        assert set(learned) == set(r["joints"]) and set(topo["baseline"]["imus"]) == set(r["imus"])
 
     def no_alert_on_healthy() -> None:
         bad = [a for a in service.get("/api/v1/alerts") if a["robot"] in HEALTHY]
