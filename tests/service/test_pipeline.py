@@ -1,5 +1,5 @@
-"""The ingest pipeline on a real store: everything stored exactly, backpressure drops and counts,
-bad batches and failing sources never stop it, stop drains."""
+"""The ingest pipeline on a real store, SQLite and PostgreSQL: everything stored exactly, backpressure
+drops and counts, bad batches and failing sources never stop it, stop drains."""
 
 from __future__ import annotations
 
@@ -84,10 +84,10 @@ def test_replay_into_store_is_exact(store: Store, rng: np.random.Generator) -> N
     assert store.sample_count("b") == 200
 
 
-def test_backpressure_blocks_then_drops_and_counts(tmp_path, rng: np.random.Generator) -> None:
+def test_backpressure_blocks_then_drops_and_counts(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=4.0)
     src = ReplaySource(ref, robot="r", speed=math.inf, chunk_seconds=0.01)  # 400 one-sample batches
-    with SlowStore(f"sqlite:///{tmp_path / 's.db'}") as store:
+    with SlowStore(db_url) as store:
         pipe = Pipeline(store, [src], queue_max_batches=2, put_timeout=0.005, coalesce_max_samples=2)
         with pipe:
             assert pipe.wait_exhausted(timeout=120)
@@ -102,10 +102,10 @@ def test_backpressure_blocks_then_drops_and_counts(tmp_path, rng: np.random.Gene
         np.testing.assert_array_equal(ref.acc[idx], rec.acc)
 
 
-def test_blocking_put_loses_nothing_when_the_store_catches_up(tmp_path, rng: np.random.Generator) -> None:
+def test_blocking_put_loses_nothing_when_the_store_catches_up(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=0.6)
     src = ReplaySource(ref, robot="r", speed=math.inf, chunk_seconds=0.01)
-    with SlowStore(f"sqlite:///{tmp_path / 's.db'}") as store:
+    with SlowStore(db_url) as store:
         with Pipeline(store, [src], queue_max_batches=2, put_timeout=5.0, coalesce_max_samples=4) as pipe:
             assert pipe.wait_exhausted(timeout=120)
         assert src.counters.dropped == 0 and store.sample_count("r") == 60
@@ -138,10 +138,10 @@ def test_bad_batches_and_failing_reads_do_not_stop_ingest(store: Store, rng: np.
     assert store.sample_count("r") == 28 and rec.n_samples == 28 and 0.07 not in rec.t and 0.12 not in rec.t
 
 
-def test_stop_drains_everything_received(tmp_path, rng: np.random.Generator) -> None:
+def test_stop_drains_everything_received(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=30.0)
     src = ReplaySource(ref, robot="r", speed=20.0, chunk_seconds=0.1)  # 1.5 s of wall time in all
-    with Store(f"sqlite:///{tmp_path / 's.db'}") as store:
+    with Store(db_url) as store:
         pipe = Pipeline(store, [src]).start()
         time.sleep(0.5)
         assert pipe.running
@@ -154,10 +154,10 @@ def test_stop_drains_everything_received(tmp_path, rng: np.random.Generator) -> 
     pipe.stop()  # idempotent
 
 
-def test_pacing_follows_speed(tmp_path, rng: np.random.Generator) -> None:
+def test_pacing_follows_speed(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=1.0)
     src = ReplaySource(ref, robot="r", speed=4.0, chunk_seconds=0.1)
-    with Store(f"sqlite:///{tmp_path / 's.db'}") as store, Pipeline(store, [src]) as pipe:
+    with Store(db_url) as store, Pipeline(store, [src]) as pipe:
         t0 = time.monotonic()
         assert pipe.wait_exhausted(timeout=30)
         wall = time.monotonic() - t0

@@ -185,12 +185,11 @@ def test_serial_and_can_specs_are_delegated() -> None:
             open_source("can:", Settings())
 
 
-@pytest.mark.skipif(importlib.util.find_spec("simulators.farm") is None, reason="simulators.farm not shipped")
 @pytest.mark.slow
-def test_real_farm_spec(tmp_path) -> None:
+def test_real_farm_spec(db_url: str) -> None:
     src = open_source("farm:paper-3,ur5e@max?seed=1&step=0.05", Settings())
     assert isinstance(src, FarmSource) and sorted(src.robot_names) == ["paper-3-1", "ur5e-1"]
-    with Store(f"sqlite:///{tmp_path / 'f.db'}") as store:
+    with Store(db_url) as store:
         with Pipeline(store, [src]) as pipe:
             for _ in range(200):
                 if all(store.robot(n) and (store.robot(n).last_frame_t or 0) >= 0.5 for n in src.robot_names):
