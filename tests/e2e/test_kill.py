@@ -42,9 +42,10 @@ def committed(log: Path) -> int:
     return json.loads(lines[-1])["samples"] if lines else 0
 
 
-def check_db(db_file: Path, db_url: str, rec_t: np.ndarray, rec_gyro: np.ndarray) -> int:
-    with sqlite3.connect(db_file) as conn:
-        assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+def check_db(db_url: str, rec_t: np.ndarray, rec_gyro: np.ndarray) -> int:
+    if db_url.startswith("sqlite:///"):
+        with sqlite3.connect(db_url.removeprefix("sqlite:///")) as conn:
+            assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     with Store(db_url) as store:
         n = store.sample_count(ROBOT) if store.robot(ROBOT) else 0
         if n:
@@ -56,12 +57,21 @@ def check_db(db_file: Path, db_url: str, rec_t: np.ndarray, rec_gyro: np.ndarray
     return n
 
 
-def test_sigkill_mid_ingest_loses_nothing_committed(tmp_path: Path, rng: np.random.Generator) -> None:
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
+def kill_db(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """The service's store: its own SQLite file, or a PostgreSQL database made for this test."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'kill.db'}"
+    return request.getfixturevalue("new_pg_database")()
+
+
+def test_sigkill_mid_ingest_loses_nothing_committed(
+    kill_db: str, tmp_path: Path, rng: np.random.Generator
+) -> None:
     rec = synth(rng, seconds=150.0)
     rec_path = tmp_path / "run.npz"
     save_recording(rec, rec_path)
-    db_file = tmp_path / "kill.db"
-    db_url = f"sqlite:///{db_file}"
+    db_url = kill_db
     stored_before = 0
     for attempt in range(3):
         log = tmp_path / f"commits{attempt}.jsonl"
@@ -76,7 +86,7 @@ def test_sigkill_mid_ingest_loses_nothing_committed(tmp_path: Path, rng: np.rand
         finally:
             proc.send_signal(signal.SIGKILL)
             proc.wait(20)
-        n = check_db(db_file, db_url, rec.t, rec.gyro)
+        n = check_db(db_url, rec.t, rec.gyro)
         # every commit the killed process reported is there, on top of what earlier runs stored
         assert n >= stored_before + committed(log), (attempt, n, stored_before, committed(log))
         assert n < rec.n_samples, "the kill came after the whole recording was in: test too slow"
@@ -95,6 +105,6 @@ def test_sigkill_mid_ingest_loses_nothing_committed(tmp_path: Path, rng: np.rand
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(60)
     assert rc == 0, (tmp_path / "commits_final.err").read_text()[-3000:]
-    assert check_db(db_file, db_url, rec.t, rec.gyro) == rec.n_samples
+    assert check_db(db_url, rec.t, rec.gyro) == rec.n_samples
     err = (tmp_path / "commits_final.err").read_text()
     assert '"msg": "ingest drained"' in err and '"msg": "service stopped"' in err
