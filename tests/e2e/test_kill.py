@@ -57,21 +57,13 @@ def check_db(db_url: str, rec_t: np.ndarray, rec_gyro: np.ndarray) -> int:
     return n
 
 
-@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
-def kill_db(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    """The service's store: its own SQLite file, or a PostgreSQL database made for this test."""
-    if request.param == "sqlite":
-        return f"sqlite:///{tmp_path / 'kill.db'}"
-    return request.getfixturevalue("new_pg_database")()
-
-
 def test_sigkill_mid_ingest_loses_nothing_committed(
-    kill_db: str, tmp_path: Path, rng: np.random.Generator
+    e2e_db_url: str, tmp_path: Path, rng: np.random.Generator
 ) -> None:
     rec = synth(rng, seconds=150.0)
     rec_path = tmp_path / "run.npz"
     save_recording(rec, rec_path)
-    db_url = kill_db
+    db_url = e2e_db_url
     stored_before = 0
     for attempt in range(3):
         log = tmp_path / f"commits{attempt}.jsonl"

@@ -74,14 +74,10 @@ class Service:
         return int(float(m.group(1))) if m else 0
 
 
-@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
-def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Service]:
+@pytest.fixture
+def service(e2e_db_url: str, tmp_path: Path) -> Iterator[Service]:
     """The demo service on its own SQLite file, or on a PostgreSQL database made for this test."""
-    if request.param == "sqlite":
-        url = f"sqlite:///{tmp_path / 'serve.db'}"
-    else:
-        url = request.getfixturevalue("new_pg_database")()
-    svc = Service(tmp_path, url)
+    svc = Service(tmp_path, e2e_db_url)
     try:
         yield svc
     finally:

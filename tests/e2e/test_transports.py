@@ -40,7 +40,9 @@ def recording_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.parametrize("kind", ["can", "serial"])
-def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Path, tmp_path: Path) -> None:
+def test_learned_tree_over_the_wire_equals_direct(
+    kind: str, recording_path: Path, tmp_path: Path, e2e_db_url: str
+) -> None:
     rec = load_recording(recording_path)
     proc = subprocess.Popen(
         emulator_command(kind, recording_path, "ur5e", tmp_path / "ur5e.json"),
@@ -49,7 +51,7 @@ def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Pat
         text=True,
     )
     settings = Settings(
-        database_url=f"sqlite:///{tmp_path / 'e2e.db'}",
+        database_url=e2e_db_url,
         window_seconds=rec.duration + 1.0,
         retention_seconds=3600.0,
     )
@@ -91,7 +93,7 @@ def test_learned_tree_over_the_wire_equals_direct(kind: str, recording_path: Pat
         proc.wait(10)
 
 
-def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path) -> None:
+def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path, e2e_db_url: str) -> None:
     """``bodyhealth serve --source can:slcan:PTY --source serial:PTY``: the daemon learns both robots."""
     import os
 
@@ -116,7 +118,7 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
         "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
         "BODYHEALTH_WINDOW_SECONDS": str(rec.duration + 1.0),
     }
-    cmd = serve_command(port, f"sqlite:///{tmp_path / 'serve.db'}", "--text-logs")
+    cmd = serve_command(port, e2e_db_url, "--text-logs")
     for spec in specs:
         cmd += ["--source", spec]
     err = (tmp_path / "serve.err").open("w")
