@@ -2,7 +2,8 @@
 
 Two levels: the page against an in-process server on a prepared store (trees, highlights, alerts, the
 damage form, ack), and the whole demo daemon where a damage injected from the page becomes an alert.
-Skipped only when no Chromium is installed.
+Both run on SQLite and on PostgreSQL: the page reads what the store gives back, and the two backends
+must give back the same trees, alerts and acks. Skipped only when no Chromium is installed.
 """
 
 from __future__ import annotations
@@ -85,10 +86,10 @@ class StoreInjector:
 
 
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[tuple[str, Store, StoreInjector]]:
+def served(e2e_db_url: str) -> Iterator[tuple[str, Store, StoreInjector]]:
     import uvicorn
 
-    store = Store(f"sqlite:///{tmp_path / 'dash.db'}")
+    store = Store(e2e_db_url)
     n = 50
     for robot in ("arm", "leg"):
         store.write(
@@ -190,7 +191,9 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
 
 
 @pytest.mark.slow
-def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(browser: Any, tmp_path: Path) -> None:
+def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
+    browser: Any, tmp_path: Path, e2e_db_url: str
+) -> None:
     """The real thing: ``serve --demo`` at 20×, the page draws each learned tree with one node per joint,
     a damage injected from the page becomes an alert row. With BODYHEALTH_UPDATE_SCREENSHOT=1 the
     screenshot goes to docs/dashboard.png."""
@@ -209,7 +212,7 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(browser: 
     }
     err = (tmp_path / "serve.err").open("w")
     proc = subprocess.Popen(
-        serve_command(port, f"sqlite:///{tmp_path / 'demo.db'}", "--demo", "--speed", "20"),
+        serve_command(port, e2e_db_url, "--demo", "--speed", "20"),
         cwd=tmp_path,
         env=env,
         stdout=subprocess.DEVNULL,
