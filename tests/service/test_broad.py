@@ -13,9 +13,10 @@ from bodyschema.recording import RecordingError
 from service.broad import BROAD_ATTRIBUTION, broad_data_dir, gap_runs, load_broad, session_of
 from service.cli import main
 from simulators.recording_io import load_recording
+from tests.broad_data import BROAD_ENV, broad_dir, broad_marks, broad_trial, needs_broad
 
-DATA = broad_data_dir()
-TRIAL = DATA / "07_undisturbed_fast_rotation_B.hdf5"
+TRIAL_NAME = "07_undisturbed_fast_rotation_B"
+TRIAL = broad_trial(TRIAL_NAME)
 
 
 def _write_trial(path: Path, n: int = 1000, rate: float = 100.0, gaps: dict | None = None) -> dict:
@@ -84,7 +85,7 @@ def test_gap_runs_and_sessions() -> None:
     assert session_of("rec.npz") == ""
 
 
-@pytest.mark.skipif(not TRIAL.exists(), reason="BROAD data not shared on this machine")
+@needs_broad(TRIAL_NAME)
 def test_cli_imports_a_real_trial(tmp_path: Path) -> None:
     out = tmp_path / "rec.npz"
     assert main(["import", "broad", str(TRIAL), "--out", str(out)]) == 0
@@ -99,6 +100,26 @@ def test_cli_imports_a_real_trial(tmp_path: Path) -> None:
     assert rec.extra["ref_valid"][finite].all()
     assert not rec.extra["ref_valid"][0]
     assert "Laidig" in str(rec.extra["attribution"])
+
+
+def test_the_trials_are_found_where_the_environment_says_else_beside_the_checkout(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv(BROAD_ENV, raising=False)
+    repo = Path(__file__).resolve().parents[2]
+    assert broad_dir() == repo.parent / "shared" / "data" / "broad"
+    assert broad_data_dir() == broad_dir()  # the CLI's default and the tests' agree
+    monkeypatch.setenv(BROAD_ENV, str(tmp_path))
+    assert broad_dir() == tmp_path == broad_data_dir()
+    assert broad_trial("x_A") == broad_trial("x_A.hdf5") == tmp_path / "x_A.hdf5"
+    # an empty directory: a BROAD test skips, naming the directory, the trial and the variable
+    marks = broad_marks("x_A")
+    assert [m.name for m in marks] == ["broad", "skipif"]
+    assert marks[1].args == (True,)
+    reason = marks[1].kwargs["reason"]
+    assert "x_A" in reason and str(tmp_path) in reason and BROAD_ENV in reason
+    (tmp_path / "x_A.hdf5").write_bytes(b"")
+    assert broad_marks("x_A")[1].args == (False,)
 
 
 def test_cli_reports_a_missing_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
