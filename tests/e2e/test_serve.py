@@ -166,7 +166,7 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_signal_drains_and_exits_zero(tmp_path: Path, sig: signal.Signals) -> None:
+def test_signal_drains_and_exits_zero(tmp_path: Path, e2e_db_url: str, sig: signal.Signals) -> None:
     import json
 
     import numpy as np
@@ -181,7 +181,7 @@ def test_signal_drains_and_exits_zero(tmp_path: Path, sig: signal.Signals) -> No
     proc = subprocess.Popen(
         serve_command(
             port,
-            f"sqlite:///{tmp_path / 'db.sqlite'}",
+            e2e_db_url,
             "--source",
             f"replay:{rec_path}@5?robot=arm",
             "--commit-log",

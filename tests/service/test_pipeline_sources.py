@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import threading
 
@@ -176,13 +175,15 @@ def test_bad_specs_say_why(spec: str, match: str) -> None:
 
 
 def test_serial_and_can_specs_are_delegated() -> None:
-    if importlib.util.find_spec("service.ingest.serial") is not None:
-        src = open_source("serial:loop://?robot=r1&period=0.01&joints=j1,j2&imus=", Settings())
-        assert type(src).__module__ == "service.ingest.serial"
-        src.close()
-    if importlib.util.find_spec("service.ingest.can") is not None:
-        with pytest.raises(ValueError):
-            open_source("can:", Settings())
+    """Both transports ship, so both specs must reach their own module (and its own refusals)."""
+    src = open_source("serial:loop://?robot=r1&period=0.01&joints=j1,j2&imus=", Settings())
+    assert type(src).__module__ == "service.ingest.serial"
+    src.close()
+    src = open_source("can:virtual:spec-test?robot=r2&joints=j1&imus=imu0", Settings())
+    assert type(src).__module__ == "service.ingest.can" and src.config.robot == "r2"
+    src.close()
+    with pytest.raises(ValueError, match="CAN source needs INTERFACE:CHANNEL"):
+        open_source("can:slcan", Settings())
 
 
 @pytest.mark.slow
