@@ -51,12 +51,24 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-__all__ = ["FastEstimator", "FastFit", "fast_fit", "insufficient_excitation", "noise_level"]
+from bodyschema.recording import Recording
+
+__all__ = [
+    "FastEstimator",
+    "FastFit",
+    "fast_fit",
+    "fast_fit_recording",
+    "fast_fit_timed",
+    "insufficient_excitation",
+    "noise_level",
+]
 
 _WORLD = -1
 
@@ -108,6 +120,15 @@ class FastFit:
     excitation: np.ndarray
     noise: np.ndarray
     edges: list[tuple[int, int, tuple[int, ...], float]] = field(default_factory=list)
+    #: Timed data only (:func:`fast_fit_timed`): the IMU's lag behind the encoders at encoder-clock
+    #: time ``lag_time`` s (the middle of the fit; clock skew plus filter delay), the skew alone (lag
+    #: less the stated filter delay), the clock drift (the lag's slope), all as estimated, and the
+    #: comparison band.
+    lag_ms: float | None = None
+    lag_time: float | None = None
+    skew_ms: float | None = None
+    drift_ppm: float | None = None
+    band_hz: float | None = None
 
 
 # ----------------------------------------------------------------------------- least squares helpers
@@ -240,14 +261,69 @@ class _UnionFind:
 
 def fast_fit(
     q: np.ndarray,
-    qd: np.ndarray,
+    qd: np.ndarray | None,
     gyro: np.ndarray,
     fit_ratio: float = 25.0,
     rel_tol: float = 2e-3,
     min_excitation_snr: float = 15.0,
     min_excitation: float = 2e-3,
+    *,
+    t: np.ndarray | None = None,
+    t_q: np.ndarray | None = None,
+    **timing: Any,
 ) -> FastFit:
-    """Functional core of :class:`FastEstimator`: ``q``, ``qd`` (T, N), ``gyro`` (T, K, 3) -> FastFit."""
+    """Functional core of :class:`FastEstimator`: ``q``, ``qd`` (T, N), ``gyro`` (T, K, 3) -> FastFit.
+
+    With stamps ``t`` (IMU) and ``t_q`` (encoders; ``q`` then has one row per ``t_q``) the data are
+    taken as a real robot logs them and go through :func:`fast_fit_timed` (``qd`` is then unused;
+    ``timing`` holds its options). Without, the samples are taken as synced and exact, as the
+    simulator's ideal output is.
+    """
+    if t is not None:
+        return fast_fit_timed(
+            q,
+            gyro,
+            t,
+            t if t_q is None else t_q,
+            fit_ratio=fit_ratio,
+            min_excitation_snr=min_excitation_snr,
+            min_excitation=min_excitation,
+            **timing,
+        )
+    if timing:
+        raise TypeError(f"timing options {sorted(timing)} need the stamps t (and t_q)")
+    if qd is None:
+        raise ValueError("qd is needed without stamps (give t and t_q to derive it from q)")
+    return _fit(
+        q,
+        qd,
+        gyro,
+        fit_ratio=fit_ratio,
+        rel_tol=rel_tol,
+        min_excitation_snr=min_excitation_snr,
+        min_excitation=min_excitation,
+    )
+
+
+def _fit(
+    q: np.ndarray,
+    qd: np.ndarray,
+    gyro: np.ndarray,
+    *,
+    fit_ratio: float,
+    rel_tol: float,
+    min_excitation_snr: float,
+    min_excitation: float,
+    band: Callable[..., np.ndarray] | None = None,
+    sigma: np.ndarray | None = None,
+    floor_add: np.ndarray | float = 0.0,
+    n_eff: float = 1.0,
+    undetermined: np.ndarray | None = None,
+) -> FastFit:
+    """The tests on one grid. ``band(x, axis)`` (timed data) low-passes and picks the fit samples of
+    every regressor and of the gyro alike after the products are formed (the models stay exact);
+    ``sigma`` is then the in-band gyro noise per sample, ``floor_add`` (K,) the error model's other
+    variance, ``n_eff`` the independent observations per fit sample. Identity for synced data."""
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     gyro = np.asarray(gyro, dtype=float)
@@ -260,25 +336,37 @@ def fast_fit(
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(gyro))):
         raise ValueError("q, qd and gyro must be finite")
 
-    sigma = noise_level(gyro)
-    sigma = np.where(np.isfinite(sigma), sigma, 0.0)
-    gc = gyro - gyro.mean(axis=0)
-    rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))  # (K,)
-    floor = (rel_tol * rms) ** 2 + 1e-12
+    if band is None:
 
-    excitation = np.sqrt(np.mean(qd * qd, axis=0))
-    undetermined = insufficient_excitation(qd, gyro, min_excitation_snr, min_excitation)
+        def band(x: np.ndarray, axis: int = -1) -> np.ndarray:
+            return x
+
+    if sigma is None:
+        sigma = noise_level(gyro)
+    sigma = np.where(np.isfinite(sigma), sigma, 0.0)
+    gyroT = np.ascontiguousarray(gyro.transpose(1, 2, 0))  # (K, 3, T), unfiltered: products first
+    gb = band(gyro, axis=0)
+    gc = gb - gb.mean(axis=0)
+    Tb = gc.shape[0]
+    if Tb < 50:
+        raise ValueError(f"need at least 50 samples to test models, got {Tb}")
+    rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))  # (K,)
+    floor = (rel_tol * rms) ** 2 + floor_add + 1e-12
+
+    qdb = band(qd, axis=0)
+    excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
+    if undetermined is None:
+        undetermined = insufficient_excitation(qd, gyro, min_excitation_snr, min_excitation)
     active = np.flatnonzero(~undetermined)
 
     # ---- same-link and base tests, IMU against IMU
     base_ratio = np.mean(gc * gc, axis=(0, 2)) / (sigma**2 + floor)
     on_base = base_ratio < fit_ratio
-    gyroT = np.ascontiguousarray(gyro.transpose(1, 2, 0))  # (K, 3, T)
-    Fm = gyroT  # regress on one other IMU
-    Y = gc.reshape(T, 3 * K)
+    Fm = np.ascontiguousarray(gb.transpose(1, 2, 0))  # regress on one other IMU
+    Y = gc.reshape(Tb, 3 * K)
     expl = _explained(Fm, Y).reshape(K, K, 3).sum(-1)  # [m, k]
     rss = np.sum(gc * gc, axis=(0, 2))[None, :] - expl
-    dof = max(T - 4, 1)
+    dof = max(Tb - 4, 1)
     same = (rss / (3 * dof)) / (sigma[None, :] ** 2 + sigma[:, None] ** 2 + floor[None, :])  # [m, k]
     same = np.maximum(same, same.T)
     adj = (same < fit_ratio) & ~on_base[:, None] & ~on_base[None, :]
@@ -297,8 +385,8 @@ def fast_fit(
             member_conf[m] = np.clip(1.5 - worst / fit_ratio, 0.0, 1.0)
 
     # ---- one-hinge tests, all (child g, parent h, joint j) at once; h == G is the fixed world
-    Wg = gc[:, rep, :]  # (T, G, 3)
-    Yg = Wg.reshape(T, 3 * G)
+    Wg = gc[:, rep, :]  # (Tb, G, 3)
+    Yg = Wg.reshape(Tb, 3 * G)
     ysq = np.sum(Wg * Wg, axis=(0, 2))
     sig_g = sigma[rep]
     cos_q, sin_q = np.cos(q[:, active]), np.sin(q[:, active])
@@ -310,13 +398,13 @@ def fast_fit(
     if G and Na:
         for h in range(G + 1):
             if h == G:
-                F = qdT[:, None, :]  # world: ω_g = e q̇_j + b
+                F = band(qdT[:, None, :])  # world: ω_g = e q̇_j + b
                 exp_var = sig_g**2 + floor[rep]
             else:
-                F = _hop_features(gyroT[rep[h]], cosT, sinT, qdT)
+                F = band(_hop_features(gyroT[rep[h]], cosT, sinT, qdT))
                 exp_var = sig_g**2 + sig_g[h] ** 2 + floor[rep]
             ex = _explained(F, Yg).reshape(Na, G, 3).sum(-1)  # (Na, G)
-            dof = max(T - F.shape[1] - 1, 1)
+            dof = max(Tb - F.shape[1] - 1, 1)
             s2[:, h, :] = ((ysq[None, :] - ex) / (3 * dof)).T
             ratio[:, h, :] = s2[:, h, :] / exp_var[:, None]
         for g in range(G):
@@ -327,7 +415,7 @@ def fast_fit(
     world = G
     # Ordered by a BIC-type score: the world model (1 regressor) is nested in every one-hinge model
     # (12), so a child of the base fits below any of its siblings too; parsimony must pick the world.
-    n_obs = 3 * T
+    n_obs = 3 * Tb * n_eff
     penalty = np.log(n_obs) / n_obs
     cand: list[tuple[float, float, int, int, int]] = []
     for g in range(G):
@@ -367,9 +455,9 @@ def fast_fit(
         for i, (a, b) in enumerate(pairs):
             args = (cos_q[:, a], sin_q[:, a], qda[:, a], cos_q[:, b], sin_q[:, b], qda[:, b])
             for h_slice, wh in ((slice(0, G), wall), (slice(G, G + 1), None)):
-                F = _two_hop_features(wh, *args)
+                F = band(_two_hop_features(wh, *args))
                 ex = _explained(F, Yg).reshape(F.shape[0], G, 3).sum(-1)  # (H, G)
-                dof = max(T - F.shape[1] - 1, 1)
+                dof = max(Tb - F.shape[1] - 1, 1)
                 hs = np.arange(G + 1)[h_slice]
                 par_var = np.where(hs == world, 0.0, sig_g[hs % G] ** 2)[:, None]
                 ev = sig_g[None, :] ** 2 + floor[rep][None, :] + par_var
@@ -469,3 +557,275 @@ def fast_fit(
         noise=sigma,
         edges=edges,
     )
+
+
+# ----------------------------------------------------------------------- data as real robots log them
+def fast_fit_timed(
+    q: np.ndarray,
+    gyro: np.ndarray,
+    t: np.ndarray,
+    t_q: np.ndarray,
+    *,
+    imu_bandwidth: float | None = None,
+    imu_delay: float = 0.0,
+    band: float | None = None,
+    max_lag: float = 0.1,
+    fit_ratio: float = 25.0,
+    model_tol: float = 2e-3,
+    min_excitation_snr: float = 15.0,
+    min_excitation: float = 2e-3,
+) -> FastFit:
+    """The fast estimator on encoder positions ``q`` (T_q, N) stamped ``t_q`` and gyro rates ``gyro``
+    (T, K, 3) stamped ``t`` on another clock (docs/recording-format.md).
+
+    Steps (the tools and their reasons are in :mod:`bodyschema.timing`):
+
+    1. both streams go to uniform grids by cubic splines through their own stamps; gyro samples in
+       gaps over 5 periods are left out;
+    2. the velocity is the band-limited derivative of the positions; a velocity the encoders may
+       report is not used (it is usually a difference itself, of unknown quality);
+    3. the IMU's lag behind the encoders is the shift that lets the encoder velocities explain the most
+       band-limited gyro variance, per quarter of the recording when it is long enough, so a clock
+       drift shows as a slope; ``skew_ms`` is that lag less ``imu_delay``, the stated on-chip filter
+       delay (docs/design.md §4 lists the MPU-6050's);
+    4. positions and velocities are evaluated at the lagged instants on the IMU grid, every regressor
+       is formed there, and the regressors and the gyro go through one band (``band`` Hz, chosen by
+       :func:`bodyschema.timing.choose_band` from the rates and ``imu_bandwidth`` when not given),
+       then are thinned to 2.5 samples per band period;
+    5. the model tests are those of :func:`fast_fit` with an **error model** in place of a tolerance:
+       the expected residual variance of a right model is the in-band gyro noise (white noise scaled by
+       the band's share of the spectrum) + the in-band derivative noise of the encoder positions
+       (quantization and noise, :func:`bodyschema.timing.derivative_noise`, largest over the joints) +
+       a relative model error ``ε²·RMS²`` with ``ε² = model_tol² + (2π f_rms δ)² + (1 - |H_imu(fc)|)²``
+       (``δ`` the lag's uncertainty: the scatter of the per-quarter lags about their line, at least a
+       quarter ms; ``f_rms`` the gyro's RMS frequency in band; ``H_imu`` a first-order roll-off at
+       ``imu_bandwidth``, or at the IMU Nyquist frequency when not stated). A model is accepted when
+       its residual variance is below ``fit_ratio`` times that (a variance-ratio test), and rival models
+       are ranked by BIC with the effective sample size of the band-limited residuals,
+       ``2 fc`` independent values per second and channel.
+    """
+    from bodyschema import timing as tm
+
+    q = np.asarray(q, dtype=float)
+    gyro = np.asarray(gyro, dtype=float)
+    t = np.asarray(t, dtype=float)
+    t_q = np.asarray(t_q, dtype=float)
+    if q.ndim != 2 or q.shape[0] != t_q.shape[0]:
+        raise ValueError(f"q {q.shape} must have one row per encoder stamp ({t_q.shape[0]})")
+    if gyro.ndim != 3 or gyro.shape[0] != t.shape[0] or gyro.shape[2] != 3:
+        raise ValueError(f"gyro {gyro.shape} must be (T, K, 3) with one row per IMU stamp ({t.shape[0]})")
+    for name, ts in (("t", t), ("t_q", t_q)):
+        if ts.shape[0] < 8 or not np.all(np.diff(ts) > 0):
+            raise ValueError(f"{name} must hold at least 8 strictly increasing stamps")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(gyro))):
+        raise ValueError("q and gyro must be finite")
+    K = gyro.shape[1]
+    f_imu, f_enc = tm.median_rate(t), tm.median_rate(t_q)
+    fc = float(band) if band is not None else tm.choose_band(f_imu, f_enc, imu_bandwidth)
+    lo, hi = max(t[0], t_q[0]) + max_lag, min(t[-1], t_q[-1]) - max_lag
+    if hi - lo < 4 * tm.edge_margin(fc):
+        raise ValueError(
+            f"the streams overlap for {min(t[-1], t_q[-1]) - max(t[0], t_q[0]):.3g} s; need at least "
+            f"{4 * tm.edge_margin(fc) + 2 * max_lag:.3g} s at a {fc:g} Hz band"
+        )
+
+    # 1. uniform grids
+    grid = lo + np.arange(int(np.floor((hi - lo) * f_imu)) + 1) / f_imu
+    g_flat, valid = tm.resample(t, gyro.reshape(len(t), -1), grid)
+    gyro_g = g_flat.reshape(len(grid), K, 3)
+    egrid = t_q[0] + np.arange(int(np.floor((t_q[-1] - t_q[0]) * f_enc)) + 1) / f_enc
+    q_e, _ = tm.resample(t_q, q, egrid)
+
+    # 2. band-limited positions and velocities on the encoder grid: ``fa`` keeps everything the IMU
+    # grid can hold (they are sampled there next), ``fc`` is the comparison band for the lag search
+    fa = min(0.4 * f_imu, 0.45 * f_enc)
+    from scipy.interpolate import CubicSpline
+
+    q_s = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fa), axis=0)
+    qd_s = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fa, derivative=True), axis=0)
+    qd_c = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fc, derivative=True), axis=0)
+
+    # fit samples: away from the ends and from long gaps (the filter rings there), thinned
+    margin = tm.edge_margin(fc)
+    bad = ~valid
+    if bad.any():
+        reach = int(np.ceil(margin * f_imu))
+        bad = np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
+    ok = ~bad & (grid >= grid[0] + margin) & (grid <= grid[-1] - margin)
+    step = max(1, int(f_imu // (2.5 * fc)))
+    keep = np.flatnonzero(ok)[::step]
+    if len(keep) < 50:
+        raise ValueError(f"only {len(keep)} usable samples in the {fc:g} Hz band; record longer")
+    gyro_b = tm.lowpass(gyro_g, f_imu, fc)[keep].reshape(len(keep), 3 * K)
+
+    # 3. lag: first from a linear regression of the gyro on all joint velocities (it ignores the
+    # rotation terms of the models, so it is good to a ms or two, the uncertainty used until step 6)
+    tk = grid[keep]
+    lag_mid, _, _ = tm.estimate_lag(gyro_b, lambda d: qd_c(tk - d), max_lag=max_lag, step=2e-3)
+    n_seg = int(min(4, (tk[-1] - tk[0]) // 15.0))
+    t_mid = float(tk.mean())
+    drift = 0.0
+    lag_unc = 2e-3
+
+    def lag_at(tt: np.ndarray) -> np.ndarray:
+        return lag_mid + drift * (tt - t_mid)
+
+    # 4. aligned signals on the IMU grid; one band for the gyro and every regressor
+    shifted = grid - lag_at(grid)
+    qa, qda = q_s(shifted), qd_s(shifted)
+
+    def band_fn(x: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.take(tm.lowpass(x, f_imu, fc, axis=axis), keep, axis=axis)
+
+    # 5. error model
+    share = min(1.0, fc / (f_imu / 2))
+    sigma_raw = noise_level(gyro_g[ok])
+    sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0) * np.sqrt(share)
+    qd_noise = tm.derivative_noise(tm.position_noise(q), f_enc, fc)
+    gc = gyro_b.reshape(len(keep), K, 3)
+    gc = gc - gc.mean(axis=0)
+    rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))
+    dg = np.diff(gc, axis=0) * (f_imu / step)
+    f_rms = np.sqrt(np.mean(dg * dg, axis=(0, 2)) / np.maximum(np.mean(gc * gc, axis=(0, 2)), 1e-300))
+    f_rms = f_rms / (2 * np.pi)
+    bw = imu_bandwidth if imu_bandwidth is not None else f_imu / 2
+    # a first-order roll-off's gain varies over the motion's band by about 1 - |H(f_rms)| (its phase is
+    # a delay, which the lag absorbs; a constant gain folds into the model's coefficients)
+    roll = 1 - 1 / np.sqrt(1 + (f_rms / bw) ** 2)
+    eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
+    qdb = band_fn(qda, axis=0)
+    excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
+    sigma_ref = float(np.median(sigma_b)) if K else 0.0
+    undetermined = excitation < np.maximum(
+        max(min_excitation, min_excitation_snr * sigma_ref), min_excitation_snr * qd_noise
+    )
+    active = ~undetermined
+    qd_var = float(np.max(qd_noise[active] ** 2)) if active.any() else 0.0
+    floor_add = eps2 * rms**2 + qd_var
+    n_eff = min(1.0, 2 * fc * step / f_imu)
+    fit = _fit(
+        qa,
+        qda,
+        gyro_g,
+        fit_ratio=fit_ratio,
+        rel_tol=0.0,
+        min_excitation_snr=min_excitation_snr,
+        min_excitation=min_excitation,
+        band=band_fn,
+        sigma=sigma_b,
+        floor_add=floor_add,
+        n_eff=n_eff,
+        undetermined=undetermined,
+    )
+    # 6. the lag again, now from the accepted models themselves (exact where the linear search above
+    # is only nearly so: it ignores the rotation terms), per segment for the drift; then the final fit
+    if fit.edges:
+        segs = np.array_split(np.arange(len(keep)), max(n_seg, 1))
+        shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, 0.5e-3)
+        rss = np.array(
+            [
+                _edge_rss(fit, sigma_b, gyro_g, q_s, qd_s, grid - lag_at(grid) - d, band_fn, segs)
+                for d in shifts
+            ]
+        )
+        seg_lags = []
+        for i, part in enumerate(segs):
+            j = int(np.argmin(rss[:, i]))
+            off = 0.0
+            if 0 < j < len(shifts) - 1:
+                r0, r1, r2 = rss[j - 1, i], rss[j, i], rss[j + 1, i]
+                den = r0 - 2 * r1 + r2
+                off = float(np.clip(0.5 * (r0 - r2) / den, -1, 1)) if den > 0 else 0.0
+            ts = float(tk[part].mean())
+            seg_lags.append((ts, float(lag_at(np.array([ts]))[0] + shifts[j] + off * 0.5e-3)))
+        xs, ys = np.array(seg_lags).T
+        if len(xs) >= 2:
+            drift, lag_mid = np.polyfit(xs - t_mid, ys, 1)
+            resid = ys - (lag_mid + drift * (xs - t_mid))
+            lag_unc = max(0.25e-3, float(np.sqrt(np.mean(resid**2))))
+        else:
+            lag_mid = float(ys[0])
+        shifted = grid - lag_at(grid)
+        qa, qda = q_s(shifted), qd_s(shifted)
+        eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
+        fit = _fit(
+            qa,
+            qda,
+            gyro_g,
+            fit_ratio=fit_ratio,
+            rel_tol=0.0,
+            min_excitation_snr=min_excitation_snr,
+            min_excitation=min_excitation,
+            band=band_fn,
+            sigma=sigma_b,
+            floor_add=eps2 * rms**2 + qd_var,
+            n_eff=n_eff,
+            undetermined=undetermined,
+        )
+    fit.lag_ms = 1e3 * float(lag_mid)
+    fit.lag_time = t_mid
+    fit.skew_ms = 1e3 * float(lag_mid - imu_delay)
+    fit.drift_ppm = 1e6 * float(drift)
+    fit.band_hz = fc
+    return fit
+
+
+def _edge_rss(
+    fit: FastFit,
+    sigma: np.ndarray,
+    gyro: np.ndarray,
+    q_s: Callable[[np.ndarray], np.ndarray],
+    qd_s: Callable[[np.ndarray], np.ndarray],
+    at: np.ndarray,
+    band: Callable[..., np.ndarray],
+    segments: list[np.ndarray],
+) -> np.ndarray:
+    """Residual sum of squares of the accepted edge models, per segment of the fit samples, with the
+    encoder signals evaluated at the instants ``at``."""
+    q, qd = q_s(at), qd_s(at)
+    c, s = np.cos(q), np.sin(q)
+    out = np.zeros(len(segments))
+    for g, h, js, _ in fit.edges:
+        members = [np.flatnonzero(fit.group == x) for x in (g, h)]
+        rg = members[0][np.argmin(sigma[members[0]])]
+        wh = None if h < 0 else gyro[:, members[1][np.argmin(sigma[members[1]])]].T
+        if len(js) == 1:
+            j = js[0]
+            F = _hop_features(wh, c[None, :, j], s[None, :, j], qd[None, :, j])
+        else:
+            a, b = js
+            F = _two_hop_features(
+                None if wh is None else wh[None], c[:, a], s[:, a], qd[:, a], c[:, b], s[:, b], qd[:, b]
+            )
+        Fb = band(F)
+        Yb = band(gyro[:, rg], axis=0)
+        for i, part in enumerate(segments):
+            Y = Yb[part] - Yb[part].mean(axis=0)
+            out[i] += float(np.sum(Y * Y) - _explained(Fb[:, :, part], Y).sum())
+    return out
+
+
+def fast_fit_recording(rec: Recording, **kw: Any) -> FastFit:
+    """:func:`fast_fit` on a recording: timed (:func:`fast_fit_timed`) when the encoders have their own
+    stamps, synced otherwise.
+
+    For timed data the IMU's on-chip filter, when the recording states it (``extra["sensing"]`` JSON
+    with ``dlpf_cfg``, docs/recording-format.md), sets ``imu_bandwidth`` and ``imu_delay`` unless
+    given.
+    """
+    if rec.q is None:
+        raise ValueError("the fast estimator needs joint positions q")
+    if rec.t_q is None:
+        d = rec.derived()
+        return fast_fit(d.q, d.qd, rec.gyro, **kw)
+    if "sensing" in rec.extra and "imu_bandwidth" not in kw:
+        import json
+
+        from bodyschema.timing import DLPF_GYRO
+
+        cfg = json.loads(str(rec.extra["sensing"])).get("dlpf_cfg")
+        if cfg is not None:
+            kw.setdefault("imu_bandwidth", DLPF_GYRO[int(cfg)][0])
+            kw.setdefault("imu_delay", DLPF_GYRO[int(cfg)][1])
+    kw.pop("rel_tol", None)
+    return fast_fit_timed(rec.q, rec.gyro, rec.t, rec.t_q, **kw)

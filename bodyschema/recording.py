@@ -13,6 +13,13 @@ Example
 (5, 1, 1)
 >>> rec.derived().qd.shape
 (5, 1)
+
+A multi-rate recording (docs/recording-format.md) keeps the encoders on their own stamps ``t_q``:
+
+>>> two = Recording(t=t, t_q=np.arange(12) * 0.004, joint_names=("j1",), q=np.zeros((12, 1)),
+...                 imu_names=("imu0",), acc=np.zeros((5, 1, 3)), gyro=np.zeros((5, 1, 3)))
+>>> two.is_multirate, two.n_samples, round(two.encoder_rate)
+(True, 5, 250)
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ import numpy as np
 
 from bodyschema.topology import Topology
 
-__all__ = ["GRAVITY", "Recording", "RecordingError"]
+__all__ = ["GRAVITY", "Recording", "RecordingError", "check_stamps", "find_gaps"]
 
 #: Standard world gravity (z up), m/s².
 GRAVITY = np.array([0.0, 0.0, -9.81])
@@ -32,6 +39,51 @@ GRAVITY = np.array([0.0, 0.0, -9.81])
 
 class RecordingError(ValueError):
     """A recording whose arrays do not fit the docs/design.md §2 contract (shape, order, finiteness)."""
+
+
+def check_stamps(t: np.ndarray, name: str = "t") -> None:
+    """Raise :class:`RecordingError` saying where time stamps are not finite and strictly increasing.
+
+    Stamps that go backwards and duplicate stamps are refused, each with its own message naming the
+    first offending index: both mean the recorder lost track of its clock (or two logs were
+    concatenated), and no ordering of the samples can be guessed safely. ``load_recording(...,
+    repair=True)`` drops exact duplicates, logged; nothing repairs stamps that go backwards.
+    """
+    t = np.asarray(t)
+    if t.ndim != 1 or t.shape[0] < 1:
+        raise RecordingError(f"{name} must have shape (T,), got {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise RecordingError(f"{name} contains NaN or Inf")
+    if t.shape[0] > 1:
+        d = np.diff(t)
+        back = np.flatnonzero(d < 0)
+        if back.size:
+            i = int(back[0])
+            raise RecordingError(
+                f"{name} goes backwards at index {i + 1} ({t[i]:.6g} s -> {t[i + 1]:.6g} s, "
+                f"{back.size} time(s) in all)"
+            )
+        dup = np.flatnonzero(d == 0)
+        if dup.size:
+            i = int(dup[0])
+            raise RecordingError(
+                f"{name} has duplicate stamps at index {i + 1} ({t[i]:.6g} s, {dup.size} in all); "
+                "load with repair=True to drop them"
+            )
+
+
+def find_gaps(t: np.ndarray, factor: float = 3.0) -> list[tuple[float, float]]:
+    """(start, stop) of every interval between stamps longer than ``factor`` median periods.
+
+    Gaps are allowed in a recording (a dropped serial frame, a paused logger); they are reported, not
+    filled: :mod:`bodyschema.timing` interpolates across short ones and excludes long ones from fits.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.shape[0] < 3:
+        return []
+    d = np.diff(t)
+    big = np.flatnonzero(d > factor * np.median(d))
+    return [(float(t[i]), float(t[i + 1])) for i in big]
 
 
 def _as_names(names: Any) -> tuple[str, ...]:
@@ -43,6 +95,8 @@ class Recording:
     """Encoder and IMU time series of one robot (docs/design.md §2).
 
     Shapes: ``t`` (T,), ``q``/``qd``/``qdd`` (T,N) rad, ``acc``/``gyro`` (T,K,3) in the sensor frame,
+    or, in a multi-rate recording (docs/recording-format.md), ``q``/``qd``/``qdd`` (T_q,N) on their own
+    stamps ``t_q`` (T_q,) while ``t`` stamps the IMU stream;
     ``acc`` as specific force (reads about +9.81 up at rest). ``truth_*`` are ground truth for tests and
     benchmarks; estimators never read them. ``extra`` carries optional arrays (e.g. ``excitation``)
     through a round trip untouched.
@@ -62,6 +116,7 @@ class Recording:
     truth_joint_parent: tuple[str, ...] | None = None
     truth_imu_joint: tuple[str, ...] | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    t_q: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "joint_names", _as_names(self.joint_names))
@@ -91,22 +146,44 @@ class Recording:
 
     @property
     def sample_rate(self) -> float:
-        """Median sample rate, Hz."""
+        """Median sample rate of the IMU stream (of the whole recording when single-clock), Hz."""
         if self.n_samples < 2:
             return 0.0
         return float(1.0 / np.median(np.diff(self.t)))
+
+    @property
+    def is_multirate(self) -> bool:
+        """True when the encoders have their own stamps ``t_q`` (docs/recording-format.md)."""
+        return self.t_q is not None
+
+    @property
+    def encoder_t(self) -> np.ndarray:
+        """The encoder stream's stamps: ``t_q`` in a multi-rate recording, else ``t``."""
+        return self.t if self.t_q is None else self.t_q
+
+    @property
+    def encoder_rate(self) -> float:
+        """Median sample rate of the encoder stream, Hz."""
+        te = self.encoder_t
+        return 0.0 if te.shape[0] < 2 else float(1.0 / np.median(np.diff(te)))
 
     # ------------------------------------------------------------ validation
     def validate(self) -> None:
         """Raise :class:`RecordingError` naming the first field that breaks the contract."""
         t = np.asarray(self.t)
-        if t.ndim != 1 or t.shape[0] < 1:
-            raise RecordingError(f"t must have shape (T,), got {t.shape}")
-        if not np.all(np.isfinite(t)):
-            raise RecordingError("t contains NaN or Inf")
-        if t.shape[0] > 1 and not np.all(np.diff(t) > 0):
-            raise RecordingError("t must be strictly increasing")
+        check_stamps(t, "t")
         T, N, K = t.shape[0], self.n_joints, self.n_imus
+        Tq = T
+        if self.t_q is not None:
+            t_q = np.asarray(self.t_q)
+            check_stamps(t_q, "t_q")
+            Tq = t_q.shape[0]
+            lo, hi = max(t[0], t_q[0]), min(t[-1], t_q[-1])
+            if not hi > lo:
+                raise RecordingError(
+                    f"the IMU stream ({t[0]:.6g}..{t[-1]:.6g} s) and the encoder stream "
+                    f"({t_q[0]:.6g}..{t_q[-1]:.6g} s) do not overlap in time"
+                )
         if len(set(self.joint_names)) != N:
             raise RecordingError("joint_names must be unique")
         if len(set(self.imu_names)) != K:
@@ -115,8 +192,9 @@ class Recording:
             v = getattr(self, name)
             if v is None:
                 continue
-            if v.shape != (T, N):
-                raise RecordingError(f"{name} must have shape {(T, N)}, got {v.shape}")
+            if v.shape != (Tq, N):
+                stamps = "t_q" if self.t_q is not None else "t"
+                raise RecordingError(f"{name} must have shape {(Tq, N)} (on {stamps}), got {v.shape}")
             if not np.all(np.isfinite(v)):
                 raise RecordingError(f"{name} contains NaN or Inf")
         for name in ("acc", "gyro"):
@@ -138,37 +216,82 @@ class Recording:
 
     # -------------------------------------------------------------- derived
     def derived(self) -> Recording:
-        """This recording with ``qd`` and ``qdd`` filled by central differences where absent."""
+        """This recording with ``qd`` and ``qdd`` filled by central differences where absent.
+
+        Central differences on the encoder stamps: fine for the simulator's synced output, not a
+        band-limited derivative; :mod:`bodyschema.timing` has the one the fast estimator uses on
+        multi-rate data.
+        """
         if self.q is None or (self.qd is not None and self.qdd is not None):
             return self
-        qd = self.qd if self.qd is not None else _gradient(self.q, self.t)
-        qdd = self.qdd if self.qdd is not None else _gradient(qd, self.t)
+        qd = self.qd if self.qd is not None else _gradient(self.q, self.encoder_t)
+        qdd = self.qdd if self.qdd is not None else _gradient(qd, self.encoder_t)
         return replace(self, qd=qd, qdd=qdd)
 
     def window(self, start: float, stop: float) -> Recording:
-        """The samples with ``start <= t < stop`` (all array fields sliced alike)."""
+        """The samples with ``start <= t < stop`` (all array fields sliced alike; in a multi-rate
+        recording each stream by its own stamps)."""
         m = (self.t >= start) & (self.t < stop)
-        return self.select(m)
+        if self.t_q is None:
+            return self.select(m)
+        mq = (self.t_q >= start) & (self.t_q < stop)
+        return self._pick(m, mq)
 
     def select(self, index: np.ndarray | slice) -> Recording:
-        """Samples picked by a boolean mask, index array or slice along time."""
+        """Samples picked by a boolean mask, index array or slice along time.
 
+        In a multi-rate recording the index picks IMU samples; the encoder samples kept are those
+        stamped within the span of the picked IMU stamps.
+        """
+        if self.t_q is None:
+            return self._pick(index, index)
+        ts = self.t[index]
+        if ts.size == 0:
+            raise RecordingError("the selection holds no IMU sample")
+        mq = (self.t_q >= ts.min()) & (self.t_q <= ts.max())
+        return self._pick(index, mq)
+
+    def _pick(self, index: np.ndarray | slice, qindex: np.ndarray | slice) -> Recording:
         def pick(v: np.ndarray | None) -> np.ndarray | None:
             return None if v is None else v[index]
+
+        def pickq(v: np.ndarray | None) -> np.ndarray | None:
+            return None if v is None else v[qindex]
 
         extra = {k: (v[index] if v.shape[:1] == self.t.shape else v) for k, v in self.extra.items()}
         return replace(
             self,
             t=self.t[index],
-            q=pick(self.q),
-            qd=pick(self.qd),
-            qdd=pick(self.qdd),
+            t_q=pickq(self.t_q),
+            q=pickq(self.q),
+            qd=pickq(self.qd),
+            qdd=pickq(self.qdd),
             acc=self.acc[index],
             gyro=self.gyro[index],
             ref_quat=pick(self.ref_quat),
             ref_pos=pick(self.ref_pos),
             extra=extra,
         )
+
+    def synced(self) -> Recording:
+        """A single-clock copy: encoder positions (and velocities) interpolated at the IMU stamps.
+
+        For consumers that need one clock. Cubic interpolation on the encoder stamps, IMU samples
+        outside the encoder stream's span dropped; no skew or filter delay is corrected (the fast
+        estimator estimates those itself, :mod:`bodyschema.timing`).
+        """
+        if self.t_q is None:
+            return self
+        from scipy.interpolate import CubicSpline
+
+        m = (self.t >= self.t_q[0]) & (self.t <= self.t_q[-1])
+        inside = self._pick(m, slice(None))
+        ts = inside.t
+
+        def interp(v: np.ndarray | None) -> np.ndarray | None:
+            return None if v is None else CubicSpline(self.t_q, v, axis=0)(ts)
+
+        return replace(inside, t_q=None, q=interp(self.q), qd=interp(self.qd), qdd=interp(self.qdd))
 
     @property
     def truth_parent_map(self) -> dict[str, str | None] | None:

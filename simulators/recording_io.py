@@ -1,5 +1,10 @@
 """Read and write recordings as ``.npz`` files (docs/design.md §2, a contract with outside tools).
 
+Multi-rate recordings (encoders on their own stamps ``t_q``) are described in docs/recording-format.md;
+files with one ``t`` load as before. Timing problems are refused with a message saying where
+(:func:`bodyschema.recording.check_stamps`), except two documented repairs: ``repair=True`` drops
+samples whose stamp repeats the previous one, and gaps are kept as they are; both are logged.
+
 Example
 -------
 >>> import numpy as np, tempfile, os
@@ -14,16 +19,21 @@ Example
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
 import numpy as np
 
-from bodyschema.recording import Recording, RecordingError
+from bodyschema.recording import Recording, RecordingError, find_gaps
 
-__all__ = ["load_recording", "save_recording"]
+__all__ = ["drop_duplicate_stamps", "load_recording", "save_recording"]
 
-_ARRAYS = ("t", "q", "qd", "qdd", "acc", "gyro", "gravity", "ref_quat", "ref_pos")
+log = logging.getLogger(__name__)
+
+_ARRAYS = ("t", "t_q", "q", "qd", "qdd", "acc", "gyro", "gravity", "ref_quat", "ref_pos")
+_IMU_SERIES = ("acc", "gyro", "ref_quat", "ref_pos")
+_ENC_SERIES = ("q", "qd", "qdd")
 _NAMES = ("joint_names", "imu_names", "truth_joint_parent", "truth_imu_joint")
 
 
@@ -46,8 +56,41 @@ def save_recording(rec: Recording, path: str | os.PathLike[str]) -> None:
     np.savez_compressed(path, **data)
 
 
-def load_recording(path: str | os.PathLike[str]) -> Recording:
-    """Read a ``.npz`` recording (docs/design.md §2); raise :class:`RecordingError` saying why if not one."""
+def drop_duplicate_stamps(
+    data: dict[str, np.ndarray], stamps: str, series: tuple[str, ...], source: str = "recording"
+) -> int:
+    """Drop, in place, every sample of ``series`` whose ``stamps`` entry equals the previous stamp.
+
+    The first of the repeated samples is kept (a logger that re-sends a frame repeats it). Stamps that
+    go backwards are not touched: :class:`Recording` refuses them. Returns how many were dropped and
+    logs a warning naming the stream when any were.
+    """
+    if stamps not in data:
+        return 0
+    t = np.asarray(data[stamps], dtype=np.float64)
+    if t.ndim != 1 or t.shape[0] < 2:
+        return 0
+    keep = np.concatenate([[True], np.diff(t) != 0])
+    n = int((~keep).sum())
+    if n:
+        first = float(t[np.flatnonzero(~keep)[0]])
+        log.warning(
+            "%s: dropped %d sample(s) with a repeated %s stamp (first at %.6g s)", source, n, stamps, first
+        )
+        data[stamps] = t[keep]
+        for k in series:
+            if k in data and data[k].shape[:1] == keep.shape:
+                data[k] = data[k][keep]
+    return n
+
+
+def load_recording(path: str | os.PathLike[str], *, repair: bool = False) -> Recording:
+    """Read a ``.npz`` recording (docs/design.md §2, docs/recording-format.md); raise
+    :class:`RecordingError` saying why if not one.
+
+    ``repair`` drops samples with a repeated stamp (logged) instead of refusing the file. Gaps in
+    either stream (intervals over 3 median periods) are logged as warnings, never filled.
+    """
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
@@ -56,6 +99,11 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     missing = [k for k in ("t", "imu_names", "acc", "gyro") if k not in data]
     if missing:
         raise RecordingError(f"{path}: missing keys {missing}")
+    if repair:
+        multirate = "t_q" in data
+        drop_duplicate_stamps(data, "t", _IMU_SERIES if multirate else _IMU_SERIES + _ENC_SERIES, str(path))
+        if multirate:
+            drop_duplicate_stamps(data, "t_q", _ENC_SERIES, str(path))
     kw: dict[str, object] = {}
     for k in _ARRAYS:
         if k in data:
@@ -65,4 +113,17 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
             kw[k] = tuple(str(x) for x in data.pop(k).reshape(-1))
     kw.setdefault("joint_names", ())
     kw.setdefault("q", None)
-    return Recording(extra=data, **kw)  # type: ignore[arg-type]
+    rec = Recording(extra=data, **kw)  # type: ignore[arg-type]
+    for name, stamps in (("t", rec.t), ("t_q", rec.t_q)):
+        gaps = [] if stamps is None else find_gaps(stamps)
+        if gaps:
+            longest = max(b - a for a, b in gaps)
+            log.warning(
+                "%s: %d gap(s) in %s (longest %.3g s, first at %.6g s); kept as they are",
+                path,
+                len(gaps),
+                name,
+                longest,
+                gaps[0][0],
+            )
+    return rec

@@ -32,6 +32,7 @@ from bodyschema.topology import Topology
 from simulators.excitation import Excitation, excitation_rms, make_excitation
 from simulators.imu_model import ImuModel, ImuStream, resolve_imu_model
 from simulators.robot import Robot
+from simulators.sensing import SensingOptions, apply_sensing, resolve_sensing
 
 __all__ = ["Simulation", "simulate"]
 
@@ -292,8 +293,14 @@ def simulate(
     excitation: str | Excitation = "observable",
     damage: str | Sequence[str | tuple[str, dict[str, Any]]] | None = None,
     rate: float = 100.0,
+    sensing: str | SensingOptions | None = "ideal",
 ) -> Recording:
     """Simulate ``robot`` (catalog name or MJCF/URDF path) for ``seconds``; return the recording.
+
+    ``sensing`` (:mod:`simulators.sensing`: ``ideal``, ``robot`` or options) says how the robot senses
+    and stamps its motion. ``ideal`` is today's output at ``rate``: synced, exact joint velocities.
+    Anything else simulates the physics at the options' inner rate (1 kHz: what the IMU sees) and
+    returns a docs/recording-format.md multi-rate recording; ``rate`` is then unused.
 
     ``damage`` is one ``KIND[:key=value,...]`` string or a list of them (or ``(kind, kwargs)``
     pairs); ``at=SECONDS`` injects mid-run (default 0: the whole recording is damaged). The
@@ -306,6 +313,11 @@ def simulate(
 
     if not seconds > 0:
         raise ValueError("seconds must be > 0")
+    opts = resolve_sensing(sensing)
+    if not opts.is_ideal:
+        if resolve_imu_model(imu_model).rate is not None:
+            raise ValueError("an IMU model with its own sample_rate cannot be combined with sensing options")
+        rate = opts.inner_rate
     sim = Simulation(robot, seed=seed, imu_model=imu_model, excitation=excitation, rate=rate)
     todo: list[tuple[float, str, dict[str, Any]]] = []
     single = isinstance(damage, str) or (
@@ -327,4 +339,10 @@ def simulate(
         sim.inject(kind, **kw)
     if total - sim._served > 0:
         chunks.append(sim.advance(total - sim._served))
-    return _concat(chunks, sim)
+    rec = _concat(chunks, sim)
+    if opts.is_ideal:
+        return rec
+    # a stream of its own, after the four the simulation spawns, so the motion and the IMU noise are
+    # those of the same seed's ideal run at the inner rate
+    sensing_ss = np.random.SeedSequence(seed).spawn(5)[4]
+    return apply_sensing(rec, opts, np.random.default_rng(sensing_ss))

@@ -20,6 +20,7 @@ BENCHMARKS: tuple[str, ...] = (
     "ingest",
     "sim2real",
     "gravity",
+    "realism",
 )
 
 #: Where results files and plots go (relative to the working directory: the repo root under make).

@@ -47,7 +47,8 @@ def test_recording_derives_velocity():
     [
         ("acc", np.ones((10, 2, 3)), "acc must have shape"),
         ("q", np.full((10, 2), np.nan), "q contains NaN"),
-        ("t", np.zeros(10), "strictly increasing"),
+        ("t", np.zeros(10), "duplicate stamps at index 1"),
+        ("t", np.arange(10.0)[::-1].copy(), "goes backwards at index 1"),
     ],
 )
 def test_recording_rejects_bad_input(field, value, msg):

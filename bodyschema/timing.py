@@ -1,0 +1,211 @@
+"""Timing tools for comparing an IMU stream with an encoder stream on a different clock (pure).
+
+Real robots log encoder positions on one clock and gyro rates on another, a few ms apart, at different
+rates, with gaps; the gyro has been low-passed on chip (docs/design.md §3-§4). The fast estimator's
+exact gyro models (:mod:`bodyschema.fast`) hold sample by sample, and they are linear in their
+parameters, so **any linear time-invariant filter applied alike to the gyro and to every regressor
+keeps them exact**. That is the principle here: nothing is compared until both sides have been taken
+to one grid and through one band.
+
+* :func:`resample` puts a stream on a uniform grid (cubic spline through its own stamps), marking grid
+  points inside long gaps invalid.
+* :func:`lowpass` is the common band: a zero-phase spectral low-pass, flat to 0.8 ``fc`` with a
+  raised-cosine roll-off to 1.2 ``fc``. With ``derivative=True`` it is the *band-limited
+  differentiator*: the same filter times ``i 2πf``, which is exact for every frequency it passes. It is
+  used instead of Savitzky-Golay or a smoothing spline because its band is stated in Hz and is exactly
+  the band the gyro side goes through, so the derived velocity and the gyro are compared through one
+  transfer function; finite-difference and polynomial differentiators deviate from ``i 2πf`` inside
+  the band by amounts that depend on the rate (a central difference is 6.5 % low at 10 Hz from 100 Hz
+  samples, far above sensor noise).
+* :func:`choose_band` sizes that band from the rates and the IMU filter: well below both Nyquist
+  frequencies (interpolation and aliasing errors) and below the IMU's on-chip bandwidth (where its
+  magnitude response is flat), capped at 10 Hz (robot motion lives below it; quantization noise of a
+  derived velocity grows with the cube of the band, :func:`derivative_noise`).
+* :func:`estimate_lag` finds the IMU's lag behind the encoders (clock skew plus filter delay) as the
+  shift that lets the encoder-derived velocities explain the most band-limited gyro variance.
+
+Example
+-------
+>>> import numpy as np
+>>> t = np.arange(2000) / 100.0
+>>> x = np.sin(2 * np.pi * 0.5 * t)
+>>> d = lowpass(x, 100.0, 5.0, derivative=True)
+>>> bool(np.max(np.abs(d[200:-200] - np.pi * np.cos(np.pi * t[200:-200]))) < 1e-3)
+True
+>>> choose_band(100.0, 250.0, imu_bandwidth=42.0)
+10.0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+__all__ = [
+    "DLPF_ACC",
+    "DLPF_GYRO",
+    "choose_band",
+    "derivative_noise",
+    "edge_margin",
+    "estimate_lag",
+    "lowpass",
+    "median_rate",
+    "position_noise",
+    "resample",
+]
+
+#: MPU-6050 DLPF_CFG 0..6 -> (bandwidth Hz, delay s), register map RM-MPU-6000A rev 4.2, CONFIG
+#: (docs/design.md §4). Facts used by the simulator's sensing model and by the estimator's error model.
+DLPF_ACC: tuple[tuple[float, float], ...] = (
+    (260.0, 0.0),
+    (184.0, 2.0e-3),
+    (94.0, 3.0e-3),
+    (44.0, 4.9e-3),
+    (21.0, 8.5e-3),
+    (10.0, 13.8e-3),
+    (5.0, 19.0e-3),
+)
+DLPF_GYRO: tuple[tuple[float, float], ...] = (
+    (256.0, 0.98e-3),
+    (188.0, 1.9e-3),
+    (98.0, 2.8e-3),
+    (42.0, 4.8e-3),
+    (20.0, 8.3e-3),
+    (10.0, 13.4e-3),
+    (5.0, 18.6e-3),
+)
+
+
+def median_rate(t: np.ndarray) -> float:
+    """Median sample rate of stamps ``t``, Hz (robust to jitter and drops)."""
+    return float(1.0 / np.median(np.diff(np.asarray(t, dtype=float))))
+
+
+def choose_band(imu_rate: float, encoder_rate: float, imu_bandwidth: float | None = None) -> float:
+    """The common comparison band, Hz: ``min(0.1 * min rate, imu_bandwidth / 4, 10)``.
+
+    A tenth of the slower stream's rate keeps cubic interpolation of either stream exact to about
+    1e-4 in band; a quarter of the on-chip bandwidth keeps a first-order roll-off within 3 % (the rest
+    is in the error model); 10 Hz is above the motion of the arms we monitor.
+    """
+    fc = min(0.1 * min(imu_rate, encoder_rate), 10.0)
+    if imu_bandwidth is not None:
+        fc = min(fc, imu_bandwidth / 4.0)
+    return float(fc)
+
+
+def resample(
+    t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap: int = 5
+) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` (T, ...) on stamps ``t`` -> (values on ``grid``, valid mask).
+
+    Cubic spline through the stamps; grid points inside a gap longer than ``max_gap`` median periods
+    (docs/recording-format.md) are marked invalid rather than trusted.
+    """
+    t = np.asarray(t, dtype=float)
+    y = CubicSpline(t, x, axis=0, extrapolate=False)(grid)
+    valid = np.isfinite(y.reshape(len(grid), -1)).all(axis=1)
+    d = np.diff(t)
+    period = float(np.median(d))
+    for i in np.flatnonzero(d > max_gap * period):
+        valid &= ~((grid > t[i]) & (grid < t[i + 1]))
+    y = np.where(np.isfinite(y), y, 0.0)
+    return y, valid
+
+
+def _response(n: int, rate: float, fc: float) -> tuple[np.ndarray, np.ndarray]:
+    f = np.fft.rfftfreq(n, 1.0 / rate)
+    lo, hi = 0.8 * fc, 1.2 * fc
+    H = np.where(f <= lo, 1.0, np.where(f >= hi, 0.0, 0.5 * (1 + np.cos(np.pi * (f - lo) / (hi - lo)))))
+    return f, H
+
+
+def lowpass(x: np.ndarray, rate: float, fc: float, derivative: bool = False, axis: int = 0) -> np.ndarray:
+    """Zero-phase band-limit of ``x`` along ``axis`` (and its exact in-band derivative).
+
+    The line through the first and last sample is taken out before the FFT and put back after (its
+    derivative is its slope), so the periodic extension has no jump; the first and last ``2 / fc``
+    seconds still carry edge effects and are left out of fits by the callers.
+    """
+    x = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    n = x.shape[-1]
+    ramp = np.linspace(0.0, 1.0, n)
+    a, b = x[..., :1], x[..., -1:]
+    line = a + (b - a) * ramp
+    f, H = _response(n, rate, fc)
+    X = np.fft.rfft(x - line, axis=-1) * H
+    if derivative:
+        X = X * (2j * np.pi * f)
+        y = np.fft.irfft(X, n=n, axis=-1) + (b - a) * rate / max(n - 1, 1)
+    else:
+        y = np.fft.irfft(X, n=n, axis=-1) + line
+    return np.moveaxis(y, -1, axis)
+
+
+def position_noise(q: np.ndarray) -> np.ndarray:
+    """Per-joint white-noise std of encoder positions (quantization plus noise), rad, (N,).
+
+    From the third difference (variance 20 σ² for white noise, nearly nothing for smooth motion at
+    encoder rates); the top 1 % is trimmed for the instants where a torque step breaks smoothness. A
+    mean of squares, not a median, because quantization error of a slow joint is mostly an exact zero.
+    """
+    q = np.asarray(q, dtype=float)
+    if q.shape[0] < 8:
+        return np.zeros(q.shape[1])
+    d3 = np.diff(q, n=3, axis=0) ** 2
+    cut = np.quantile(d3, 0.99, axis=0)
+    d3 = np.where(d3 <= cut, d3, 0.0)
+    return np.sqrt(d3.mean(axis=0) / 20.0)
+
+
+def derivative_noise(sigma_q: np.ndarray, rate: float, fc: float) -> np.ndarray:
+    """In-band std of the derivative of white position noise ``sigma_q`` sampled at ``rate``, rad/s.
+
+    White noise of variance σ² spreads evenly over 0..rate/2; differentiating multiplies its spectrum
+    by (2πf)², and the band keeps 0..fc: σ² (2 / rate) (2π)² fc³ / 3.
+    """
+    return np.sqrt(np.asarray(sigma_q) ** 2 * (2.0 / rate) * (2 * np.pi) ** 2 * fc**3 / 3.0)
+
+
+def estimate_lag(
+    y: np.ndarray,
+    x_at: Callable[[float], np.ndarray],
+    max_lag: float = 0.1,
+    step: float = 1e-3,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """The lag ``d`` (s) that maximises the variance of ``y`` (T, M) explained by ``x_at(d)`` (T, P).
+
+    ``x_at(d)`` returns the band-limited encoder signals evaluated ``d`` seconds before the IMU grid.
+    A coarse search over ±``max_lag`` in ``step`` s is refined by a parabola through the best point and
+    its neighbours (the explained variance is smooth in ``d``: both sides are band-limited).
+    Returns (lag, the lags tried, explained fraction at each).
+    """
+    yc = y - y.mean(axis=0)
+    total = float(np.sum(yc * yc))
+
+    def score(d: float) -> float:
+        X = x_at(d)
+        X = X - X.mean(axis=0)
+        G = X.T @ X
+        G += (1e-9 * np.trace(G) / max(len(G), 1) + 1e-300) * np.eye(len(G))
+        B = X.T @ yc
+        return float(np.sum(B * np.linalg.solve(G, B))) / max(total, 1e-300)
+
+    lags = np.arange(-max_lag, max_lag + step / 2, step)
+    s = np.array([score(float(d)) for d in lags])
+    i = int(np.argmax(s))
+    if 0 < i < len(lags) - 1:
+        s0, s1, s2 = s[i - 1], s[i], s[i + 1]
+        den = s0 - 2 * s1 + s2
+        off = 0.5 * (s0 - s2) / den if den < 0 else 0.0
+        best = float(lags[i] + np.clip(off, -1.0, 1.0) * step)
+    else:
+        best = float(lags[i])
+    return best, lags, s
+
+
+def edge_margin(fc: float) -> float:
+    """Seconds at each end (and around each long gap) where :func:`lowpass` still rings: 2 / fc."""
+    return 2.0 / fc
