@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 PORT    ?= 8000
 
-.PHONY: setup setup-browser run test test-fast lint bench clean
+.PHONY: setup setup-browser run test test-fast lint bench docs clean
 
 ## setup: create .venv/ and install the project with its dev tools (quick when nothing changed)
 setup: $(STAMP)
@@ -43,6 +43,10 @@ lint: setup
 ## bench: every benchmark; results go to docs/bench/
 bench: setup
 	$(BIN)/bodyhealth bench all
+
+## docs: rewrite the figures quoted in README.md and docs/*.md from the bench files in docs/bench/
+docs: setup
+	$(BIN)/bodyhealth bench docs
 
 clean:
 	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis

@@ -21,6 +21,7 @@ BENCHMARKS: tuple[str, ...] = (
     "sim2real",
     "gravity",
     "realism",
+    "docs",
 )
 
 #: Where results files and plots go (relative to the working directory: the repo root under make).
