@@ -168,6 +168,24 @@ def _hop_features(wh: np.ndarray | None, c: np.ndarray, s: np.ndarray, qd: np.nd
     return F
 
 
+def _hop_features_banded(
+    band: Callable[..., np.ndarray], wh: np.ndarray, c: np.ndarray, s: np.ndarray, joint_b: np.ndarray
+) -> np.ndarray:
+    """``band(_hop_features(wh, c, s, qd))`` with the rows shared by every joint (``ω_h``) and by every
+    parent (``joint_b``: the banded ``cos q``, ``sin q``, ``q̇``, (B, 3, Tb)) filtered once by the
+    caller: only the six products are filtered here. Same rows, same order."""
+    B = c.shape[0]
+    prod = np.empty((B, 6, c.shape[1]))
+    np.multiply(wh, c[:, None, :], out=prod[:, 0:3])
+    np.multiply(wh, s[:, None, :], out=prod[:, 3:6])
+    prod_b = band(prod)
+    F = np.empty((B, 12, prod_b.shape[-1]))
+    F[:, 0:3] = band(wh)
+    F[:, 3:9] = prod_b
+    F[:, 9:12] = joint_b
+    return F
+
+
 def _two_hop_features(
     wh: np.ndarray | None,
     ca: np.ndarray,
@@ -396,12 +414,15 @@ def _fit(
     ratio = np.full((G, G + 1, Na), np.inf)
     s2 = np.full((G, G + 1, Na), np.inf)  # residual variance per output
     if G and Na:
+        # the band is linear and per channel: the rows that do not depend on the parent (cos q, sin q,
+        # q̇) and the parent's own gyro are filtered once, only the products per (parent, joint)
+        joint_b = band(np.stack([cosT, sinT, qdT], axis=1))  # (Na, 3, Tb)
         for h in range(G + 1):
             if h == G:
-                F = band(qdT[:, None, :])  # world: ω_g = e q̇_j + b
+                F = joint_b[:, 2:3]  # world: ω_g = e q̇_j + b
                 exp_var = sig_g**2 + floor[rep]
             else:
-                F = band(_hop_features(gyroT[rep[h]], cosT, sinT, qdT))
+                F = _hop_features_banded(band, gyroT[rep[h]], cosT, sinT, joint_b)
                 exp_var = sig_g**2 + sig_g[h] ** 2 + floor[rep]
             ex = _explained(F, Yg).reshape(Na, G, 3).sum(-1)  # (Na, G)
             dof = max(Tb - F.shape[1] - 1, 1)
@@ -629,8 +650,11 @@ def fast_fit_timed(
             f"{4 * tm.edge_margin(fc) + 2 * max_lag:.3g} s at a {fc:g} Hz band"
         )
 
-    # 1. uniform grids
-    grid = lo + np.arange(int(np.floor((hi - lo) * f_imu)) + 1) / f_imu
+    # 1. uniform grids; the IMU grid's length is ``step`` times a length the FFT handles fast (a few
+    # samples at the end are given up so that no filter call pads: hundreds of calls per fit)
+    step = max(1, int(f_imu // (2.5 * fc)))
+    n_grid = int(np.floor((hi - lo) * f_imu)) + 1
+    grid = lo + np.arange(step * _fast_len_below(n_grid // step)) / f_imu
     g_flat, valid = tm.resample(t, gyro.reshape(len(t), -1), grid)
     gyro_g = g_flat.reshape(len(grid), K, 3)
     egrid = t_q[0] + np.arange(int(np.floor((t_q[-1] - t_q[0]) * f_enc)) + 1) / f_enc
@@ -652,11 +676,11 @@ def fast_fit_timed(
         reach = int(np.ceil(margin * f_imu))
         bad = np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
     ok = ~bad & (grid >= grid[0] + margin) & (grid <= grid[-1] - margin)
-    step = max(1, int(f_imu // (2.5 * fc)))
-    keep = np.flatnonzero(ok)[::step]
+    keep_d = np.flatnonzero(ok[::step])  # fit samples among every step-th grid point
+    keep = keep_d * step  # the same samples on the grid
     if len(keep) < 50:
         raise ValueError(f"only {len(keep)} usable samples in the {fc:g} Hz band; record longer")
-    gyro_b = tm.lowpass(gyro_g, f_imu, fc)[keep].reshape(len(keep), 3 * K)
+    gyro_b = tm.lowpass(gyro_g, f_imu, fc, step=step)[keep_d].reshape(len(keep), 3 * K)
 
     # 3. lag: first from a linear regression of the gyro on all joint velocities (it ignores the
     # rotation terms of the models, so it is good to a ms or two, the uncertainty used until step 6)
@@ -675,7 +699,7 @@ def fast_fit_timed(
     qa, qda = q_s(shifted), qd_s(shifted)
 
     def band_fn(x: np.ndarray, axis: int = -1) -> np.ndarray:
-        return np.take(tm.lowpass(x, f_imu, fc, axis=axis), keep, axis=axis)
+        return np.take(tm.lowpass(x, f_imu, fc, axis=axis, step=step), keep_d, axis=axis)
 
     # 5. error model
     share = min(1.0, fc / (f_imu / 2))
@@ -721,7 +745,10 @@ def fast_fit_timed(
     # is only nearly so: it ignores the rotation terms), per segment for the drift; then the final fit
     if fit.edges:
         segs = np.array_split(np.arange(len(keep)), max(n_seg, 1))
-        shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, 0.5e-3)
+        # ±4 ms around the first lag in 1 ms steps, refined by a parabola: the residual is smooth in
+        # the shift (both sides band-limited to fc <= 10 Hz, whose period is >= 100 ms)
+        shift_step = 1.0e-3
+        shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
         rss = np.array(
             [
                 _edge_rss(fit, sigma_b, gyro_g, q_s, qd_s, grid - lag_at(grid) - d, band_fn, segs)
@@ -737,7 +764,7 @@ def fast_fit_timed(
                 den = r0 - 2 * r1 + r2
                 off = float(np.clip(0.5 * (r0 - r2) / den, -1, 1)) if den > 0 else 0.0
             ts = float(tk[part].mean())
-            seg_lags.append((ts, float(lag_at(np.array([ts]))[0] + shifts[j] + off * 0.5e-3)))
+            seg_lags.append((ts, float(lag_at(np.array([ts]))[0] + shifts[j] + off * shift_step)))
         xs, ys = np.array(seg_lags).T
         if len(xs) >= 2:
             drift, lag_mid = np.polyfit(xs - t_mid, ys, 1)
@@ -768,6 +795,16 @@ def fast_fit_timed(
     fit.drift_ppm = 1e6 * float(drift)
     fit.band_hz = fc
     return fit
+
+
+def _fast_len_below(n: int) -> int:
+    """The largest length <= ``n`` whose FFT is fast (a product of small primes)."""
+    from scipy.fft import next_fast_len
+
+    k = max(int(n), 1)
+    while next_fast_len(k, real=True) != k:
+        k -= 1
+    return k
 
 
 def _edge_rss(

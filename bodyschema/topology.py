@@ -32,7 +32,10 @@ class Topology:
     ``confidence`` maps ``"imu:<name>"`` and ``"joint:<name>"`` to a probability-like score in [0, 1].
     ``undetermined`` lists joints the data cannot decide (``insufficient_excitation``); they keep their
     best-guess parent but must not be trusted. ``candidates`` holds alternative complete answers when the
-    answer is not unique (partially instrumented robots).
+    answer is not unique (partially instrumented robots). ``timing`` is set when the encoders and the
+    IMUs were logged on separate clocks (docs/recording-format.md): the IMU's estimated lag behind the
+    encoders and its parts, ``{"lag_ms", "skew_ms", "drift_ppm", "band_hz", "at_s"}`` (the lag holds at
+    encoder-clock time ``at_s``; with a drift it changes away from it).
     """
 
     joint_parent: dict[str, str | None]
@@ -44,6 +47,7 @@ class Topology:
     undetermined: tuple[str, ...] = ()
     candidates: tuple[Topology, ...] = ()
     excitation: dict[str, float] = field(default_factory=dict)
+    timing: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.check()
@@ -111,6 +115,8 @@ class Topology:
             ]
         if self.excitation:
             out["excitation"] = {k: round(float(v), 6) for k, v in self.excitation.items()}
+        if self.timing:
+            out["timing"] = {k: round(float(v), 4) for k, v in self.timing.items()}
         return out
 
     @classmethod
@@ -139,6 +145,7 @@ class Topology:
                 undetermined=tuple(data.get("insufficient_excitation", ())),
                 candidates=cands,
                 excitation={str(k): float(v) for k, v in data.get("excitation", {}).items()},
+                timing={str(k): float(v) for k, v in data.get("timing", {}).items()},
             )
         except (KeyError, AttributeError, TypeError, ValueError) as err:
             if isinstance(err, TopologyError):

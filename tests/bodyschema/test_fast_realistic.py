@@ -71,9 +71,14 @@ def test_catalog_robot_with_the_robot_preset_is_exact_and_its_skew_is_found(seed
 
 def test_estimate_topology_takes_the_stamps_and_answers_the_true_tree(seed):
     rec = _user_case(seed, 6, 14, 6e-3, seconds=30.0)
-    topo = estimate_topology(rec, "fast", t=rec.t, t_q=rec.t_q)
+    topo = estimate_topology(rec, "fast")
     assert topo.joint_parent == rec.truth_parent_map
     assert topo.imu_joint == rec.truth_imu_map
+    assert topo.unique
+    # the skew in ms, with the drift accumulated up to the middle of the fit
+    mid = 0.5 * (rec.t[0] + rec.t[-1])
+    assert abs(topo.timing["skew_ms"] - 1e3 * (6e-3 + mid * DRIFT)) < 0.3
+    assert topo.to_json()["timing"]["band_hz"] == pytest.approx(10.0, rel=1e-3)  # 0.1 x the jittered rate
 
 
 def test_joint_held_still_is_undetermined_and_nothing_false_is_said(seed):
