@@ -76,6 +76,7 @@ def estimate_topology(
         raise ValueError("topology estimation needs at least one joint and one IMU")
     start = timer() if timer is not None else 0.0
     timing: dict[str, float] = {}
+    training: dict[str, float] = {}
     timed = None
     if rec.is_multirate:
         # encoders on their own clock: the fast estimator finds the IMU's lag behind them (and answers
@@ -112,6 +113,14 @@ def estimate_topology(
 
         res = network_dependency(rec, method=method, **kw)
         dep, evidence = res.dependency, res.evidence
+        bound = kw.get("epochs") or kw.get("max_epochs", 200)
+        training = {"epochs": float(len(res.loss))}
+        training |= {
+            # the MLP baseline trains a fixed budget (the paper's); the sensor networks to a flat loss
+            "converged": float(method != "mlp" and kw.get("epochs") is None and len(res.loss) < bound),
+        }
+        if res.loss and np.isfinite(res.loss[-1]):  # JSON (and PostgreSQL's JSON) has no NaN
+            training["loss"] = float(res.loss[-1])
         undetermined = [rec.joint_names[j] for j in res.undetermined]
         imu_conf = dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True))
         joint_conf = dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True))
@@ -126,7 +135,9 @@ def estimate_topology(
         excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
         evidence=evidence,
     )
-    return _with(topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing)
+    return _with(
+        topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=training
+    )
 
 
 def _with(topo: Topology, **changes: Any) -> Topology:

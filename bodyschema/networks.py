@@ -38,6 +38,7 @@ import logging
 import math
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -222,17 +223,25 @@ def train_sensor_networks(
     acc: np.ndarray,
     gravity: np.ndarray | None,
     hidden: Sequence[int] = (32, 32, 32),
-    epochs: int = 40,
+    epochs: int | None = None,
     batch_size: int = 64,
     lr: float = 1e-2,
     gyro_weight: float = 1.0,
     input_sparsity: float = 0.0,
     seed: int = 0,
     progress: bool = False,
+    max_epochs: int = 200,
+    plateau_tol: float = 0.01,
 ) -> tuple[SensorNetworks, list[float]]:
     """Fit one pose network per IMU on a recording's arrays; returns the model and the loss per epoch.
 
     ``gravity`` None trains the gravity-free form (Eq. 11) — right only for data without gravity.
+
+    ``epochs`` None (the default) trains to convergence: a two-epoch warm-up to ``lr``, then the rate
+    is cut to 0.3x whenever the epoch loss has not improved by ``plateau_tol`` (relative) for 3 epochs,
+    and training stops after the third cut: the loss has flattened at three learning rates, the last
+    one 1/37 of the first. ``max_epochs`` bounds it; ``len(history) < max_epochs`` says it converged.
+    A count trains that many epochs on a one-cycle schedule (the paper's fixed budget).
 
     Small batches: what under-fits the networks is the number of Adam steps, not the passes over the
     data. The networks of a robot are one batched model, so an epoch costs about the same CPU time at
@@ -262,16 +271,28 @@ def train_sensor_networks(
         if g is not None:
             net.gravity_dir.copy_(mean_pose_gravity(a_meas))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
-    steps = max(1, math.ceil(T / batch_size)) * epochs
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.15)
+    per_epoch = max(1, math.ceil(T / batch_size))
+    plateau = None
+    if epochs is not None:
+        n_epochs = int(epochs)
+        sched: Any = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=lr, total_steps=per_epoch * n_epochs, pct_start=0.15
+        )
+    else:
+        n_epochs = int(max_epochs)
+        warm = 2 * per_epoch
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: min(1.0, 0.1 + 0.9 * k / warm))
+        plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            opt, factor=0.3, patience=3, threshold=plateau_tol, threshold_mode="rel"
+        )
     gen = torch.Generator().manual_seed(int(seed))
     history: list[float] = []
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=epochs, desc=f"sensor networks ({K} IMUs)", unit="epoch", leave=False)
-    for epoch in range(epochs):
+        bar = tqdm(total=n_epochs, desc=f"sensor networks ({K} IMUs)", unit="epoch", leave=False)
+    for epoch in range(n_epochs):
         perm = torch.randperm(T, generator=gen)
         total = 0.0
         for start in range(0, T, batch_size):
@@ -285,14 +306,20 @@ def train_sensor_networks(
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            sched.step()
+            if plateau is None or epoch < 2:
+                sched.step()
             total += float(loss.detach()) * len(idx)
         history.append(total / T)
         if bar is not None:
             bar.update(1)
             bar.set_postfix(loss=f"{history[-1]:.4f}")
-        if epoch % 10 == 9 or epoch == epochs - 1:
-            log.info("sensor networks: epoch %d/%d loss %.5f", epoch + 1, epochs, history[-1])
+        if epoch % 10 == 9 or epoch == n_epochs - 1:
+            log.info("sensor networks: epoch %d/%d loss %.5f", epoch + 1, n_epochs, history[-1])
+        if plateau is not None and epoch >= 2:
+            plateau.step(history[-1])
+            if opt.param_groups[0]["lr"] < lr * 0.3**3 * 1.001:
+                log.info("sensor networks: converged after %d epochs, loss %.5f", epoch + 1, history[-1])
+                break
     if bar is not None:
         bar.close()
     return net, history

@@ -35,7 +35,9 @@ class Topology:
     answer is not unique (partially instrumented robots). ``timing`` is set when the encoders and the
     IMUs were logged on separate clocks (docs/recording-format.md): the IMU's estimated lag behind the
     encoders and its parts, ``{"lag_ms", "skew_ms", "drift_ppm", "band_hz", "at_s"}`` (the lag holds at
-    encoder-clock time ``at_s``; with a drift it changes away from it).
+    encoder-clock time ``at_s``; with a drift it changes away from it). ``training`` is set by the
+    network methods: ``{"epochs", "converged", "loss"}``, the epochs trained, 1.0 when training stopped
+    on a flat loss rather than at its epoch bound, and the last epoch's loss.
     """
 
     joint_parent: dict[str, str | None]
@@ -48,6 +50,7 @@ class Topology:
     candidates: tuple[Topology, ...] = ()
     excitation: dict[str, float] = field(default_factory=dict)
     timing: dict[str, float] = field(default_factory=dict)
+    training: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.check()
@@ -117,6 +120,8 @@ class Topology:
             out["excitation"] = {k: round(float(v), 6) for k, v in self.excitation.items()}
         if self.timing:
             out["timing"] = {k: round(float(v), 4) for k, v in self.timing.items()}
+        if self.training:
+            out["training"] = {k: round(float(v), 6) for k, v in self.training.items()}
         return out
 
     @classmethod
@@ -146,6 +151,7 @@ class Topology:
                 candidates=cands,
                 excitation={str(k): float(v) for k, v in data.get("excitation", {}).items()},
                 timing={str(k): float(v) for k, v in data.get("timing", {}).items()},
+                training={str(k): float(v) for k, v in data.get("training", {}).items()},
             )
         except (KeyError, AttributeError, TypeError, ValueError) as err:
             if isinstance(err, TopologyError):

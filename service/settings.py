@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["Settings", "get_settings", "reset_settings"]
@@ -61,12 +61,29 @@ class Settings(BaseSettings):
         1.0, ge=0, description="how long a full queue blocks a reader before the batch is dropped"
     )
     farm_seed: int = Field(0, description="seed of the simulated farm")
+    sensing: str = Field(
+        "robot",
+        description="how the simulated farm senses and stamps its motion: 'robot' (multi-rate encoders "
+        "and IMUs on two clocks, as a real robot logs them), 'ideal' (one clock, exact velocities) or "
+        "a JSON object of simulators.sensing.SensingOptions",
+    )
 
     # -------------------------------------------------------------------- API
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     max_request_bytes: int = Field(1_000_000, ge=1)
     log_json: bool = True
+
+    @field_validator("sensing")
+    @classmethod
+    def _known_sensing(cls, v: str) -> str:
+        v = v.strip()
+        if v in ("robot", "ideal"):
+            return v
+        from simulators.sensing import resolve_sensing  # only for a JSON spec: keeps the import light
+
+        resolve_sensing(v)  # raises ValueError saying what is wrong
+        return v
 
     @model_validator(mode="after")
     def _window_fits_retention(self) -> Settings:

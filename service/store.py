@@ -133,41 +133,94 @@ class AlertRecord:
 
 
 # ------------------------------------------------------------------------------------- chunk building
+def _first(parts: list[np.ndarray]) -> float | None:
+    for p in parts:
+        if p.shape[0]:
+            return float(p[0])
+    return None
+
+
+def _last(parts: list[np.ndarray]) -> float | None:
+    for p in reversed(parts):
+        if p.shape[0]:
+            return float(p[-1])
+    return None
+
+
 @dataclass
 class _Chunk:
-    """Consecutive samples of one robot with one joint set and one IMU set, before it becomes a row."""
+    """Consecutive samples of one robot with one joint set and one IMU set, before it becomes a row.
+
+    A multi-rate chunk (``multirate``) keeps the encoder stream on its own stamps ``t_q``; either
+    stream may be empty in one chunk (a long batch split by sample count), never both.
+    """
 
     robot: str
     joint_names: tuple[str, ...]
     imu_names: tuple[str, ...]
+    multirate: bool = False
+    has_qd: bool = False
     t: list[np.ndarray] = field(default_factory=list)
+    t_q: list[np.ndarray] = field(default_factory=list)
     q: list[np.ndarray] = field(default_factory=list)
+    qd: list[np.ndarray] = field(default_factory=list)
     acc: list[np.ndarray] = field(default_factory=list)
     gyro: list[np.ndarray] = field(default_factory=list)
     n: int = 0
+    n_q: int = 0
+
+    @property
+    def imu_t_end(self) -> float | None:
+        """Last IMU stamp (None when the chunk holds no IMU sample)."""
+        return _last(self.t)
 
     @property
     def t_start(self) -> float:
-        return float(self.t[0][0])
+        """First stamp of either stream: the chunk's extent covers both, so a range scan finds both."""
+        return min(x for x in (_first(self.t), _first(self.t_q)) if x is not None)
 
     @property
     def t_end(self) -> float:
-        return float(self.t[-1][-1])
+        return max(x for x in (_last(self.t), _last(self.t_q)) if x is not None)
 
     def accepts(self, b: FrameBatch, max_samples: int) -> bool:
-        return (
+        if not (
             b.joint_names == self.joint_names
             and b.imu_names == self.imu_names
+            and b.is_multirate == self.multirate
+            and (b.qd is not None) == self.has_qd
             and self.n + b.n_samples <= max_samples
-            and float(b.t[0]) > self.t_end
-        )
+        ):
+            return False
+        last = self.imu_t_end
+        if last is not None and not float(b.t[0]) > last:
+            return False
+        if self.multirate:
+            assert b.t_q is not None
+            last_q = _last(self.t_q)
+            if self.n_q + b.t_q.shape[0] > max_samples or (
+                last_q is not None and not float(b.t_q[0]) > last_q
+            ):
+                return False
+        return True
 
-    def add(self, b: FrameBatch, sl: slice = slice(None)) -> None:
+    def add(self, b: FrameBatch, sl: slice = slice(None), slq: slice | None = None) -> None:
+        """Append samples ``sl`` of the IMU stream and ``slq`` of the encoder stream (default: ``sl``
+        in a single-clock batch, everything in a multi-rate one)."""
         self.t.append(b.t[sl])
-        self.q.append(b.q[sl])
         self.acc.append(b.acc[sl])
         self.gyro.append(b.gyro[sl])
         self.n += int(b.t[sl].shape[0])
+        if self.multirate:
+            assert b.t_q is not None
+            slq = slice(None) if slq is None else slq
+            self.t_q.append(b.t_q[slq])
+            self.n_q += int(b.t_q[slq].shape[0])
+        else:
+            slq = sl
+        self.q.append(b.q[slq])
+        if b.qd is not None:
+            self.qd.append(b.qd[slq])
 
     def row(self, robot_id: int) -> dict[str, Any]:
         def blob(parts: list[np.ndarray]) -> bytes:
@@ -185,6 +238,9 @@ class _Chunk:
             "q": blob(self.q),
             "acc": blob(self.acc),
             "gyro": blob(self.gyro),
+            "n_q": self.n_q if self.multirate else None,
+            "t_q": blob(self.t_q) if self.multirate else None,
+            "qd": blob(self.qd) if self.has_qd else None,
         }
 
 
@@ -206,8 +262,10 @@ def _check_batch(i: int, b: Any) -> None:
     if not isinstance(b, FrameBatch):
         raise FrameError(f"batch {i}: expected a FrameBatch, got {type(b).__name__}")
     try:
-        for name in ("t", "q", "acc", "gyro"):
+        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
             v = getattr(b, name)
+            if v is None and name in ("t_q", "qd"):
+                continue
             if not isinstance(v, np.ndarray) or v.dtype.kind not in "fiu":
                 raise FrameError(f"{name} must be a numeric numpy array")
         b.validate()
@@ -219,9 +277,37 @@ def _check_batch(i: int, b: Any) -> None:
         raise FrameError(f"batch {i} (robot {getattr(b, 'robot', '?')!r}): {err}") from None
 
 
+def _pieces(b: FrameBatch, max_samples: int) -> list[tuple[slice, slice | None]]:
+    """Cut one batch into pieces of at most ``max_samples`` samples per stream.
+
+    A multi-rate batch is cut at stamps: each cut lies at the first sample that would overflow either
+    stream, so both streams of a piece cover the same stretch of time (one of them may be empty)."""
+    if b.t_q is None:
+        return [
+            (slice(a, min(a + max_samples, b.n_samples)), None) for a in range(0, b.n_samples, max_samples)
+        ]
+    t, tq = b.t, b.t_q
+    if t.shape[0] <= max_samples and tq.shape[0] <= max_samples:
+        return [(slice(None), slice(None))]
+    out: list[tuple[slice, slice | None]] = []
+    i = j = 0
+    while i < t.shape[0] or j < tq.shape[0]:
+        cut = math.inf
+        if i + max_samples < t.shape[0]:
+            cut = float(t[i + max_samples])
+        if j + max_samples < tq.shape[0]:
+            cut = min(cut, float(tq[j + max_samples]))
+        i2 = t.shape[0] if cut == math.inf else int(np.searchsorted(t, cut, side="left"))
+        j2 = tq.shape[0] if cut == math.inf else int(np.searchsorted(tq, cut, side="left"))
+        out.append((slice(i, i2), slice(j, j2)))
+        i, j = i2, j2
+    return out
+
+
 def build_chunks(batches: Sequence[FrameBatch], max_samples: int) -> list[_Chunk]:
-    """Group batches into chunks: per robot, consecutive batches with the same names and increasing
-    time share a chunk of at most ``max_samples`` samples (longer batches are split)."""
+    """Group batches into chunks: per robot, consecutive batches with the same names, the same kind
+    (single-clock or multi-rate, with or without ``qd``) and increasing time share a chunk of at most
+    ``max_samples`` samples per stream (longer batches are split)."""
     done: list[_Chunk] = []
     open_: dict[str, _Chunk] = {}
     for b in batches:
@@ -231,15 +317,13 @@ def build_chunks(batches: Sequence[FrameBatch], max_samples: int) -> list[_Chunk
             continue
         if cur is not None:
             done.append(cur)
-        start = 0
-        while True:
-            cur = _Chunk(b.robot, b.joint_names, b.imu_names)
-            stop = min(start + max_samples, b.n_samples)
-            cur.add(b, slice(start, stop))
-            if stop >= b.n_samples:
-                break
-            done.append(cur)
-            start = stop
+        pieces = _pieces(b, max_samples)
+        for k, (sl, slq) in enumerate(pieces):
+            cur = _Chunk(b.robot, b.joint_names, b.imu_names, b.is_multirate, b.qd is not None)
+            cur.add(b, sl, slq)
+            if k < len(pieces) - 1:
+                done.append(cur)
+        assert cur is not None
         open_[b.robot] = cur
     done.extend(open_.values())
     return done
@@ -400,9 +484,12 @@ class Store:
                 pending.append((known, ch))
                 rows.append(ch.row(known.id))
                 last_t[known.id] = max(last_t.get(known.id, -math.inf), ch.t_end)
+                imu_end = ch.imu_t_end
+                if imu_end is None:
+                    continue  # a piece of a split multi-rate batch holding encoder samples only
                 for imu in ch.imu_names:
                     key = (known.id, imu)
-                    imu_last[key] = max(imu_last.get(key, -math.inf), ch.t_end)
+                    imu_last[key] = max(imu_last.get(key, -math.inf), imu_end)
             s.execute(insert(Chunk), rows)
             for rid, t in last_t.items():
                 s.execute(
@@ -440,6 +527,12 @@ class Store:
         heard in only part of it is left out too (``partial_imus="drop"``) or kept with NaN where it
         was silent (``"nan"``). Joints missing from part of the window are left out (``q`` is always
         finite). Returns None when the window holds no sample; raises :class:`UnknownRobot`.
+
+        When a chunk of the window carries encoder stamps of its own, the result is a multi-rate
+        recording (``t_q`` set, docs/recording-format.md): each stream is cut by its own stamps, and
+        single-clock chunks in the same window join it with their encoder samples on their ``t``.
+        ``qd`` comes back only when every chunk of the window has it. A multi-rate window whose
+        encoder or IMU stream is empty, or whose two streams do not overlap, returns None too.
         """
         if not seconds > 0:
             raise ValueError(f"seconds must be positive, got {seconds}")
@@ -463,12 +556,24 @@ class Store:
     def read_between(
         self, robot: str, start: float, end: float, *, partial_imus: str = "drop"
     ) -> Recording | None:
-        """Samples with ``start < t <= end`` (see :meth:`read_window`; ±inf allowed)."""
+        """Samples with ``start < t <= end``, each stream by its own stamps (see :meth:`read_window`;
+        ±inf allowed)."""
         if partial_imus not in ("drop", "nan"):
             raise ValueError(f"partial_imus must be 'drop' or 'nan', got {partial_imus!r}")
         with self._sessions() as s:
             rid = self._robot_id(s, robot)
-            q = select(Chunk.n, Chunk.joint_names, Chunk.imu_names, Chunk.t, Chunk.q, Chunk.acc, Chunk.gyro)
+            q = select(
+                Chunk.n,
+                Chunk.n_q,
+                Chunk.joint_names,
+                Chunk.imu_names,
+                Chunk.t,
+                Chunk.t_q,
+                Chunk.q,
+                Chunk.qd,
+                Chunk.acc,
+                Chunk.gyro,
+            )
             q = q.where(Chunk.robot_id == rid)
             if math.isfinite(end):
                 q = q.where(Chunk.t_start <= end)
@@ -817,77 +922,104 @@ def _decode(blob: bytes, shape: tuple[int, ...]) -> np.ndarray:
     return np.frombuffer(blob, dtype=_F8).reshape(shape)
 
 
+@dataclass
+class _Part:
+    """One stream's samples of one chunk inside the window: ``arrays`` are (n, len(names), ...)."""
+
+    names: tuple[str, ...]
+    t: np.ndarray
+    arrays: tuple[np.ndarray | None, ...]
+
+
 def _assemble(
     rows: Iterable[Any], start: float, end: float, order: dict[str, int], partial_imus: str
 ) -> Recording | None:
-    """Merge chunk rows into one Recording over ``start < t <= end``."""
-    parts = []
-    for n, jn, kn, t_blob, q_blob, acc_blob, gyro_blob in rows:
+    """Merge chunk rows into one Recording over ``start < t <= end`` (each stream by its own stamps)."""
+    imu_parts: list[_Part] = []
+    enc_parts: list[_Part] = []
+    multirate = False
+    for n, n_q, jn, kn, t_blob, tq_blob, q_blob, qd_blob, acc_blob, gyro_blob in rows:
         n, jn, kn = int(n), tuple(jn), tuple(kn)
         t = _decode(t_blob, (n,))
         m = (t > start) & (t <= end)
+        if m.any():
+            sel = slice(None) if m.all() else m
+            acc = _decode(acc_blob, (n, len(kn), 3))[sel]
+            imu_parts.append(_Part(kn, t[sel], (acc, _decode(gyro_blob, (n, len(kn), 3))[sel])))
+        if tq_blob is not None:
+            multirate = True
+            n_enc = int(n_q)
+            te = _decode(tq_blob, (n_enc,))
+            m = (te > start) & (te <= end)
+        else:
+            n_enc, te = n, t
         if not m.any():
             continue
         sel = slice(None) if m.all() else m
-        parts.append(
-            (
-                jn,
-                kn,
-                t[sel],
-                _decode(q_blob, (n, len(jn)))[sel],
-                _decode(acc_blob, (n, len(kn), 3))[sel],
-                _decode(gyro_blob, (n, len(kn), 3))[sel],
-            )
-        )
-    if not parts:
+        qd = None if qd_blob is None else _decode(qd_blob, (n_enc, len(jn)))[sel]
+        enc_parts.append(_Part(jn, te[sel], (_decode(q_blob, (n_enc, len(jn)))[sel], qd)))
+    if not imu_parts or not enc_parts:
         return None
-    jn0, kn0 = parts[0][0], parts[0][1]
-    uniform = all(p[0] == jn0 and p[1] == kn0 for p in parts)
-    if uniform:
-        t = np.concatenate([p[2] for p in parts])
+    t, imus, (acc, gyro) = _merge_stream(
+        imu_parts, "imus", order, keep="all" if partial_imus == "drop" else "any"
+    )
+    te, joints, (q, qd) = _merge_stream(enc_parts, "joints", order, keep="all")
+    if not multirate:
+        return Recording(t=t, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro)
+    if not min(t[-1], te[-1]) > max(t[0], te[0]):
+        return None  # the two streams do not overlap in this window
+    return Recording(t=t, t_q=te, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro)
+
+
+def _merge_stream(
+    parts: list[_Part], table: str, order: dict[str, int], keep: str
+) -> tuple[np.ndarray, tuple[str, ...], tuple[np.ndarray | None, ...]]:
+    """One stream of the window from its chunk parts: stamps, names, arrays.
+
+    The common case (one name set, parts in time order) is a concatenation. Otherwise the parts merge
+    on the union of their stamps, later parts overwriting earlier ones at equal stamps; a name heard
+    in only part of the window is left out (``keep="all"``) or kept with NaN where it was silent
+    (``"any"``). An array that some part lacks (``qd``) is left out of the result.
+    """
+    n_arr = len(parts[0].arrays)
+    present = [all(p.arrays[a] is not None for p in parts) for a in range(n_arr)]
+    names0 = parts[0].names
+    if all(p.names == names0 for p in parts):
+        t = parts[0].t if len(parts) == 1 else np.concatenate([p.t for p in parts])
         if t.shape[0] == 1 or np.all(np.diff(t) > 0):
-            # The common case: one joint set, one IMU set, chunks in time order.
-            return Recording(
-                t=t,
-                joint_names=jn0,
-                q=np.concatenate([p[3] for p in parts]),
-                imu_names=kn0,
-                acc=np.concatenate([p[4] for p in parts]),
-                gyro=np.concatenate([p[5] for p in parts]),
+            arrays = tuple(
+                (np.concatenate([p.arrays[a] for p in parts]) if len(parts) > 1 else parts[0].arrays[a])
+                if present[a]
+                else None
+                for a in range(n_arr)
             )
-    # General case: overlapping chunks or changing part sets. Merge on the union of time stamps; later
-    # chunks overwrite earlier ones at equal time stamps.
-    t_all, inv = np.unique(np.concatenate([p[2] for p in parts]), return_inverse=True)
+            return t, names0, arrays
+    t_all, inv = np.unique(np.concatenate([p.t for p in parts]), return_inverse=True)
     T = t_all.shape[0]
-    joints = sorted({j for p in parts for j in p[0]}, key=lambda j: (order.get(f"joints:{j}", 1 << 30), j))
-    imus = sorted({k for p in parts for k in p[1]}, key=lambda k: (order.get(f"imus:{k}", 1 << 30), k))
-    jix = {j: i for i, j in enumerate(joints)}
-    kix = {k: i for i, k in enumerate(imus)}
-    q = np.zeros((T, len(joints)))
-    qh = np.zeros((T, len(joints)), dtype=bool)
-    acc = np.full((T, len(imus), 3), np.nan)
-    gyro = np.full((T, len(imus), 3), np.nan)
-    kh = np.zeros((T, len(imus)), dtype=bool)
+    names = sorted({x for p in parts for x in p.names}, key=lambda x: (order.get(f"{table}:{x}", 1 << 30), x))
+    ix = {x: i for i, x in enumerate(names)}
+    out: list[np.ndarray | None] = []
+    for a in range(n_arr):
+        if not present[a]:
+            out.append(None)
+            continue
+        tail = next(p.arrays[a].shape[2:] for p in parts if p.arrays[a] is not None)  # type: ignore[union-attr]
+        out.append(np.full((T, len(names), *tail), np.nan))
+    heard = np.zeros((T, len(names)), dtype=bool)
     pos = 0
-    for jn, kn, t, qq, aa, gg in parts:
-        rows_ix = inv[pos : pos + t.shape[0]]
-        pos += t.shape[0]
-        if jn:
-            cols = [jix[j] for j in jn]
-            q[np.ix_(rows_ix, cols)] = qq
-            qh[np.ix_(rows_ix, cols)] = True
-        if kn:
-            cols = [kix[k] for k in kn]
-            acc[np.ix_(rows_ix, cols)] = aa
-            gyro[np.ix_(rows_ix, cols)] = gg
-            kh[np.ix_(rows_ix, cols)] = True
-    keep_j = qh.all(axis=0)
-    keep_k = kh.all(axis=0) if partial_imus == "drop" else kh.any(axis=0)
-    return Recording(
-        t=t_all,
-        joint_names=tuple(j for j, k in zip(joints, keep_j, strict=True) if k),
-        q=q[:, keep_j],
-        imu_names=tuple(k for k, keep in zip(imus, keep_k, strict=True) if keep),
-        acc=acc[:, keep_k],
-        gyro=gyro[:, keep_k],
+    for p in parts:
+        rows_ix = inv[pos : pos + p.t.shape[0]]
+        pos += p.t.shape[0]
+        if not p.names:
+            continue
+        cols = [ix[x] for x in p.names]
+        for a, arr in enumerate(out):
+            if arr is not None:
+                arr[np.ix_(rows_ix, cols)] = p.arrays[a]
+        heard[np.ix_(rows_ix, cols)] = True
+    kept = heard.all(axis=0) if keep == "all" else heard.any(axis=0)
+    return (
+        t_all,
+        tuple(x for x, k in zip(names, kept, strict=True) if k),
+        tuple(None if arr is None else arr[:, kept] for arr in out),
     )

@@ -36,6 +36,9 @@ jitter              0.2 ms      stamps taken by a host OS on receipt
 drop                0.5 %       a few bad frames per thousand on a serial bus
 ==================  ==========  =======================================================================
 
+:class:`SensingStream` applies the same model chunk by chunk to a simulation that keeps running (the
+farm): the filter, the clocks and the stamps carry on across chunks instead of starting over.
+
 Example
 -------
 >>> import numpy as np
@@ -65,6 +68,7 @@ __all__ = [
     "DLPF_GYRO",
     "PRESETS",
     "SensingOptions",
+    "SensingStream",
     "apply_sensing",
     "dlpf_filter",
     "resolve_sensing",
@@ -294,3 +298,205 @@ def apply_sensing(rec: Recording, sensing: str | SensingOptions, rng: np.random.
         ref_pos=None,
         extra=extra,
     )
+
+
+#: Physics samples kept beyond the filter's half-width around every interpolated instant, so the
+#: cubic spline through a buffer reads the interior the way one spline through the whole run would.
+_SPLINE_MARGIN = 16
+
+
+class SensingStream:
+    """:func:`apply_sensing` for a simulation delivered in consecutive chunks (a running robot).
+
+    :meth:`push` takes the next single-clock chunk at the options' inner rate and returns what the
+    robot logs of the motion so far: a multi-rate :class:`Recording` continuing the previous one, or
+    None while too little is known yet. The IMU filter needs motion a few tens of ms ahead of each
+    reading, so the output trails the physics by :attr:`latency` seconds; what is held back comes out
+    with a later chunk, never twice and never restarted. Stamps, drift and the filter run on without a
+    break: apart from the random draws (jitter, drops) and float rounding, the concatenated output is
+    :func:`apply_sensing` of the concatenated input (up to :attr:`latency` before its end), and the
+    same whichever way the motion is cut into chunks.
+
+    >>> import numpy as np
+    >>> from simulators.kinematic_tree import random_robot_recording
+    >>> fine = random_robot_recording(np.random.default_rng(0), n_joints=2, seconds=1.0, rate=1000.0)
+    >>> stream = SensingStream("robot", np.random.default_rng(1))
+    >>> outs = [stream.push(fine.select(slice(i, i + 100))) for i in range(0, 1000, 100)]
+    >>> [(o.n_samples, o.t_q.shape[0]) for o in outs[:3]], round(stream.latency, 4)
+    ([(3, 12), (10, 25), (10, 25)], 0.0512)
+    >>> bool(outs[1].t[0] > outs[0].t[-1] and outs[1].t_q[0] > outs[0].t_q[-1])
+    True
+    """
+
+    def __init__(self, sensing: str | SensingOptions, rng: np.random.Generator) -> None:
+        opts = resolve_sensing(sensing)
+        if opts.is_ideal:
+            raise ValueError("ideal sensing changes nothing: use the simulation's chunks as they are")
+        self.opts = opts
+        # one generator per stream and purpose, each drawn sample by sample: the draws, and so the
+        # output, do not depend on how the motion was cut into chunks
+        self._imu_keep, self._imu_jitter, self._enc_keep, self._enc_jitter, self._enc_noise = rng.spawn(5)
+        self.inner = float(opts.inner_rate)
+        self.imu_rate = float(opts.imu_rate or opts.inner_rate)
+        self.enc_rate = float(opts.encoder_rate or opts.inner_rate)
+        self.drift = opts.drift_ppm * 1e-6
+        self.delay_a = self.delay_g = 0.0
+        self.bw_a: float | None = None
+        self.bw_g: float | None = None
+        if opts.dlpf_cfg is not None:
+            self.bw_a, self.delay_a = DLPF_ACC[opts.dlpf_cfg]
+            self.bw_g, self.delay_g = DLPF_GYRO[opts.dlpf_cfg]
+        half = [
+            math.ceil(2.0 * self.inner / bw) for bw in (self.bw_a, self.bw_g) if bw and bw < self.inner / 2
+        ]
+        self._half = max([2, *half])  # filter half-width, physics samples
+        self._buf: dict[str, np.ndarray] | None = None
+        self._at_start = True  # the buffer still holds the first physics sample
+        self._k_imu: int | None = None  # next nominal IMU index (own clock)
+        self._k_enc: int | None = None
+        self._pending_imu: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._pending_enc: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
+        self._last: Recording | None = None
+
+    @property
+    def latency(self) -> float:
+        """Seconds of physics the output trails by (filter half-width and spline margin less the IMU's
+        own lag: a reading is stamped after the motion it holds)."""
+        ahead = (self._half + _SPLINE_MARGIN) / self.inner - self.opts.skew - min(self.delay_a, self.delay_g)
+        return max(0.0, ahead)
+
+    def push(self, rec: Recording) -> Recording | None:
+        """Take the next single-clock chunk (at the inner rate, continuing the previous one)."""
+        if rec.q is None or rec.t_q is not None:
+            raise ValueError("a sensing stream takes single-clock chunks with joint positions")
+        if rec.n_samples > 1 and abs(rec.sample_rate - self.inner) > 1e-6 * self.inner:
+            raise ValueError(f"chunks must be sampled at the inner rate {self.inner:g} Hz")
+        qd = (
+            rec.qd if rec.qd is not None else np.gradient(rec.q, rec.t, axis=0) if rec.n_samples > 1 else None
+        )
+        if qd is None:
+            qd = np.zeros_like(rec.q)
+        new = {"t": rec.t, "q": rec.q, "qd": qd, "acc": rec.acc, "gyro": rec.gyro}
+        if self._buf is None:
+            self._buf = {k: np.asarray(v, dtype=np.float64) for k, v in new.items()}
+            t0 = float(rec.t[0])
+            lag_max = max(self.delay_a, self.delay_g)
+            self._k_imu = math.ceil((t0 + self.opts.skew + lag_max) * (1 + self.drift) * self.imu_rate - 1e-9)
+            self._k_enc = math.ceil(t0 * self.enc_rate - 1e-9)
+        else:
+            if not float(rec.t[0]) > float(self._buf["t"][-1]):
+                raise ValueError("chunks must continue in time")
+            self._buf = {k: np.concatenate([self._buf[k], new[k]]) for k in new}
+        self._last = rec
+        self._sense()
+        return self._emit()
+
+    # ------------------------------------------------------------------------------------------
+    def _sense(self) -> None:
+        """Turn every reading whose inputs are all known into pending samples; trim the buffer."""
+        assert self._buf is not None and self._k_imu is not None and self._k_enc is not None
+        b = self._buf
+        t = b["t"]
+        n = t.shape[0]
+        h, m = self._half, _SPLINE_MARGIN
+        lo = 0 if self._at_start else h + m  # first index whose filtered value is trustworthy
+        hi = n - 1 - h - m  # last one
+        if hi <= lo + 3:
+            return
+        opts = self.opts
+        # ---- IMU: readings whose physics instants (both filters) lie within [t[lo], t[hi]]
+        t_hi = float(t[hi])
+        s_hi = (t_hi + opts.skew + min(self.delay_a, self.delay_g)) * (1 + self.drift)
+        k1 = math.floor(s_hi * self.imu_rate + 1e-9)
+        if k1 >= self._k_imu:
+            stamps = np.arange(self._k_imu, k1 + 1) / self.imu_rate
+            keep = self._keep(stamps.shape[0], self._imu_keep)
+            phys = stamps / (1 + self.drift) - opts.skew
+            # filter and interpolate only around the instants needed (plus the spline's margin)
+            first = 0 if self._at_start else h
+            i0 = max(int(np.searchsorted(t, phys[0] - max(self.delay_a, self.delay_g))) - m, first)
+            i1 = min(int(np.searchsorted(t, phys[-1])) + m, n - h)
+            f0 = 0 if i0 == 0 else max(i0 - h, 0)
+            part = slice(f0, min(i1 + h, n))
+            acc, gyro = b["acc"][part], b["gyro"][part]
+            if self.bw_a is not None:
+                acc = dlpf_filter(acc, self.inner, self.bw_a)
+            if self.bw_g is not None:
+                gyro = dlpf_filter(gyro, self.inner, self.bw_g)
+            K = acc.shape[1]
+            sl = slice(i0 - f0, i1 - f0)
+            ts = t[i0:i1]
+            g = CubicSpline(ts, gyro[sl].reshape(len(ts), -1), axis=0)(
+                np.clip(phys - self.delay_g, ts[0], ts[-1])
+            )
+            a = CubicSpline(ts, acc[sl].reshape(len(ts), -1), axis=0)(
+                np.clip(phys - self.delay_a, ts[0], ts[-1])
+            )
+            t_imu = _jittered(stamps, self.imu_rate, opts.jitter, self._imu_jitter)[keep]
+            self._pending_imu.append((t_imu, a.reshape(-1, K, 3)[keep], g.reshape(-1, K, 3)[keep]))
+            self._k_imu = k1 + 1
+        # ---- encoders: up to the same stamp as the IMU readings, on the reference clock
+        e_hi = min(s_hi, float(t[-1]))
+        j1 = math.floor(e_hi * self.enc_rate + 1e-9)
+        if j1 >= self._k_enc:
+            e_stamps = np.arange(self._k_enc, j1 + 1) / self.enc_rate
+            e_keep = self._keep(e_stamps.shape[0], self._enc_keep)
+            spline = CubicHermiteSpline(t, b["q"], b["qd"], axis=0)
+            q = spline(e_stamps)
+            qd = spline.derivative()(e_stamps) if opts.encoder_velocity else None
+            if opts.encoder_noise > 0:
+                q = q + self._enc_noise.normal(scale=opts.encoder_noise, size=q.shape)
+            if opts.encoder_bits is not None:
+                lsb = 2 * np.pi / 2**opts.encoder_bits
+                q = np.round(q / lsb) * lsb
+            t_enc = _jittered(e_stamps, self.enc_rate, opts.jitter, self._enc_jitter)[e_keep]
+            self._pending_enc.append((t_enc, q[e_keep], None if qd is None else qd[e_keep]))
+            self._k_enc = j1 + 1
+        # ---- keep what the next readings need: the filter's and the spline's reach before them
+        next_phys = min(
+            self._k_imu / self.imu_rate / (1 + self.drift) - opts.skew - max(self.delay_a, self.delay_g),
+            self._k_enc / self.enc_rate,
+        )
+        first = int(np.searchsorted(t, next_phys, side="right")) - 1 - (h + m) - 2
+        if first > 0:
+            self._buf = {k: v[first:] for k, v in b.items()}
+            self._at_start = False
+
+    def _keep(self, count: int, rng: np.random.Generator) -> np.ndarray:
+        if self.opts.drop <= 0 or count == 0:
+            return np.ones(count, dtype=bool)
+        return rng.random(count) >= self.opts.drop
+
+    def _emit(self) -> Recording | None:
+        """The pending samples as one recording, once both streams have some and they overlap."""
+        if not self._pending_imu or not self._pending_enc:
+            return None
+        t = np.concatenate([p[0] for p in self._pending_imu])
+        t_q = np.concatenate([p[0] for p in self._pending_enc])
+        if t.shape[0] == 0 or t_q.shape[0] == 0 or not min(t[-1], t_q[-1]) > max(t[0], t_q[0]):
+            return None
+        acc = np.concatenate([p[1] for p in self._pending_imu])
+        gyro = np.concatenate([p[2] for p in self._pending_imu])
+        q = np.concatenate([p[1] for p in self._pending_enc])
+        qd = None if self._pending_enc[0][2] is None else np.concatenate([p[2] for p in self._pending_enc])
+        self._pending_imu.clear()
+        self._pending_enc.clear()
+        rec = self._last
+        assert rec is not None
+        n_fine = rec.n_samples
+        extra = {k: v for k, v in rec.extra.items() if np.ndim(v) == 0 or np.shape(v)[0] != n_fine}
+        extra["sensing"] = np.array(json.dumps(self.opts.to_json()))
+        extra["truth_skew"] = np.array(self.opts.skew + self.delay_g)
+        return replace(
+            rec,
+            t=t,
+            t_q=t_q,
+            q=q,
+            qd=qd,
+            qdd=None,
+            acc=acc,
+            gyro=gyro,
+            ref_quat=None,
+            ref_pos=None,
+            extra=extra,
+        )

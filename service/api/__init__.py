@@ -1,8 +1,8 @@
 """The REST API (FastAPI; OpenAPI document at ``/docs``) and the dashboard at ``/``.
 
 :func:`create_app` builds one app around a store (and, in the daemon, the worker, the metrics and a
-damage injector for simulated robots). One router per resource: robots, topology, alerts, simulate,
-health. Bad input never reaches a 500: unknown robots and alerts are 404, malformed bodies 422,
+damage injector for simulated robots). One router per resource: robots, status, topology, alerts,
+simulate, health. Bad input never reaches a 500: unknown robots and alerts are 404, malformed bodies 422,
 bodies over ``max_request_bytes`` 413, damage on a real robot 409.
 
 Example
@@ -26,7 +26,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api import alerts, health, robots, simulate, topology
+from service.api import alerts, health, robots, simulate, status, topology
 from service.api.deps import DamageInjector
 from service.metrics import Metrics
 from service.settings import Settings, get_settings
@@ -128,7 +128,7 @@ def create_app(
     for k, v in (extra_state or {}).items():
         setattr(app.state, k, v)
 
-    for module in (robots, topology, alerts, simulate, health):
+    for module in (robots, status, topology, alerts, simulate, health):
         app.include_router(module.router)
 
     @app.exception_handler(UnknownRobot)

@@ -1,4 +1,5 @@
-"""``/api/v1/robots``: the robots the store knows, and frames pushed over HTTP."""
+"""``/api/v1/robots``: the robots the store knows, each with its monitoring answer, and frames pushed
+over HTTP."""
 
 from __future__ import annotations
 
@@ -6,8 +7,9 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException
 
 from service.api.deps import get_robot, get_store
-from service.api.schemas import FramesIn, RobotOut
+from service.api.schemas import FramesIn, RobotOut, StatusOut
 from service.ingest.base import FrameBatch, FrameError
+from service.status import robot_status
 from service.store import RobotInfo, Store
 
 __all__ = ["router"]
@@ -16,19 +18,23 @@ router = APIRouter(prefix="/api/v1/robots", tags=["robots"])
 
 
 def _out(store: Store, info: RobotInfo) -> RobotOut:
+    # The status read already fetches the baseline and the active alerts: the counts come from it.
+    st = robot_status(store, info.name)
     return RobotOut.of(
-        info,
-        has_baseline=store.baseline(info.name) is not None,
-        active_alerts=len(store.alerts(info.name, active=True)),
+        info, has_baseline=st.baseline is not None, active_alerts=len(st.alerts), status=StatusOut.of(st)
     )
 
 
-@router.get("", response_model=list[RobotOut], summary="every robot with its parts and alert count")
+@router.get("", response_model=list[RobotOut], summary="every robot with its parts, alert count and status")
 def list_robots(store: Store = Depends(get_store)) -> list[RobotOut]:
     return [_out(store, r) for r in store.robots()]
 
 
-@router.get("/{robot}", response_model=RobotOut, summary="one robot: joints, IMUs, excitation, last frame")
+@router.get(
+    "/{robot}",
+    response_model=RobotOut,
+    summary="one robot: joints, IMUs, excitation, last frame, status (healthy/damaged/undetermined)",
+)
 def robot_detail(info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)) -> RobotOut:
     return _out(store, info)
 

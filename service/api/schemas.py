@@ -11,41 +11,23 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from bodyschema.findings import DAMAGE_KINDS
+from service.status import MAX_ALTERNATIVES, RobotStatus
 from service.store import AlertRecord, RobotInfo, TopologyRecord
 
-__all__ = ["AlertOut", "DamageIn", "DamageOut", "FramesIn", "RobotOut", "TopologyOut", "TopologyPair"]
+__all__ = [
+    "AlertOut",
+    "DamageIn",
+    "DamageOut",
+    "FramesIn",
+    "RobotOut",
+    "StatusOut",
+    "TimingOut",
+    "TopologyOut",
+    "TopologyPair",
+    "TrainingOut",
+]
 
 DamageKind = Literal[DAMAGE_KINDS]  # type: ignore[valid-type]
-
-
-class RobotOut(BaseModel):
-    name: str
-    joints: list[str]
-    imus: list[str]
-    silent_imus: list[str]
-    simulated: bool
-    catalog: str | None
-    first_seen: float
-    last_frame_t: float | None = Field(description="device time of the newest frame, s")
-    excitation: dict[str, float] = Field(description="RMS joint velocity in the last window, rad/s")
-    has_baseline: bool = False
-    active_alerts: int = 0
-
-    @classmethod
-    def of(cls, r: RobotInfo, has_baseline: bool = False, active_alerts: int = 0) -> RobotOut:
-        return cls(
-            name=r.name,
-            joints=r.joints,
-            imus=r.imus,
-            silent_imus=r.silent_imus,
-            simulated=r.simulated,
-            catalog=r.catalog,
-            first_seen=r.first_seen,
-            last_frame_t=r.last_frame_t,
-            excitation=r.excitation,
-            has_baseline=has_baseline,
-            active_alerts=active_alerts,
-        )
 
 
 class TopologyOut(BaseModel):
@@ -109,6 +91,152 @@ class AlertOut(BaseModel):
             resolved_at=a.resolved_at,
             updated_at=a.updated_at,
             finding=a.finding,
+        )
+
+
+class TimingOut(BaseModel):
+    """How the IMU clock relates to the encoder clock, estimated from multi-rate data."""
+
+    lag_ms: float | None = Field(
+        None, description="IMU lag behind the encoders: clock skew plus filter delay"
+    )
+    skew_ms: float | None = Field(None, description="IMU-to-encoder clock skew, ms")
+    drift_ppm: float | None = Field(None, description="clock drift between the two, ppm")
+    band_hz: float | None = Field(None, description="band the gyro and encoder rates were compared in, Hz")
+    at_s: float | None = Field(None, description="encoder-clock time the lag holds at, s")
+
+    @classmethod
+    def of(cls, timing: dict[str, float | None]) -> TimingOut | None:
+        """None when the estimate carries no timing (encoders and IMUs on one clock)."""
+        return cls(**{k: v for k, v in timing.items() if k in cls.model_fields}) if timing else None
+
+
+class TrainingOut(BaseModel):
+    """How the sensor networks (or the MLP baseline) trained for this estimate."""
+
+    epochs: int | None = None
+    converged: bool | None = Field(
+        None, description="training stopped on a flat loss rather than at its epoch bound"
+    )
+    loss: float | None = Field(None, description="last epoch's loss (null when it was not finite)")
+
+    @classmethod
+    def of(cls, training: dict[str, float | None]) -> TrainingOut | None:
+        """None for estimators that do not train (the fast one); the stored floats typed back."""
+        if not training:
+            return None
+        epochs, converged = training.get("epochs"), training.get("converged")
+        return cls(
+            epochs=None if epochs is None else int(epochs),
+            converged=None if converged is None else bool(converged),
+            loss=training.get("loss"),
+        )
+
+
+class StatusOut(BaseModel):
+    """The monitoring answer for one robot: ``healthy``, ``damaged`` or ``undetermined``, and why.
+
+    ``healthy`` only when one tree fits the newest estimate, every joint was placed, it matches a
+    unique baseline, and nothing is pending or active; ``damaged`` when alerts are active (confirmed
+    over several worker cycles); ``undetermined`` otherwise, with ``reasons``.
+    """
+
+    robot: str
+    status: Literal["healthy", "damaged", "undetermined"]
+    reasons: list[str] = Field(description="why this answer: trees that fit, missing baseline, alerts, ...")
+    trees_fit: int | None = Field(
+        description="trees that fit the newest estimate: 1 = unique; null = nothing learned, or not "
+        "unique without the trees being listed"
+    )
+    alternatives: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description=f"the other fitting trees ({{joints, imus}} as in the topology JSON), at most "
+        f"{MAX_ALTERNATIVES}",
+    )
+    decide_by: list[str] = Field(
+        default_factory=list,
+        description="joints to move, each on its own with the others still, to decide between the trees "
+        "or to place joints the data could not",
+    )
+    insufficient_excitation: list[str] = Field(
+        default_factory=list, description="joints the newest window did not move enough to place"
+    )
+    alerts: list[AlertOut] = Field(default_factory=list, description="active alerts")
+    pending_alerts: list[AlertOut] = Field(default_factory=list, description="seen, not yet confirmed")
+    has_baseline: bool
+    diff: dict[str, Any] | None = Field(
+        None,
+        description="docs/design.md §2 diff JSON of the newest estimate vs the baseline (structure only)",
+    )
+    topology_id: int | None = None
+    method: str | None = Field(None, description="estimator of the topology judged")
+    wall_time: float | None = Field(None, description="when it was learned (wall clock, s)")
+    timing: TimingOut | None = Field(None, description="multi-rate robots: IMU-to-encoder timing")
+    training: TrainingOut | None = Field(None, description="network methods: how training went")
+
+    @classmethod
+    def of(cls, st: RobotStatus) -> StatusOut:
+        cur = st.current
+        return cls(
+            robot=st.robot,
+            status=st.status,
+            reasons=list(st.reasons),
+            trees_fit=st.trees_fit,
+            alternatives=[
+                {"joints": {j: {"parent": p} for j, p in t.joint_parent.items()}, "imus": dict(t.imu_joint)}
+                for t in st.alternatives
+            ],
+            decide_by=list(st.decide_by),
+            insufficient_excitation=list(st.insufficient_excitation),
+            alerts=[AlertOut.of(a) for a in st.alerts],
+            pending_alerts=[AlertOut.of(a) for a in st.pending],
+            has_baseline=st.baseline is not None,
+            diff=st.diff.to_json() if st.diff is not None else None,
+            topology_id=cur.id if cur else None,
+            method=cur.method if cur else None,
+            wall_time=cur.wall_time if cur else None,
+            timing=TimingOut.of(st.timing),
+            training=TrainingOut.of(st.training),
+        )
+
+
+class RobotOut(BaseModel):
+    name: str
+    joints: list[str]
+    imus: list[str]
+    silent_imus: list[str]
+    simulated: bool
+    catalog: str | None
+    first_seen: float
+    last_frame_t: float | None = Field(description="device time of the newest frame, s")
+    excitation: dict[str, float] = Field(description="RMS joint velocity in the last window, rad/s")
+    has_baseline: bool = False
+    active_alerts: int = 0
+    status: StatusOut | None = Field(
+        None, description="the monitoring answer, as GET /api/v1/robots/{robot}/status gives it"
+    )
+
+    @classmethod
+    def of(
+        cls,
+        r: RobotInfo,
+        has_baseline: bool = False,
+        active_alerts: int = 0,
+        status: StatusOut | None = None,
+    ) -> RobotOut:
+        return cls(
+            name=r.name,
+            joints=r.joints,
+            imus=r.imus,
+            silent_imus=r.silent_imus,
+            simulated=r.simulated,
+            catalog=r.catalog,
+            first_seen=r.first_seen,
+            last_frame_t=r.last_frame_t,
+            excitation=r.excitation,
+            has_baseline=has_baseline,
+            active_alerts=active_alerts,
+            status=status,
         )
 
 

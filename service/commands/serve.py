@@ -23,6 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--speed", type=float, default=1.0, help="demo farm speed, x real time (default 1)")
     p.add_argument(
+        "--sensing",
+        choices=("robot", "ideal"),
+        help="how simulated farms sense their motion: robot (multi-rate, two clocks) or ideal "
+        "(one clock); default: settings (BODYHEALTH_SENSING, robot)",
+    )
+    p.add_argument(
         "--source",
         action="append",
         default=[],
@@ -46,7 +52,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--speed must be positive, got {args.speed}")
     update = {
         k: v
-        for k, v in (("port", args.port), ("host", args.host), ("database_url", args.database_url))
+        for k, v in (
+            ("port", args.port),
+            ("host", args.host),
+            ("database_url", args.database_url),
+            ("sensing", getattr(args, "sensing", None)),
+        )
         if v is not None
     }
     settings = get_settings().model_copy(update=update)

@@ -1,5 +1,6 @@
 // bodyhealth dashboard: plain JS polling the REST API (no build step).
-// Robots, their learned trees (baseline vs current, SVG), active alerts, simulated damage.
+// Robots with their monitoring answer (healthy / damaged / undetermined, as the API's status gives it),
+// their learned trees (baseline vs current, SVG), active alerts, simulated damage.
 "use strict";
 
 const API = "/api/v1";
@@ -131,11 +132,15 @@ function changedParts(baseline, current, alerts) {
 // ----------------------------------------------------------------------------------- robot cards
 function makeCard(robot) {
   const root = el("article", { class: "robot", "data-robot": robot.name });
+  const head = el("div", { class: "head" });
   const h = el("h3", {}, robot.name);
+  const verdict = el("span", { class: "verdict" });
+  head.append(h, verdict);
   const meta = el("div", { class: "meta" });
+  const detail = el("div", { class: "verdict-detail" });
   const trees = el("div", { class: "trees" });
-  root.append(h, meta, trees);
-  const card = { root, meta, trees, damage: null };
+  root.append(head, meta, detail, trees);
+  const card = { root, meta, verdict, detail, trees, damage: null };
   const ops = el("div", { class: "damage ops" });
   const approve = el("button", { type: "button", class: "approve" }, "Approve current as baseline");
   const opsResult = el("span", { class: "result" });
@@ -192,7 +197,7 @@ async function renderRobot(robot, alerts) {
     document.getElementById("robots").appendChild(card.root);
   }
   const mine = alerts.filter((a) => a.robot === robot.name);
-  card.root.classList.toggle("damaged", mine.length > 0);
+  renderStatus(card, robot.status);
   const exc = Object.values(robot.excitation || {});
   const excTxt = exc.length ? `excitation ${Math.min(...exc).toFixed(2)}–${Math.max(...exc).toFixed(2)} rad/s` : "";
   card.meta.textContent = [
@@ -210,7 +215,8 @@ async function renderRobot(robot, alerts) {
     return;
   }
   // An ambiguous estimate (several trees fit) is drawn, but its placements are not called changes.
-  const ambiguous = topo.current && topo.current.unique === false;
+  const ambiguous = topo.current && (topo.current.unique === false || (topo.current.candidates || []).length > 0);
+  const nTrees = topo.current && topo.current.candidates ? topo.current.candidates.length + 1 : null;
   const changed = changedParts(topo.baseline, ambiguous ? null : topo.current, mine);
   const figs = [];
   for (const [which, t] of [["baseline", topo.baseline], ["current", topo.current]]) {
@@ -218,11 +224,74 @@ async function renderRobot(robot, alerts) {
     if (t) fig.appendChild(drawTree(t, changed, which));
     else fig.appendChild(el("div", { class: "empty" }, which === "baseline" ? "no baseline yet" : "nothing learned yet"));
     const meta = which === "baseline" ? topo.baseline_meta : topo.current_meta;
-    const note = which === "current" && ambiguous ? ", ambiguous: several trees fit" : "";
+    const note = which === "current" && ambiguous
+      ? `, one of ${nTrees === null ? "several" : nTrees} trees that fit` : "";
     fig.appendChild(el("figcaption", {}, meta ? `${which} (${meta.method}${meta.source ? ", " + meta.source : ""}, ${fmtTime(meta.wall_time)}${note})` : which));
     figs.push(fig);
   }
   card.trees.replaceChildren(...figs);
+}
+
+// ------------------------------------------------------------------------------------ status
+// The answer is the API's, never recomputed here: "healthy" is shown only when the API says so, so an
+// undetermined robot can never come out green.
+function plural(n, one, many) { return `${n} ${n === 1 ? one : many}`; }
+
+function renderStatus(card, st) {
+  const value = st ? st.status : "undetermined";
+  card.root.classList.remove("healthy", "damaged", "undetermined");
+  card.root.classList.add(value);
+  card.root.dataset.status = value;
+  card.verdict.className = "verdict " + value;
+  card.verdict.dataset.status = value;
+  card.verdict.textContent = value;
+  const lines = [];
+  if (!st) {
+    lines.push(el("div", { class: "why" }, "no status from the API"));
+  } else {
+    if (value === "undetermined") {
+      const trees = st.trees_fit === null ? null
+        : st.trees_fit === 1 ? "one tree fits" : `${st.trees_fit} trees fit the data`;
+      if (trees) lines.push(el("div", { class: "trees-fit", "data-trees": String(st.trees_fit) }, trees));
+      if (st.decide_by.length) {
+        lines.push(el("div", { class: "decide" },
+          `to decide, move each on its own with the others still: ${st.decide_by.join(", ")}`));
+      }
+    }
+    // the joints to move are on their own line above; the reasons say the rest
+    const shown = lines.some((l) => l.classList.contains("decide"));
+    const ul = el("ul", { class: "reasons" });
+    st.reasons.filter((r) => !(shown && r.startsWith("to decide,")))
+      .forEach((r) => ul.appendChild(el("li", {}, r)));
+    lines.push(ul);
+    const extra = [];
+    if (st.timing && st.timing.skew_ms !== null && st.timing.skew_ms !== undefined) {
+      const lag = st.timing.lag_ms === null || st.timing.lag_ms === undefined ? ""
+        : ` (IMU lag ${st.timing.lag_ms.toFixed(1)} ms)`;
+      extra.push(el("span", { class: "skew" }, `IMU-to-encoder skew ${st.timing.skew_ms.toFixed(1)} ms${lag}`));
+    }
+    if (st.training) {
+      const t = st.training;
+      const parts = [t.epochs === null ? null : plural(t.epochs, "epoch", "epochs"),
+        t.converged === null ? null : (t.converged ? "converged" : "stopped at its epoch bound"),
+        t.loss === null ? "loss not finite" : `loss ${t.loss.toPrecision(3)}`].filter(Boolean);
+      extra.push(el("span", { class: "training" }, `${st.method} training: ${parts.join(", ")}`));
+    }
+    if (extra.length) {
+      const row = el("div", { class: "timing" });
+      extra.forEach((e, i) => { if (i) row.append(" · "); row.append(e); });
+      lines.push(row);
+    }
+  }
+  card.detail.replaceChildren(...lines);
+}
+
+function renderSummary(robots) {
+  const counts = { damaged: 0, undetermined: 0, healthy: 0 };
+  robots.forEach((r) => { counts[r.status ? r.status.status : "undetermined"] += 1; });
+  const s = document.getElementById("summary");
+  s.replaceChildren(...Object.entries(counts).filter(([, n]) => n > 0)
+    .map(([k, n]) => el("span", { class: "verdict small " + k, "data-status": k }, `${n} ${k}`)));
 }
 
 function renderAlerts(alerts) {
@@ -267,6 +336,7 @@ async function refresh() {
     status.className = "status " + (ready && ready.status === "ready" ? "ready" : "down");
     const [robots, alerts] = await Promise.all([getJSON(`${API}/robots`), getJSON(`${API}/alerts?active=true`)]);
     renderAlerts(alerts);
+    renderSummary(robots);
     await Promise.all(robots.map((r) => renderRobot(r, alerts)));
     document.body.dataset.loaded = "1";
   } catch (err) {

@@ -6,6 +6,10 @@ reads :data:`Base.metadata` so autogenerate can compare the two (a test keeps th
 Frames are not stored one row per number: a :class:`Chunk` holds ``n`` consecutive samples of one robot
 as raw little-endian float64 blobs (``t`` (n,), ``q`` (n,N), ``acc``/``gyro`` (n,K,3)) together with the
 joint and IMU names it carries, indexed by ``(robot_id, t_start, t_end)`` so a window is one range scan.
+A multi-rate chunk (encoders on a clock of their own, docs/recording-format.md) adds ``t_q`` (n_q,) and
+keeps ``q`` (n_q,N) on it; ``t``/``acc``/``gyro`` are then the IMU stream. ``t_q``/``n_q`` are NULL in a
+single-clock chunk; ``qd`` (joint velocities as the encoders reported them, on the encoder stamps) is
+NULL when the encoders report none. ``t_start``/``t_end`` span both streams.
 All ``*_t`` columns are device time; ``wall_time``/``*_at``/``first_seen`` are wall-clock seconds since
 the epoch.
 """
@@ -110,6 +114,9 @@ class Chunk(Base):
     q: Mapped[bytes] = mapped_column(LargeBinary)
     acc: Mapped[bytes] = mapped_column(LargeBinary)
     gyro: Mapped[bytes] = mapped_column(LargeBinary)
+    n_q: Mapped[int | None]
+    t_q: Mapped[bytes | None] = mapped_column(LargeBinary)
+    qd: Mapped[bytes | None] = mapped_column(LargeBinary)
 
 
 class TopologyRow(Base):

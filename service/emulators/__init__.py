@@ -5,7 +5,11 @@
 - :class:`~service.emulators.devices.SerialEmulator`: a device streaming serial frames;
 - :class:`~service.emulators.pty_port.PtyPort`: the pty underneath, with a stable link and unplug/replug.
 
-Command line: ``python -m service.emulators can|serial --robot ur5e --seconds 30 --seed 0``.
+Both play a multi-rate recording (encoders on their own stamps) as a multi-rate device: two stamped
+streams (docs/wire-formats.md).
+
+Command line: ``python -m service.emulators can|serial --robot ur5e --seconds 30 --seed 0``
+(``--sensing robot``: a realistic multi-rate robot).
 """
 
 from service.emulators.devices import SerialEmulator, SlcanEmulator

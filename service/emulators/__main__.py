@@ -3,10 +3,17 @@
 Prints one line ``pty=PATH config=PATH source=SPEC`` (SPEC is what ``bodyhealth serve --source`` takes),
 then streams until the recording ends and ``--linger`` seconds pass, or until interrupted.
 
+A multi-rate recording (``--sensing robot``, or a multi-rate ``--recording``) is sent as a multi-rate
+device sends it: encoder and IMU samples as two streams with their own stamps (docs/wire-formats.md);
+``--streams`` sends a single-clock recording that way too. The line then adds ``time_offset_s=X``, the
+seconds the device's stamps run ahead of the recording's times (non-zero only for a recording that
+starts before 0).
+
 Examples::
 
     python -m service.emulators can --robot ur5e --seconds 30 --seed 0
     python -m service.emulators serial --recording rec.npz --speed 1 --link /tmp/robot-tty
+    python -m service.emulators serial --robot ur5e --seconds 10 --sensing robot
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ def _recording(args: argparse.Namespace) -> Recording:
         imu_model=args.imu_model,
         excitation=args.excitation,
         rate=args.rate,
+        sensing=args.sensing,
     )
 
 
@@ -54,6 +62,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", help="keep a symlink to the current pty here (stable across replugs)")
     p.add_argument("--config-out", help="where to write the device config JSON (default: a temp file)")
     p.add_argument("--can-fd", action="store_true", help="CAN: send the CAN FD variant of the layout")
+    p.add_argument(
+        "--sensing",
+        default="ideal",
+        help="when simulating: sensing preset (ideal, robot) or options as JSON; anything but ideal makes a "
+        "multi-rate recording, sent as two streams",
+    )
+    p.add_argument(
+        "--streams",
+        action="store_true",
+        help="send encoder and IMU samples as two stamped streams (a multi-rate recording always is)",
+    )
     p.add_argument("--linger", type=float, default=5.0, help="seconds to keep the pty open after the end")
     return p
 
@@ -61,12 +80,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     rec = _recording(args)
+    streams = True if args.streams else None  # None: as the recording is
     if args.kind == "can":
         em: SlcanEmulator | SerialEmulator = SlcanEmulator(
-            rec, fd=args.can_fd, robot=args.robot, speed=args.speed, link=args.link
+            rec, fd=args.can_fd, robot=args.robot, speed=args.speed, link=args.link, streams=streams
         )
     else:
-        em = SerialEmulator(rec, robot=args.robot, speed=args.speed, link=args.link)
+        em = SerialEmulator(rec, robot=args.robot, speed=args.speed, link=args.link, streams=streams)
     cfg_path = Path(
         args.config_out or os.path.join(tempfile.mkdtemp(prefix="bodyhealth-emu-"), f"{args.robot}.json")
     )
@@ -74,7 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     spec = (
         f"can:slcan:{em.port.name}" if args.kind == "can" else f"serial:{em.port.name}"
     ) + f"?config={cfg_path}"
-    print(f"pty={em.port.name} config={cfg_path} source={spec}", flush=True)
+    extra = f" time_offset_s={em.time_offset_s}" if em.streams else ""
+    print(f"pty={em.port.name} config={cfg_path} source={spec}{extra}", flush=True)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

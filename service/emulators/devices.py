@@ -10,6 +10,15 @@ Both take the sample counter from the recording's time stamps (``round(t / perio
 times equal the recording's. ``speed`` 1.0 paces samples in real time; 0 sends as fast as the reader
 takes them (the pty applies back-pressure).
 
+A multi-rate recording (``t_q``: encoders on their own stamps, e.g. ``simulate(..., sensing="robot")``)
+is played as a multi-rate device sends it (docs/wire-formats.md): encoder samples and IMU samples as two
+streams, interleaved in time order, each sample stamped with its recording time in microseconds and
+numbered by its stream's counter. A device clock never reads negative, so a recording that starts
+before 0 (stamp jitter around the start) is stamped ``time_offset_s`` (whole seconds) later. The
+counter advances by the number of nominal periods between stamps, so a sample the recording lost
+(sensing ``drop``) shows up on the wire as a lost frame, as it would on a real line. ``streams=True``
+sends a single-clock recording the same way (both streams on ``t``).
+
 Example
 -------
 >>> import numpy as np, serial
@@ -33,6 +42,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import logging
+import math
 import select
 import threading
 import time
@@ -42,11 +52,14 @@ from can.util import len2dlc
 
 from bodyschema.recording import Recording
 from service.emulators.pty_port import PtyPort
-from service.ingest.can_layout import encode_samples, encode_samples_fd
-from service.ingest.device import DeviceConfig
-from service.ingest.serial_frame import FrameEncoder
+from service.ingest.can_layout import encode_samples, encode_samples_fd, encode_stream
+from service.ingest.device import DeviceConfig, StreamSpec
+from service.ingest.serial_frame import FrameEncoder, StreamFrameEncoder
 
-__all__ = ["SerialEmulator", "SlcanEmulator", "sample_counters"]
+__all__ = ["STAMP_TICK_S", "SerialEmulator", "SlcanEmulator", "sample_counters", "stream_counters"]
+
+#: Tick of the stamps the emulators send for a multi-rate recording: 1 µs.
+STAMP_TICK_S = 1e-6
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +68,34 @@ def sample_counters(rec: Recording) -> tuple[np.ndarray, float]:
     """Device counters (T,) and the period, from the recording's time stamps."""
     period = 1.0 / rec.sample_rate if rec.n_samples > 1 else 0.01
     return np.rint(rec.t / period).astype(np.int64), period
+
+
+def stream_counters(t: np.ndarray, period: float) -> np.ndarray:
+    """A stream's device counter for stamps ``t``: the nominal periods elapsed since the first sample,
+    strictly increasing (a stamp's jitter never repeats a counter; a lost sample leaves a gap).
+
+    >>> stream_counters(np.array([0.0, 0.0041, 0.0079, 0.016]), 0.004).tolist()
+    [0, 1, 2, 4]
+    """
+    c = np.rint((np.asarray(t, dtype=np.float64) - t[0]) / period).astype(np.int64)
+    return _strictly_increasing(c)
+
+
+def _strictly_increasing(c: np.ndarray) -> np.ndarray:
+    """``c`` raised where needed so that every value exceeds the one before it."""
+    k = np.arange(len(c))
+    return np.maximum.accumulate(c - k) + k
+
+
+def _stream_events(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Play order of a multi-rate recording's samples: (stream 0 = encoders / 1 = IMUs, index in its
+    stream, time) per event, sorted by time (encoders first on a tie)."""
+    te, ti = rec.encoder_t, rec.t
+    kind = np.concatenate([np.zeros(len(te), dtype=np.int64), np.ones(len(ti), dtype=np.int64)])
+    index = np.concatenate([np.arange(len(te)), np.arange(len(ti))])
+    t = np.concatenate([te, ti])
+    order = np.lexsort((kind, t))
+    return kind[order], index[order], t[order]
 
 
 class _PtyEmulator:
@@ -71,11 +112,28 @@ class _PtyEmulator:
         speed: float = 0.0,
         link: str | None = None,
         port: PtyPort | None = None,
+        streams: bool | None = None,
     ) -> None:
         self.rec = rec
         self.robot = robot
         self._replies = b""
         self.counters, self.period = sample_counters(rec)
+        #: multi-rate: encoder and IMU samples as two streams (default: when the recording is multi-rate)
+        self.streams = rec.is_multirate if streams is None else bool(streams)
+        #: play time of each chunk relative to the first (multi-rate; None: one chunk per period)
+        self._chunk_rel: np.ndarray | None = None
+        self.time_offset_s = 0.0
+        if self.streams:
+            if rec.n_joints == 0 or rec.n_imus == 0:
+                raise ValueError("a multi-rate device needs encoders and IMUs")
+            first = min(float(rec.t[0]), float(rec.encoder_t[0]))
+            #: added to the recording's times to make the stamps (a device clock never reads negative)
+            self.time_offset_s = float(math.ceil(-first)) if first < 0 else 0.0
+            self.encoder_period = 1.0 / rec.encoder_rate if len(rec.encoder_t) > 1 else self.period
+            self.encoder_counters = stream_counters(rec.encoder_t, self.encoder_period)
+            self.imu_counters = stream_counters(rec.t, self.period)
+            self.events = _stream_events(rec)
+            self._chunk_rel = self.events[2] - self.events[2][0]
         self.speed = speed
         self.port = port or PtyPort(link)
         self.chunks = self._encode()
@@ -96,8 +154,18 @@ class _PtyEmulator:
         """Bytes the host wrote (commands); the serial device ignores them."""
 
     def device_config(self) -> DeviceConfig:
-        """What the host must be told: robot name, names in wire order, period."""
-        return DeviceConfig(self.robot, self.period, self.rec.joint_names, self.rec.imu_names)
+        """What the host must be told: robot name, names in wire order, period (multi-rate: the streams'
+        periods and stamp tick)."""
+        cfg = DeviceConfig(self.robot, self.period, self.rec.joint_names, self.rec.imu_names)
+        if self.streams:
+            return cfg.with_streams(
+                StreamSpec(self.encoder_period, STAMP_TICK_S), StreamSpec(self.period, STAMP_TICK_S)
+            )
+        return cfg
+
+    def _stamps(self, t: np.ndarray) -> np.ndarray:
+        """Stream stamps of recording times ``t``, in ticks."""
+        return np.rint((np.asarray(t) + self.time_offset_s) / STAMP_TICK_S).astype(np.int64)
 
     # lifecycle
     def start(self) -> None:
@@ -163,7 +231,11 @@ class _PtyEmulator:
                 ends, group_start, written = [], i, 0
             elif not out and i < n and self.streaming:
                 if self.speed > 0:
-                    due = int((time.monotonic() - t0) * self.speed / self.period) + 1
+                    elapsed = (time.monotonic() - t0) * self.speed
+                    if self._chunk_rel is None:
+                        due = int(elapsed / self.period) + 1
+                    else:
+                        due = int(np.searchsorted(self._chunk_rel, elapsed, side="right"))
                     j = min(max(due, i), n)
                 else:
                     j = i
@@ -198,13 +270,29 @@ class _PtyEmulator:
 
 
 class SerialEmulator(_PtyEmulator):
-    """A robot streaming :mod:`serial_frame` frames on a pty."""
+    """A robot streaming :mod:`serial_frame` frames on a pty (multi-rate: stream frames)."""
 
     def _encode(self) -> list[bytes]:
         rec = self.rec
+        if self.streams:
+            return self._encode_streams()
         enc = FrameEncoder(rec.n_joints, rec.n_imus)
         q = rec.q if rec.q is not None else np.zeros((rec.n_samples, 0))
         chunks = [enc.encode(int(c), q[i], rec.acc[i], rec.gyro[i]) for i, c in enumerate(self.counters)]
+        self.clipped = enc.clipped
+        return chunks
+
+    def _encode_streams(self) -> list[bytes]:
+        rec = self.rec
+        assert rec.q is not None
+        enc = StreamFrameEncoder(rec.n_joints, rec.n_imus)
+        stamp_q, stamp_i = self._stamps(rec.encoder_t), self._stamps(rec.t)
+        chunks = []
+        for kind, i in zip(self.events[0].tolist(), self.events[1].tolist(), strict=True):
+            if kind == 0:
+                chunks.append(enc.encode_encoders(stamp_q[i], rec.q[i], seq=self.encoder_counters[i]))
+            else:
+                chunks.append(enc.encode_imus(stamp_i[i], rec.acc[i], rec.gyro[i], seq=self.imu_counters[i]))
         self.clipped = enc.clipped
         return chunks
 
@@ -226,28 +314,51 @@ class SlcanEmulator(_PtyEmulator):
     def device_config(self) -> DeviceConfig:
         cfg = super().device_config()
         if self.fd:
-            return DeviceConfig(cfg.robot, cfg.period_s, cfg.joints, cfg.imus, {"can": {"layout": "fd"}})
+            return DeviceConfig(
+                cfg.robot, cfg.period_s, cfg.joints, cfg.imus, {**cfg.extra, "can": {"layout": "fd"}}
+            )
         return cfg
 
     def _encode(self) -> list[bytes]:
         rec = self.rec
         q = rec.q if rec.q is not None else np.zeros((rec.n_samples, 0))
         self._cmd = b""
+        if self.streams:
+            layout = "fd" if self.fd else "classic"
+            enc = self._lines(
+                *encode_stream(
+                    "encoders", self.encoder_counters, self._stamps(rec.encoder_t), q=q, layout=layout
+                )
+            )
+            imu = self._lines(
+                *encode_stream(
+                    "imus", self.imu_counters, self._stamps(rec.t), acc=rec.acc, gyro=rec.gyro, layout=layout
+                )
+            )
+            return [
+                (enc, imu)[k][i]
+                for k, i in zip(self.events[0].tolist(), self.events[1].tolist(), strict=True)
+            ]
         if self.fd:
             ids, lengths, data = encode_samples_fd(self.counters, q, rec.acc, rec.gyro)
         else:
             ids, data = encode_samples(self.counters, q, rec.acc, rec.gyro)
             lengths = np.full(len(ids), 8)
-        kind = "d" if self.fd else "t"
+        return self._lines(ids, lengths, data)
+
+    def _lines(self, ids: np.ndarray, lengths: np.ndarray, data: np.ndarray) -> list[bytes]:
+        """slcan lines of each sample: a ``t`` line per 8-byte frame, a ``d`` line per longer one
+        (CAN FD; a classic frame on an FD bus is still a ``t`` line)."""
         prefixes = [
-            f"{kind}{int(i):03X}{len2dlc(int(n)):X}".encode() for i, n in zip(ids, lengths, strict=True)
+            f"{'d' if n > 8 else 't'}{int(i):03X}{len2dlc(int(n)):X}".encode()
+            for i, n in zip(ids, lengths, strict=True)
         ]
         width = data.shape[2]
         hexed = data.reshape(-1).tobytes().hex().upper().encode()
         spans = [(f * width * 2, f * width * 2 + int(n) * 2) for f, n in enumerate(lengths)]
         F = len(ids)
         chunks = []
-        for s in range(rec.n_samples):
+        for s in range(data.shape[0]):
             base = s * F * width * 2
             chunks.append(
                 b"".join(prefixes[f] + hexed[base + a : base + b] + b"\r" for f, (a, b) in enumerate(spans))

@@ -15,6 +15,11 @@ Counters (``source.counters.extra``): ``frames``, ``error_frames``, ``remote_fra
 ``decode_errors``, ``late_frames``, ``duplicate_frames``, ``frames_missing``, ``samples_incomplete``,
 ``samples_dropped``, ``bus_errors``, ``bus_off``, ``reconnects``, ``counter_resets``.
 
+A multi-rate device (``"streams"`` in its config) sends its encoder and IMU samples as two streams with
+their own counters and stamp frames; the source regroups each on its own and returns multi-rate
+batches (:class:`~service.ingest.can_regroup.MultirateAssembler`, which adds ``samples_missing``,
+``clock_jumps``, ``stale_stamps`` and ``samples_unpaired``).
+
 Example
 -------
 >>> import can, numpy as np
@@ -52,7 +57,7 @@ from can.util import CAN_FD_DLC
 
 from service.ingest.base import FrameBatch, Source
 from service.ingest.can_mapping import SignalMap, load_dbc
-from service.ingest.can_regroup import SampleAssembler
+from service.ingest.can_regroup import MultirateAssembler, SampleAssembler
 from service.ingest.device import Backoff, DeviceConfig
 from service.ingest.serial import config_from_params
 
@@ -208,7 +213,8 @@ class CanSource(Source):
     such samples (``"drop"`` or ``"partial"``, see :mod:`can_regroup`); ``idle_flush_s`` releases pending
     samples when the bus has been silent that long (measured on the host clock, used for nothing else;
     long enough that a sender stalled by a busy host does not get its next frames counted as late);
-    ``backoff`` is (first, max) seconds between reopen attempts.
+    ``backoff`` is (first, max) seconds between reopen attempts. A multi-rate ``config`` takes a pair of
+    maps (encoder stream, IMU stream; default :meth:`SignalMap.for_streams`) as ``signal_map``.
     """
 
     def __init__(
@@ -216,7 +222,7 @@ class CanSource(Source):
         config: DeviceConfig,
         bus_factory: Callable[[], can.BusABC],
         *,
-        signal_map: SignalMap | None = None,
+        signal_map: SignalMap | tuple[SignalMap, SignalMap] | None = None,
         horizon: int = 4,
         incomplete: str = "drop",
         idle_flush_s: float = 2.0,
@@ -225,12 +231,22 @@ class CanSource(Source):
     ) -> None:
         super().__init__(name or f"can:{config.robot}")
         self.config = config
-        self.signal_map = signal_map or SignalMap.for_config(config)
-        self._asm = SampleAssembler(self.signal_map, horizon=horizon, incomplete=incomplete)
+        self._asm: SampleAssembler | MultirateAssembler
+        if config.streams is not None:
+            maps = signal_map if isinstance(signal_map, tuple) else SignalMap.for_streams(config)
+            self.signal_maps: tuple[SignalMap, ...] = maps
+            self._asm = MultirateAssembler(*maps, horizon=horizon, incomplete=incomplete)
+        else:
+            if isinstance(signal_map, tuple):
+                raise ValueError("a pair of signal maps needs a multi-rate device config ('streams')")
+            self.signal_maps = (signal_map or SignalMap.for_config(config),)
+            self._asm = SampleAssembler(self.signal_maps[0], horizon=horizon, incomplete=incomplete)
+        #: the single-stream map (a multi-rate device's: its encoder stream's)
+        self.signal_map = self.signal_maps[0]
         self._cond = threading.Condition()
         self._frames: deque[tuple[int, bytearray]] = deque()
         #: queued frames that wake the reader before ``batch_s`` is up; batches amortise the numpy decode
-        self.wake_frames = max(16 * self.signal_map.n_frames, 1024)
+        self.wake_frames = max(16 * sum(m.n_frames for m in self.signal_maps), 1024)
         #: longest a frame waits in the queue before the reader decodes it (latency bound)
         self.batch_s = 0.02
         self._factory = bus_factory
@@ -327,7 +343,7 @@ class CanSource(Source):
 
     def _sync_counters(self) -> None:
         now = dict(self._asm.counts)
-        now["counter_resets"] = self._asm.clock.resets
+        now["counter_resets"] = self._asm.resets
         for k, v in now.items():
             d = v - self._synced.get(k, 0)
             if d:
@@ -373,7 +389,10 @@ def open_from_spec(rest: str) -> Source:
         kwargs["bitrate"] = int(params["bitrate"])
     if "sleep_after_open" in params:
         kwargs["sleep_after_open"] = float(params["sleep_after_open"])
-    signal_map = SignalMap.for_config(config, load_dbc(config.extra.get("can", {}).get("dbc")))
+    db = load_dbc(config.extra.get("can", {}).get("dbc"))
+    signal_map: SignalMap | tuple[SignalMap, SignalMap] = (
+        SignalMap.for_streams(config, db) if config.streams is not None else SignalMap.for_config(config, db)
+    )
     can_section = config.extra.get("can", {})
     return CanSource(
         config,

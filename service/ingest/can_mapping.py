@@ -16,6 +16,11 @@ DBC speaks degrees and g. Every mapped message must carry the counter signal. Wi
 in the ``can`` section the project layout (:mod:`can_layout`) is used, in config order (``"layout":
 "fd"`` picks its CAN FD variant); without ``dbc`` the project DBC.
 
+A multi-rate device (``"streams"`` in its config) maps one more signal per stream, the stream's time
+stamp: ``"stamps": {"encoders": "EncTime.Stamp", "imus": "ImuTime.Stamp"}`` (the project layout maps
+its ``ENCODER_STAMP``/``IMU_STAMP`` frames by itself). :meth:`SignalMap.for_streams` then gives one map
+per stream; a message may feed only one of them, since each stream counts its own samples.
+
 Example
 -------
 >>> from service.ingest.device import DeviceConfig
@@ -32,11 +37,11 @@ import cantools
 from cantools.database.can import Database, Message
 
 from service.ingest.can_layout import load_project_database, project_signal_map
-from service.ingest.device import DeviceConfig, DeviceConfigError
+from service.ingest.device import STREAMS, DeviceConfig, DeviceConfigError, StreamSpec
 
 __all__ = ["FrameRoute", "SignalMap", "load_dbc"]
 
-Q, ACC, GYRO = 0, 1, 2
+Q, ACC, GYRO, STAMP = 0, 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -62,10 +67,17 @@ def load_dbc(path: str | None) -> Database:
 
 
 class SignalMap:
-    """Resolved routing from frame ids to the joint/IMU arrays, checked against the DBC."""
+    """Resolved routing from frame ids to the joint/IMU arrays, checked against the DBC.
 
-    def __init__(self, db: Database, config: DeviceConfig, section: dict) -> None:
+    A map of one stream of a multi-rate device also routes that stream's ``stamp`` signal (section key
+    ``"stamp"``); :attr:`stream` then holds the stream's period and tick, and :attr:`stamp_frames` the
+    id carrying the stamp."""
+
+    def __init__(
+        self, db: Database, config: DeviceConfig, section: dict, stream: StreamSpec | None = None
+    ) -> None:
         self.config = config
+        self.stream = stream
         counter = section.get("counter", {})
         self.counter_signal = str(counter.get("signal", "counter"))
         self.counter_bits = int(counter.get("bits", 16))
@@ -126,6 +138,23 @@ class SignalMap:
                     fids.add(fid)
                     imus_of.setdefault(fid, set()).add(k)
             self.imu_frames.append(frozenset(fids))
+        self.stamp_frames: frozenset[int] = frozenset()
+        #: bit width, scale and offset of the stamp signal (raw ticks = (value - offset) / scale)
+        self.stamp_bits, self.stamp_scale, self.stamp_offset = 0, 1.0, 0.0
+        if "stamp" in section:
+            ref = str(section["stamp"])
+            msg = resolve(ref)
+            sig = msg.get_signal_by_name(ref.partition(".")[2])
+            if sig.is_float or sig.length < 8:
+                raise DeviceConfigError(f"CAN mapping: stamp {ref!r} must be an integer signal of 8+ bits")
+            self.stamp_bits, self.stamp_scale, self.stamp_offset = (
+                int(sig.length),
+                float(sig.scale),
+                float(sig.offset),
+            )
+            routes.setdefault(msg.frame_id, []).append((sig.name, STAMP, 0, 0, 1.0))
+            self._messages[msg.frame_id] = msg
+            self.stamp_frames = frozenset({msg.frame_id})
         self.by_id: dict[int, FrameRoute] = {
             fid: FrameRoute(
                 self._messages[fid],
@@ -148,3 +177,50 @@ class SignalMap:
             layout = project_signal_map(config.joints, config.imus, str(section.get("layout", "classic")))
             section = {**layout, **{k: v for k, v in section.items() if k not in layout}}
         return cls(db, config, section)
+
+    @classmethod
+    def for_streams(cls, config: DeviceConfig, db: Database | None = None) -> tuple[SignalMap, SignalMap]:
+        """The encoder stream's map and the IMU stream's map of a multi-rate ``config``.
+
+        >>> cfg = DeviceConfig("r", 0.01, ("j1",), ("imu0",),
+        ...                    {"streams": {"encoders": {"period_s": 0.004}, "imus": {"period_s": 0.01}}})
+        >>> enc, imu = SignalMap.for_streams(cfg)
+        >>> sorted(hex(i) for i in enc.by_id), sorted(hex(i) for i in imu.by_id)
+        (['0x78', '0x80'], ['0x100', '0x180', '0x79'])
+        """
+        streams = config.streams
+        if streams is None:
+            raise DeviceConfigError("not a multi-rate device config (no 'streams' section)")
+        section = dict(config.extra.get("can") or {})
+        if db is None:
+            db = load_dbc(section.get("dbc"))
+        if "joints" not in section and "imus" not in section:
+            layout = project_signal_map(
+                config.joints, config.imus, str(section.get("layout", "classic")), streams=True
+            )
+            section = {**layout, **{k: v for k, v in section.items() if k not in layout}}
+        stamps = section.get("stamps")
+        if not (isinstance(stamps, dict) and all(isinstance(stamps.get(n), str) for n in STREAMS)):
+            raise DeviceConfigError(
+                "CAN mapping of a multi-rate device needs 'stamps': {'encoders': 'MSG.signal', "
+                "'imus': 'MSG.signal'}"
+            )
+        base = {k: v for k, v in section.items() if k not in ("joints", "imus", "stamps")}
+        enc_cfg = DeviceConfig(config.robot, streams["encoders"].period_s, config.joints, ())
+        imu_cfg = DeviceConfig(config.robot, streams["imus"].period_s, (), config.imus)
+        enc = cls(
+            db,
+            enc_cfg,
+            {**base, "joints": section.get("joints", {}), "stamp": stamps["encoders"]},
+            streams["encoders"],
+        )
+        imu = cls(
+            db, imu_cfg, {**base, "imus": section.get("imus", {}), "stamp": stamps["imus"]}, streams["imus"]
+        )
+        shared = sorted(set(enc.by_id) & set(imu.by_id))
+        if shared:
+            raise DeviceConfigError(
+                f"CAN mapping: frame ids {[hex(i) for i in shared]} carry both encoder and IMU signals; "
+                "a multi-rate device sends each stream in frames of its own"
+            )
+        return enc, imu

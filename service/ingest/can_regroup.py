@@ -18,6 +18,15 @@ What happens to an incomplete sample is the ``incomplete`` policy:
 message (short DLC) or one cantools cannot decode is ``decode_errors``; an id the mapping does not use is
 ``unknown_ids``.
 
+A multi-rate device's streams (``"streams"`` in its config, docs/wire-formats.md) regroup on their own:
+:class:`MultirateAssembler` holds one :class:`SampleAssembler` per stream, each regrouping by that
+stream's counter, with the stream's stamp frame as one more frame of each sample (a sample without its
+stamp cannot be timed and is dropped under either policy). Time is then the stamp (``stamp × tick_s``),
+not ``counter × period``; the counter still orders the samples and tells lost ones
+(``samples_missing``) from clock faults: ``clock_jumps`` (a stamp that leapt ahead, kept),
+``stale_stamps`` (a stamp that did not advance, dropped), and the stamp clock's restarts in the source's
+``counter_resets``. ``samples_unpaired`` counts samples dropped while the other stream stayed silent.
+
 Frames are decoded in batches. The signal layout of each message (start bit, length, byte order,
 sign, scale, offset) is read from the cantools database and applied to all frames of a batch at once
 with numpy, which is what lets one core keep up with a humanoid's worth of frames; messages the
@@ -54,10 +63,10 @@ import numpy as np
 from cantools.database.can import Message
 
 from service.ingest.base import FrameBatch
-from service.ingest.can_mapping import ACC, Q, SignalMap
-from service.ingest.device import DeviceClock
+from service.ingest.can_mapping import ACC, GYRO, STAMP, Q, SignalMap
+from service.ingest.device import DeviceClock, StreamClock, StreamJoiner
 
-__all__ = ["SampleAssembler", "compile_layout"]
+__all__ = ["MultirateAssembler", "SampleAssembler", "compile_layout"]
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +143,14 @@ class SampleAssembler:
         self.counts: Counter[str] = Counter()
         cfg = signal_map.config
         self._n, self._k = N, K = len(cfg.joints), len(cfg.imus)
-        self._d = N + 6 * K
+        stamped = bool(signal_map.stamp_frames)
+        self._d = N + 6 * K + int(stamped)
+        #: multi-rate stream: its stamps become time (None: counter × period)
+        self.stamp_clock: StreamClock | None = None
+        if stamped:
+            assert signal_map.stream is not None
+            self.stamp_clock = StreamClock(signal_map.stream, bits=signal_map.stamp_bits)
+        self._last_taken: int | None = None
         fids = sorted(signal_map.by_id)
         self._fids = np.array(fids, dtype=np.int64)
         self._nf = len(fids)
@@ -155,7 +171,15 @@ class SampleAssembler:
             dest = [-1]  # the counter goes nowhere
             factor = [1.0]
             for _, kind, i, axis, f in route.targets:
-                dest.append(i if kind == Q else N + 3 * i + axis if kind == ACC else N + 3 * K + 3 * i + axis)
+                if kind == Q:
+                    dest.append(i)
+                elif kind == ACC:
+                    dest.append(N + 3 * i + axis)
+                elif kind == GYRO:
+                    dest.append(N + 3 * K + 3 * i + axis)
+                else:
+                    assert kind == STAMP
+                    dest.append(N + 6 * K)
                 factor.append(f)
             self._group_of[p] = keys[key]
             self._row_in_group[p] = len(g.dest)
@@ -166,6 +190,7 @@ class SampleAssembler:
         pos = {f: p for p, f in enumerate(fids)}
         self._joint_pos = np.array(sorted(pos[f] for f in signal_map.joint_frames), dtype=np.int64)
         self._imu_pos = [np.array(sorted(pos[f] for f in fr), dtype=np.int64) for fr in signal_map.imu_frames]
+        self._stamp_pos = np.array(sorted(pos[f] for f in signal_map.stamp_frames), dtype=np.int64)
         self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._ready: list[tuple[int, np.ndarray, tuple[bool, ...]]] = []
         self._last_released: int | None = None
@@ -180,6 +205,11 @@ class SampleAssembler:
     @property
     def pending(self) -> int:
         return len(self._pending)
+
+    @property
+    def resets(self) -> int:
+        """Device restarts seen by the counter and (multi-rate) by the stamp clock."""
+        return self.clock.resets + (self.stamp_clock.resets if self.stamp_clock is not None else 0)
 
     def add(self, frame_id: int, data: bytes | bytearray) -> None:
         """Take one data frame; never raises for bad frames (they are counted)."""
@@ -311,7 +341,11 @@ class SampleAssembler:
                 self._ready.append((idx, vals, self._all_imus))
                 continue
             self.counts["frames_missing"] += int(self._nf - seen.sum())
-            if self.incomplete == "drop" or not seen[self._joint_pos].all():
+            if (
+                self.incomplete == "drop"
+                or not seen[self._joint_pos].all()
+                or not seen[self._stamp_pos].all()
+            ):
                 self.counts["samples_dropped"] += 1
                 continue
             present = tuple(bool(seen[p].all()) for p in self._imu_pos)
@@ -328,6 +362,9 @@ class SampleAssembler:
         out: list[FrameBatch] = []
         cfg = self.map.config
         N, K = self._n, self._k
+        times: np.ndarray | None = None
+        if self.stamp_clock is not None and ready:
+            ready, times = self._stamp_times(ready)
         i = 0
         while i < len(ready):
             mask = ready[i][2]
@@ -335,8 +372,11 @@ class SampleAssembler:
             while j < len(ready) and ready[j][2] == mask:
                 j += 1
             run = ready[i:j]
-            t = np.array([r[0] for r in run], dtype=np.float64) * cfg.period_s
-            V = np.stack([r[1] for r in run])
+            if times is None:
+                t = np.array([r[0] for r in run], dtype=np.float64) * cfg.period_s
+            else:
+                t = times[i:j]
+            V = np.stack([r[1] for r in run])[:, : N + 6 * K]
             sel = np.flatnonzero(mask)
             T = len(run)
             acc = V[:, N : N + 3 * K].reshape(T, K, 3)[:, sel]
@@ -345,3 +385,112 @@ class SampleAssembler:
             out.append(FrameBatch(cfg.robot, t, cfg.joints, V[:, :N].copy(), names, acc, gyro))
             i = j
         return out
+
+    def _stamp_times(self, ready: list) -> tuple[list, np.ndarray]:
+        """The released samples of a stamped stream that keep their place in time, and their times."""
+        clock = self.stamp_clock
+        assert clock is not None
+        m = self.map
+        idx = np.array([r[0] for r in ready], dtype=np.int64)
+        prev = np.concatenate([[idx[0] - 1 if self._last_taken is None else self._last_taken], idx[:-1]])
+        steps = idx - prev
+        self._last_taken = int(idx[-1])
+        self.counts["samples_missing"] += int(np.maximum(steps - 1, 0).sum())
+        col = self._n + 6 * self._k
+        raw = np.rint((np.array([r[1][col] for r in ready]) - m.stamp_offset) / m.stamp_scale)
+        t, keep = clock.times(raw.astype(np.int64), np.maximum(steps, 1))
+        self.counts["clock_jumps"] = clock.jumps
+        self.counts["stale_stamps"] = clock.stale
+        if not keep.all():
+            ready = [r for r, k in zip(ready, keep.tolist(), strict=True) if k]
+        return ready, t
+
+
+class MultirateAssembler:
+    """The two streams of a multi-rate device: one :class:`SampleAssembler` each, joined into multi-rate
+    batches (``t`` IMU stamps, ``t_q`` encoder stamps) by a :class:`~service.ingest.device.StreamJoiner`.
+
+    Same interface as :class:`SampleAssembler` (``add_many``, ``take``, ``ready``, ``pending``,
+    ``counts``, ``resets``). Frames go to the stream whose map holds their id; the IMU stream's
+    assembler counts ids neither map holds.
+
+    Example
+    -------
+    >>> from service.ingest.can_layout import encode_stream
+    >>> from service.ingest.device import DeviceConfig, StreamSpec
+    >>> cfg = DeviceConfig("r", 0.01, ("j",), ("i",)).with_streams(StreamSpec(0.004), StreamSpec(0.01))
+    >>> asm = MultirateAssembler(*SignalMap.for_streams(cfg))
+    >>> e_ids, _, e = encode_stream("encoders", np.arange(5), 4000 * np.arange(5) + 100, q=np.ones((5, 1)))
+    >>> i_ids, _, m = encode_stream("imus", np.arange(2), np.array([8000, 18000]), acc=np.ones((2, 1, 3)),
+    ...                             gyro=np.zeros((2, 1, 3)))
+    >>> frames = [(int(f), d[k, n]) for ids, d in ((e_ids, e), (i_ids, m)) for k in range(len(d))
+    ...           for n, f in enumerate(ids)]
+    >>> asm.add_many([f for f, _ in frames], [d.tobytes() for _, d in frames])
+    >>> [(b.t.tolist(), b.t_q.tolist()) for b in asm.take(flush=True)]
+    [([0.008, 0.018], [0.0001, 0.0041, 0.0081, 0.0121, 0.0161])]
+    """
+
+    def __init__(
+        self,
+        encoder_map: SignalMap,
+        imu_map: SignalMap,
+        horizon: int = 4,
+        reset_after: int = 256,
+        incomplete: str = "drop",
+    ) -> None:
+        self.encoders = SampleAssembler(encoder_map, horizon, reset_after, incomplete)
+        self.imus = SampleAssembler(imu_map, horizon, reset_after, incomplete)
+        self._enc_ids = np.array(sorted(encoder_map.by_id), dtype=np.int64)
+        self.joiner = StreamJoiner(encoder_map.config.robot, encoder_map.config.joints, imu_map.config.imus)
+
+    @property
+    def ready(self) -> int:
+        """Nonzero when :meth:`take` would return a batch (both streams have samples)."""
+        enc_wait, imu_wait = self.joiner.pending
+        if not (self.encoders.ready or self.imus.ready):
+            return 0
+        return int(bool(self.encoders.ready or enc_wait) and bool(self.imus.ready or imu_wait))
+
+    @property
+    def pending(self) -> int:
+        return self.encoders.pending + self.imus.pending
+
+    @property
+    def counts(self) -> Counter[str]:
+        c = self.encoders.counts + self.imus.counts
+        for k in ("clock_jumps", "stale_stamps", "samples_missing"):  # totals that may be zero
+            c[k] = self.encoders.counts[k] + self.imus.counts[k]
+        c["samples_unpaired"] = self.joiner.unpaired
+        return c
+
+    @property
+    def resets(self) -> int:
+        return self.encoders.resets + self.imus.resets
+
+    def add(self, frame_id: int, data: bytes | bytearray) -> None:
+        """Take one data frame; never raises for bad frames (they are counted)."""
+        self.add_many([frame_id], [data])
+
+    def add_many(self, frame_ids: Sequence[int], datas: Sequence[bytes | bytearray]) -> None:
+        """Take frames in arrival order, each to its stream; never raises for bad frames."""
+        if not len(frame_ids):
+            return
+        ids = np.fromiter(frame_ids, dtype=np.int64, count=len(frame_ids))
+        enc = np.isin(ids, self._enc_ids)
+        if enc.all():
+            self.encoders.add_many(frame_ids, datas)
+            return
+        if not enc.any():
+            self.imus.add_many(frame_ids, datas)
+            return
+        e, o = np.flatnonzero(enc).tolist(), np.flatnonzero(~enc).tolist()
+        self.encoders.add_many([frame_ids[i] for i in e], [datas[i] for i in e])
+        self.imus.add_many([frame_ids[i] for i in o], [datas[i] for i in o])
+
+    def take(self, flush: bool = False) -> list[FrameBatch]:
+        """Multi-rate batches of what both streams released (``flush``: release every pending sample)."""
+        for b in self.encoders.take(flush):
+            self.joiner.add_encoders(b.t, b.q)
+        for b in self.imus.take(flush):
+            self.joiner.add_imus(b.t, b.imu_names, b.acc, b.gyro)
+        return self.joiner.take()

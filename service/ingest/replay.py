@@ -6,6 +6,10 @@ wall clock, ``speed=10`` ten times faster, ``speed=math.inf`` as fast as the pip
 pipeline attaches a store, the replay resumes after the last frame the store already has of this robot,
 so a restarted ingest neither duplicates nor skips frames.
 
+A multi-rate recording (encoders on stamps of their own, docs/recording-format.md) replays as
+multi-rate batches: each chunk cuts both streams at the same device times, each by its own stamps, and
+a chunk that would leave either stream empty joins the next one.
+
 Example
 -------
 >>> import numpy as np
@@ -37,16 +41,44 @@ __all__ = ["ReplaySource", "recording_batch"]
 
 
 def recording_batch(
-    robot: str, rec: Recording, index: slice = slice(None), t_offset: float = 0.0
+    robot: str,
+    rec: Recording,
+    index: slice = slice(None),
+    t_offset: float = 0.0,
+    qindex: slice | None = None,
 ) -> FrameBatch:
     """Samples ``index`` of ``rec`` as a frame batch of ``robot`` (a recording without encoders gives
-    N = 0 joints)."""
+    N = 0 joints). A multi-rate recording gives a multi-rate batch: ``index`` picks IMU samples and
+    ``qindex`` (default: all) encoder samples; the encoders' own ``qd`` travels along."""
     t = rec.t[index]
+    if rec.t_q is not None:
+        assert rec.q is not None  # a multi-rate recording always has encoders
+        qi = slice(None) if qindex is None else qindex
+        t_q = rec.t_q[qi]
+        return FrameBatch(
+            robot,
+            t + t_offset if t_offset else t,
+            rec.joint_names,
+            rec.q[qi],
+            rec.imu_names,
+            rec.acc[index],
+            rec.gyro[index],
+            t_q=t_q + t_offset if t_offset else t_q,
+            qd=None if rec.qd is None else rec.qd[qi],
+        )
     q = rec.q[index] if rec.q is not None else np.zeros((t.shape[0], 0))
     names = rec.joint_names if rec.q is not None else ()
     return FrameBatch(
         robot, t + t_offset if t_offset else t, names, q, rec.imu_names, rec.acc[index], rec.gyro[index]
     )
+
+
+def _chunk_bounds(t: np.ndarray, t0: float, chunk_seconds: float, dt: float, span: float) -> np.ndarray:
+    """Indices into ``t`` where chunks of ``chunk_seconds`` from ``t0`` start (with 0 and len(t))."""
+    # Chunk k holds t0 + k*chunk <= t < t0 + (k+1)*chunk; the slack keeps a sample that sits on an
+    # edge (up to float rounding) at the start of the next chunk.
+    edges = t0 + chunk_seconds * np.arange(1, int(np.ceil(span / chunk_seconds)) + 2)
+    return np.concatenate([[0], np.searchsorted(t, edges - 1e-6 * dt, side="left"), [t.shape[0]]])
 
 
 class ReplaySource(Source):
@@ -88,13 +120,28 @@ class ReplaySource(Source):
         self._clock, self._sleep = clock, sleep
         t = rec.t
         dt = float(np.median(np.diff(t))) if t.shape[0] > 1 else chunk_seconds
-        # Chunk k holds t0 + k*chunk <= t < t0 + (k+1)*chunk; the slack keeps a sample that sits on an
-        # edge (up to float rounding) at the start of the next chunk.
-        edges = t[0] + chunk_seconds * np.arange(1, int(np.ceil((t[-1] - t[0]) / chunk_seconds)) + 2)
-        cuts = np.searchsorted(t, edges - 1e-6 * dt, side="left")
-        bounds = np.unique(np.concatenate([[0], cuts, [t.shape[0]]]))
-        self._bounds = [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
-        self._period = float(t[-1] - t[0]) + dt  # device-time shift per loop
+        te = rec.encoder_t
+        t0, t1 = min(float(t[0]), float(te[0])), max(float(t[-1]), float(te[-1]))
+        cuts = _chunk_bounds(t, t0, chunk_seconds, dt, t1 - t0)
+        #: per chunk: (IMU start, IMU stop, encoder start, encoder stop) indices
+        self._bounds: list[tuple[int, int, int, int]] = []
+        if rec.t_q is None:
+            bounds = np.unique(cuts)
+            self._bounds = [(int(a), int(b), int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+        else:
+            dtq = float(np.median(np.diff(te))) if te.shape[0] > 1 else chunk_seconds
+            qcuts = _chunk_bounds(te, t0, chunk_seconds, min(dt, dtq), t1 - t0)
+            a = aq = 0
+            for b, bq in zip(cuts[1:], qcuts[1:], strict=True):
+                if b > a and bq > aq:  # both streams have samples: a chunk of its own
+                    self._bounds.append((a, int(b), aq, int(bq)))
+                    a, aq = int(b), int(bq)
+            if a < t.shape[0] or aq < te.shape[0]:  # a tail with one stream only joins the last chunk
+                if self._bounds:
+                    pa, _, pq, _ = self._bounds.pop()
+                    a, aq = pa, pq
+                self._bounds.append((a, t.shape[0], aq, te.shape[0]))
+        self._period = t1 - t0 + dt  # device-time shift per loop
         self._next = 0  # index into _bounds
         self._offset = 0.0  # device-time shift of the current pass
         self._start_after = -math.inf
@@ -114,12 +161,14 @@ class ReplaySource(Source):
         self._start_after = float(t)
         if self.loop and t >= self.recording.t[0]:
             self._offset = math.floor((t - self.recording.t[0]) / self._period) * self._period
-        while (
-            self._next < len(self._bounds)
-            and self.recording.t[self._bounds[self._next][1] - 1] + self._offset <= t
-        ):
+        while self._next < len(self._bounds) and self._chunk_end(self._next) + self._offset <= t:
             self._next += 1
         self._roll_over()
+
+    def _chunk_end(self, k: int) -> float:
+        """Last device time (before the loop offset) of chunk ``k``, both streams."""
+        _, b, _, bq = self._bounds[k]
+        return max(float(self.recording.t[b - 1]), float(self.recording.encoder_t[bq - 1]))
 
     def _roll_over(self) -> None:
         if self._next >= len(self._bounds):
@@ -136,10 +185,11 @@ class ReplaySource(Source):
     def _read_raw(self, timeout: float) -> list[FrameBatch]:
         out: list[FrameBatch] = []
         while not self.exhausted and len(out) < self.max_batches_per_read:
-            a, b = self._bounds[self._next]
-            t_end = float(self.recording.t[b - 1]) + self._offset
+            a, b, aq, bq = self._bounds[self._next]
+            t_end = self._chunk_end(self._next) + self._offset
             if self._origin is None:
-                self._origin = (self._clock(), float(self.recording.t[a]) + self._offset)
+                start = min(float(self.recording.t[a]), float(self.recording.encoder_t[aq]))
+                self._origin = (self._clock(), start + self._offset)
             if math.isfinite(self.speed):
                 wait = self._due(t_end) - self._clock()
                 if wait > 0:
@@ -148,20 +198,31 @@ class ReplaySource(Source):
                             self._sleep(timeout)
                         break
                     self._sleep(wait)
-            batch = recording_batch(self.robot, self.recording, slice(a, b), self._offset)
-            if batch.t[0] <= self._start_after:  # the first chunk after a resume point
-                keep = batch.t > self._start_after
-                batch = FrameBatch(
-                    batch.robot,
-                    batch.t[keep],
-                    batch.joint_names,
-                    batch.q[keep],
-                    batch.imu_names,
-                    batch.acc[keep],
-                    batch.gyro[keep],
-                )
-            if batch.n_samples:
+            batch = recording_batch(self.robot, self.recording, slice(a, b), self._offset, slice(aq, bq))
+            if min(batch.t[0], batch.encoder_t[0]) <= self._start_after:  # the first chunk after a resume
+                batch = _after(batch, self._start_after)
+            if batch is not None:
                 out.append(batch)
             self._next += 1
             self._roll_over()
         return out
+
+
+def _after(b: FrameBatch, t: float) -> FrameBatch | None:
+    """The samples of ``b`` after device time ``t`` (each stream by its own stamps); None when a
+    stream would be left empty."""
+    keep = b.t > t
+    keep_q = keep if b.t_q is None else b.t_q > t
+    if not keep.any() or not keep_q.any():
+        return None
+    return FrameBatch(
+        b.robot,
+        b.t[keep],
+        b.joint_names,
+        b.q[keep_q],
+        b.imu_names,
+        b.acc[keep],
+        b.gyro[keep],
+        t_q=None if b.t_q is None else b.t_q[keep_q],
+        qd=None if b.qd is None else b.qd[keep_q],
+    )

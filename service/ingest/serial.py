@@ -13,6 +13,14 @@ Counters (``source.counters.extra``): ``crc_errors``, ``bad_headers``, ``bytes_d
 back: the device restarted), ``stale_frames``, ``counter_resets``, ``disconnects``, ``reconnects``
 (every successful open after the first attempt, including a port that was absent at start).
 
+A multi-rate device (``"streams"`` in its description) sends encoder and IMU stream frames, each stream
+with its own sequence number and time stamps (``stamp × tick_s``); the source returns multi-rate batches
+(``t`` for the IMU samples, ``t_q`` for the encoder samples, :class:`~service.ingest.device.StreamJoiner`).
+``sequence_gaps`` and ``sequence_resets`` then count per stream, and further: ``clock_jumps`` (a stamp
+that leapt ahead of what the sequence number explains: kept), ``counter_resets`` (a stamp far behind:
+the clock restarted, time carries on), ``stale_frames`` (a stamp that did not advance: dropped),
+``samples_unpaired`` (samples dropped while the other stream stayed silent).
+
 Example
 -------
 >>> from service.ingest.device import DeviceConfig
@@ -38,8 +46,16 @@ import numpy as np
 import serial
 
 from service.ingest.base import FrameBatch, Source
-from service.ingest.device import Backoff, DeviceClock, DeviceConfig, DeviceConfigError
-from service.ingest.serial_frame import FrameDecoder, decode_payloads
+from service.ingest.device import (
+    STREAMS,
+    Backoff,
+    DeviceClock,
+    DeviceConfig,
+    DeviceConfigError,
+    StreamClock,
+    StreamJoiner,
+)
+from service.ingest.serial_frame import STREAM_ENCODERS, STREAM_IMUS, FrameDecoder, decode_payloads
 
 __all__ = ["SerialSource", "open_from_spec"]
 
@@ -69,8 +85,19 @@ class SerialSource(Source):
         self.backoff = backoff
         self.read_size = read_size
         self._open_port = open_port or serial.serial_for_url
-        self._decoder = FrameDecoder(len(config.joints), len(config.imus))
+        streams = config.streams
+        self._decoder = FrameDecoder(len(config.joints), len(config.imus), streams=streams is not None)
         self._clock = DeviceClock(bits=32)
+        #: multi-rate: per stream tag, the stamp clock and the last sequence number
+        self._stream_clocks: dict[int, StreamClock] = {}
+        self._stream_seq: dict[int, int] = {}
+        self._joiner: StreamJoiner | None = None
+        if streams is not None:
+            self._stream_clocks = {
+                tag: StreamClock(streams[name])
+                for tag, name in zip((STREAM_ENCODERS, STREAM_IMUS), STREAMS, strict=True)
+            }
+            self._joiner = StreamJoiner(config.robot, config.joints, config.imus)
         self._last_seq: int | None = None
         self._last_idx: int | None = None
         self._retry = Backoff(*backoff)
@@ -139,6 +166,8 @@ class SerialSource(Source):
     def decode(self, data: bytes) -> list[FrameBatch]:
         """Decode ``data`` as if it had come from the port (used by ``read`` and by benchmarks)."""
         frames = self._decoder.feed(data)
+        if self._joiner is not None:
+            return self._decode_streams(frames)
         payloads, idxs = [], []
         for f in frames:
             if self._last_seq is not None:
@@ -165,6 +194,51 @@ class SerialSource(Source):
         t = np.asarray(idxs, dtype=np.float64) * cfg.period_s
         return [FrameBatch(cfg.robot, t, cfg.joints, q, cfg.imus, acc, gyro)]
 
+    def _decode_streams(self, frames: list) -> list[FrameBatch]:
+        """Stream frames of a multi-rate device -> multi-rate batches (each stream on its own stamps)."""
+        assert self._joiner is not None
+        cfg = self.config
+        by_stream: dict[int, tuple[list[int], list[int], list[bytes]]] = {
+            STREAM_ENCODERS: ([], [], []),
+            STREAM_IMUS: ([], [], []),
+        }
+        for f in frames:
+            step = 1
+            last = self._stream_seq.get(f.stream)
+            if last is not None:
+                gap = (f.seq - last - 1) & 0xFFFF
+                if gap < 0x8000:
+                    if gap:
+                        self.counters.add("sequence_gaps", gap)
+                    step = gap + 1
+                else:
+                    self.counters.add("sequence_resets")
+            self._stream_seq[f.stream] = f.seq
+            stamps, steps, payloads = by_stream[f.stream]
+            stamps.append(f.counter)
+            steps.append(step)
+            payloads.append(f.payload)
+        got = False
+        for tag, (stamps, steps, payloads) in by_stream.items():
+            if not stamps:
+                continue
+            t, keep = self._stream_clocks[tag].times(stamps, steps)
+            if not len(t):
+                continue
+            got = True
+            kept = [p for p, k in zip(payloads, keep, strict=True) if k]
+            if tag == STREAM_ENCODERS:
+                q, _, _ = decode_payloads(kept, len(cfg.joints), 0)
+                self._joiner.add_encoders(t, q)
+            else:
+                _, acc, gyro = decode_payloads(kept, 0, len(cfg.imus))
+                self._joiner.add_imus(t, cfg.imus, acc, gyro)
+        if got:
+            self._retry.succeeded()
+        out = self._joiner.take()
+        self._sync_counters()
+        return out
+
     def _sync_counters(self) -> None:
         """Mirror the decoder's and clock's totals into ``counters.extra`` (as increments)."""
         now = {
@@ -173,6 +247,12 @@ class SerialSource(Source):
             "bytes_discarded": self._decoder.bytes_discarded,
             "counter_resets": self._clock.resets,
         }
+        if self._joiner is not None:
+            clocks = self._stream_clocks.values()
+            now["counter_resets"] = sum(c.resets for c in clocks)
+            now["stale_frames"] = sum(c.stale for c in clocks)
+            now["clock_jumps"] = sum(c.jumps for c in clocks)
+            now["samples_unpaired"] = self._joiner.unpaired
         for k, v in now.items():
             d = v - self._synced.get(k, 0)
             if d:

@@ -20,6 +20,22 @@ its length and counts equal the configured device *and* the CRC matches, so a fo
 probability about 2^-32 per occurrence (CRC-16 alone would let one in every 65,536 through).
 ``binascii.crc32`` is the C implementation from the standard library.
 
+Multi-rate devices (a ``"streams"`` section in the device description) send *stream frames* instead:
+the same header and CRC behind the sync word ``0xA5 0x5B``, with the two count bytes read as a stream
+tag and that stream's count, and the counter read as the stream's own time stamp::
+
+    0      2     sync 0xA5 0x5B
+    2      2     length    4·N (encoder frame) or 12·K (IMU frame)
+    4      2     seq       +1 per frame of this stream (mod 2^16): gaps = this stream's lost frames
+    6      4     stamp     the stream's time stamp, +period/tick per sample (mod 2^32): t = stamp × tick
+    10     1     stream    1 = encoders, 2 = IMUs
+    11     1     count     N (encoders) or K (IMUs)
+    12     ..    payload   encoders: q as above; IMUs: acc then gyro as above
+    end-4  4     crc       as above
+
+A host set up for one kind never accepts the other: the sync words differ, so single-stream decoders
+(and old hosts) skip stream frames as line noise and vice versa.
+
 Resynchronisation: after a rejected candidate the decoder restarts the search one byte after its sync
 word, so a false sync inside garbage never swallows the real frame behind it.
 
@@ -37,6 +53,15 @@ Example
 >>> q, acc, gyro = decode_payloads([f.payload for f in frames], 1, 1)
 >>> float(q[0, 0]), float(acc[0, 0, 2]), float(gyro[0, 0, 0])
 (0.5, 9.81, 0.1)
+
+Stream frames of a multi-rate device (``docs/wire-formats.md`` has the bytes of both):
+
+>>> senc = StreamFrameEncoder(n_joints=1, n_imus=1)
+>>> wire = senc.encode_encoders(stamp=4000, q=[0.5]) + senc.encode_imus(stamp=8000, acc=[[0, 0, 9.81]],
+...                                                                        gyro=[[0.1, 0, 0]])
+>>> sdec = FrameDecoder(n_joints=1, n_imus=1, streams=True)
+>>> [(f.stream, f.seq, f.counter, len(f.payload)) for f in sdec.feed(wire)]
+[(1, 0, 4000, 4), (2, 0, 8000, 12)]
 """
 
 from __future__ import annotations
@@ -55,10 +80,14 @@ __all__ = [
     "MAX_IMUS",
     "MAX_JOINTS",
     "Q_LSB",
+    "STREAM_ENCODERS",
+    "STREAM_IMUS",
     "SYNC",
+    "SYNC_STREAM",
     "DecodedFrame",
     "FrameDecoder",
     "FrameEncoder",
+    "StreamFrameEncoder",
     "decode_payloads",
     "frame_size",
     "payload_dtype",
@@ -66,6 +95,11 @@ __all__ = [
 ]
 
 SYNC = b"\xa5\x5a"
+#: Sync word of a multi-rate device's stream frames.
+SYNC_STREAM = b"\xa5\x5b"
+#: Stream tags (byte 10 of a stream frame).
+STREAM_ENCODERS = 1
+STREAM_IMUS = 2
 #: sync, length, seq, counter, N, K
 HEADER = struct.Struct("<2sHHIBB")
 CRC = struct.Struct("<I")
@@ -79,9 +113,13 @@ GYRO_LSB = 0.001
 
 
 class DecodedFrame(NamedTuple):
+    """One intact frame. ``counter`` is the sample counter, or a stream frame's time stamp; ``stream`` is
+    0 for a single-stream frame, else :data:`STREAM_ENCODERS` or :data:`STREAM_IMUS`."""
+
     seq: int
     counter: int
     payload: bytes
+    stream: int = 0
 
 
 def payload_dtype(n_joints: int, n_imus: int) -> np.dtype:
@@ -139,6 +177,43 @@ class FrameEncoder:
         return body + CRC.pack(binascii.crc32(body[2:]))
 
 
+class StreamFrameEncoder:
+    """Device side of a multi-rate device: encoder frames and IMU frames, each stream numbered on its
+    own (``seq`` may be given to leave a gap: a frame the line lost). ``clipped`` counts saturations."""
+
+    def __init__(self, n_joints: int, n_imus: int) -> None:
+        if not (1 <= n_joints <= MAX_JOINTS and 1 <= n_imus <= MAX_IMUS):
+            raise ValueError(f"a multi-rate device needs 1..{MAX_JOINTS} joints and 1..{MAX_IMUS} IMUs")
+        self.n_joints, self.n_imus = n_joints, n_imus
+        self.seq = {STREAM_ENCODERS: 0, STREAM_IMUS: 0}
+        self.clipped = 0
+        self._dtype = {STREAM_ENCODERS: payload_dtype(n_joints, 0), STREAM_IMUS: payload_dtype(0, n_imus)}
+
+    def _frame(self, stream: int, count: int, stamp: int, payload: np.ndarray, seq: int | None) -> bytes:
+        s = self.seq[stream] if seq is None else int(seq) & 0xFFFF
+        body = HEADER.pack(SYNC_STREAM, payload.nbytes, s, int(stamp) & 0xFFFFFFFF, stream, count)
+        body += payload.tobytes()
+        self.seq[stream] = (s + 1) & 0xFFFF
+        return body + CRC.pack(binascii.crc32(body[2:]))
+
+    def encode_encoders(self, stamp: int, q: Sequence[float] | np.ndarray, seq: int | None = None) -> bytes:
+        """One encoder sample stamped ``stamp`` ticks."""
+        rec = np.zeros((), dtype=self._dtype[STREAM_ENCODERS])
+        rec["q"], c = quantize(np.reshape(q, (self.n_joints,)), Q_LSB, "<i4")
+        self.clipped += c
+        return self._frame(STREAM_ENCODERS, self.n_joints, stamp, rec, seq)
+
+    def encode_imus(
+        self, stamp: int, acc: np.ndarray | Sequence, gyro: np.ndarray | Sequence, seq: int | None = None
+    ) -> bytes:
+        """One sample of every IMU stamped ``stamp`` ticks."""
+        rec = np.zeros((), dtype=self._dtype[STREAM_IMUS])
+        rec["acc"], c1 = quantize(np.reshape(acc, (self.n_imus, 3)), ACC_LSB, "<i2")
+        rec["gyro"], c2 = quantize(np.reshape(gyro, (self.n_imus, 3)), GYRO_LSB, "<i2")
+        self.clipped += c1 + c2
+        return self._frame(STREAM_IMUS, self.n_imus, stamp, rec, seq)
+
+
 class FrameDecoder:
     """Host side: feed it bytes as they come (any chunking), get back the intact frames.
 
@@ -147,13 +222,20 @@ class FrameDecoder:
     - ``crc_errors``: candidates whose header fitted but whose CRC did not match;
     - ``bad_headers``: a sync word followed by a length or counts that do not fit this device;
     - ``bytes_discarded``: bytes skipped while searching for a frame (garbage, rejected frames).
+
+    ``streams=True`` decodes a multi-rate device's stream frames (sync ``A5 5B``) instead, of either
+    stream; the header must name a known stream with this device's count for it.
     """
 
-    def __init__(self, n_joints: int, n_imus: int) -> None:
+    def __init__(self, n_joints: int, n_imus: int, streams: bool = False) -> None:
         _check_counts(n_joints, n_imus)
         self.n_joints, self.n_imus = n_joints, n_imus
+        self.streams = streams
+        self.sync = SYNC_STREAM if streams else SYNC
         self.payload_len = payload_dtype(n_joints, n_imus).itemsize
         self.frame_len = HEADER.size + self.payload_len + CRC.size
+        #: stream frames: (length, count) per stream tag
+        self._stream_shape = {STREAM_ENCODERS: (4 * n_joints, n_joints), STREAM_IMUS: (12 * n_imus, n_imus)}
         self.crc_errors = 0
         self.bad_headers = 0
         self.bytes_discarded = 0
@@ -171,6 +253,9 @@ class FrameDecoder:
         self._buf.clear()
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[DecodedFrame]:
+        """Append ``data``; return the frames completed by it, in order."""
+        if self.streams:
+            return self._feed_streams(data)
         buf = self._buf
         buf += data
         n = len(buf)
@@ -205,6 +290,46 @@ class FrameDecoder:
                 continue
             out.append(DecodedFrame(seq, counter, bytes(buf[i + hsize : end - 4])))
             self.bytes_accepted += flen
+            pos = end
+        del buf[:pos]
+        return out
+
+    def _feed_streams(self, data: bytes | bytearray | memoryview) -> list[DecodedFrame]:
+        buf = self._buf
+        buf += data
+        n = len(buf)
+        out: list[DecodedFrame] = []
+        pos = 0
+        hsize, sync, shapes = HEADER.size, SYNC_STREAM, self._stream_shape
+        while True:
+            i = buf.find(sync, pos)
+            if i < 0:
+                keep = n - 1 if n > pos and buf[n - 1] == sync[0] else n
+                self.bytes_discarded += keep - pos
+                pos = keep
+                break
+            self.bytes_discarded += i - pos
+            pos = i
+            if n - i < hsize:
+                break
+            _, length, seq, stamp, stream, count = HEADER.unpack_from(buf, i)
+            shape = shapes.get(stream)
+            if shape is None or shape != (length, count) or count == 0:
+                self.bad_headers += 1
+                self.bytes_discarded += 1
+                pos = i + 1
+                continue
+            end = i + hsize + length + CRC.size
+            if n < end:
+                break
+            (crc,) = CRC.unpack_from(buf, end - 4)
+            if binascii.crc32(buf[i + 2 : end - 4]) != crc:
+                self.crc_errors += 1
+                self.bytes_discarded += 1
+                pos = i + 1
+                continue
+            out.append(DecodedFrame(seq, stamp, bytes(buf[i + hsize : end - 4]), stream))
+            self.bytes_accepted += end - i
             pos = end
         del buf[:pos]
         return out

@@ -9,8 +9,9 @@
 
 SPEED is a positive number or ``max`` (as fast as possible); it defaults to 1. Farm options: ``seed``
 (default: the settings' ``farm_seed``), ``rate`` (Hz, 100), ``imu_model`` (``mpu6050``), ``excitation``
-(``observable``), ``step`` (simulated seconds per batch, 0.1). Replay option ``resume=0`` replays from
-the start even when the store already has later frames.
+(``observable``), ``step`` (simulated seconds per batch, 0.1), ``sensing`` (``robot`` or ``ideal``,
+default: the settings' ``sensing``; ``rate`` is the physics rate only under ``ideal``). Replay option
+``resume=0`` replays from the start even when the store already has later frames.
 
 Example
 -------
@@ -108,7 +109,7 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
         from service.ingest.farm import FarmSource, farm_robot_names
 
         body, _, query = rest.partition("?")
-        p = _params(query, {"seed", "rate", "imu_model", "excitation", "step"}, "farm")
+        p = _params(query, {"seed", "rate", "imu_model", "excitation", "step", "sensing"}, "farm")
         robots, speed = parse_speed_suffix(body)
         from simulators.farm import Farm  # heavy (MuJoCo): only when a farm is asked for
 
@@ -118,6 +119,7 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
             imu_model=p.get("imu_model", "mpu6050"),
             excitation=p.get("excitation", "observable"),
             rate=float(p.get("rate", 100.0)),
+            sensing=p.get("sensing", settings.sensing),
         )
         return FarmSource(farm, speed=speed, step_seconds=float(p.get("step", 0.1)))
     if kind in ("can", "serial"):

@@ -114,6 +114,8 @@ def test_robots_topology_alerts_on_each_database(store: Store) -> None:
 def test_robot_detail_and_unknown_robot(client: TestClient) -> None:
     r = client.get("/api/v1/robots/sim").json()
     assert r["simulated"] is True and r["catalog"] == "ur5e"
+    # nothing learned yet: the robot resource says so instead of a verdict
+    assert r["status"]["status"] == "undetermined" and r["status"]["trees_fit"] is None
     for path in (
         "/api/v1/robots/nope",
         "/api/v1/robots/nope/topology",
@@ -280,6 +282,7 @@ def test_openapi_and_docs(client: TestClient) -> None:
     for path in (
         "/api/v1/robots",
         "/api/v1/robots/{robot}",
+        "/api/v1/robots/{robot}/status",
         "/api/v1/robots/{robot}/topology",
         "/api/v1/robots/{robot}/topology/history",
         "/api/v1/robots/{robot}/baseline",

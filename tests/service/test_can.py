@@ -51,7 +51,7 @@ def test_shipped_dbc_is_the_generated_one():
     shipped = resources.files("service.ingest").joinpath("bodyhealth.dbc").read_text(encoding="utf-8")
     assert shipped == project_database().as_dbc_string().replace("\r\n", "\n")
     db = load_project_database()
-    assert len(db.messages) == 32 + 2 * 128 + 4 + 128
+    assert len(db.messages) == 2 + 32 + 2 * 128 + 4 + 128  # stamp frames, classic, FD
     assert db.get_message_by_name("IMU_FD_3").is_fd and db.get_message_by_name("JOINTS_FD_0").length == 64
     m = db.get_message_by_frame_id(JOINT_BASE + 3)
     assert m.name == "JOINTS_3" and m.get_signal_by_name("q1").scale == Q_LSB

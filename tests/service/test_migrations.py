@@ -89,3 +89,70 @@ def test_store_creates_schema_only_through_migrations(tmp_path: Path) -> None:
         assert current_revision(store.engine) == head_revision()
         with store.engine.connect() as conn:
             assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+
+
+def test_upgrade_keeps_single_clock_chunks_of_an_old_database(empty_url: str) -> None:
+    """A database at 0002 with frames in it upgrades to head; its chunks read back exactly, multi-rate
+    chunks can then be added, and a downgrade to 0002 drops only those (the old schema has one clock)."""
+    import math
+
+    import numpy as np
+    from sqlalchemy import text
+
+    from service.ingest.base import FrameBatch
+    from service.store import Store
+
+    rng = np.random.default_rng(3)
+    t = np.arange(20) / 100.0
+    q, acc, gyro = rng.normal(size=(20, 2)), rng.normal(size=(20, 1, 3)), rng.normal(size=(20, 1, 3))
+    engine = make_engine(empty_url)
+    try:
+        assert upgrade(engine, "0002") == "0002"
+        with engine.begin() as conn:
+            conn.execute(
+                text(
+                    "INSERT INTO robots (id, name, first_seen, last_frame_t, simulated, excitation) "
+                    "VALUES (1, 'old', 0.0, 0.19, false, '{}')"
+                )
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO chunks (robot_id, t_start, t_end, n, joint_names, imu_names, "
+                    "t, q, acc, gyro) VALUES (1, 0.0, 0.19, 20, :jn, :kn, :t, :q, :acc, :gyro)"
+                ),
+                {
+                    "jn": '["j1", "j2"]',
+                    "kn": '["imu0"]',
+                    "t": t.tobytes(),
+                    "q": q.tobytes(),
+                    "acc": acc.tobytes(),
+                    "gyro": gyro.tobytes(),
+                },
+            )
+        assert upgrade(engine) == head_revision()
+        with Store(empty_url) as store:
+            rec = store.read_between("old", -math.inf, math.inf)
+            assert not rec.is_multirate and rec.joint_names == ("j1", "j2")
+            for name, want in (("t", t), ("q", q), ("acc", acc), ("gyro", gyro)):
+                np.testing.assert_array_equal(getattr(rec, name), want)
+            tq = 0.2 + np.arange(25) * 0.004
+            store.write(
+                FrameBatch(
+                    "old",
+                    0.2 + np.arange(10) * 0.01,
+                    ("j1", "j2"),
+                    np.zeros((25, 2)),
+                    ("imu0",),
+                    np.ones((10, 1, 3)),
+                    np.ones((10, 1, 3)),
+                    t_q=tq,
+                )
+            )
+            rec = store.read_between("old", -math.inf, math.inf)
+            assert rec.is_multirate and rec.n_samples == 30
+            np.testing.assert_array_equal(rec.t_q, np.concatenate([t, tq]))
+        assert downgrade(engine, "0002") == "0002"
+        with engine.connect() as conn:
+            assert conn.execute(text("SELECT n FROM chunks")).scalars().all() == [20]
+    finally:
+        engine.dispose()

@@ -199,4 +199,6 @@ def test_real_farm_spec(db_url: str) -> None:
         info = store.robot("ur5e-1")
         assert info.simulated and info.catalog == "ur5e" and len(info.joints) == 6
         rec = store.read_window("ur5e-1", 0.5)
-        assert rec.n_imus == len(info.imus) and rec.sample_rate == pytest.approx(100.0, rel=1e-6)
+        # the settings' default sensing is the robot preset: IMUs at 100 Hz, encoders at 250 Hz, jittered
+        assert rec.n_imus == len(info.imus) and rec.sample_rate == pytest.approx(100.0, rel=0.02)
+        assert rec.is_multirate and rec.encoder_rate == pytest.approx(250.0, rel=0.02)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bodyschema.recording import Recording
 from simulators.farm import Farm
 
 
@@ -92,3 +93,81 @@ def test_readahead_changes_nothing_even_around_damage(seed: int) -> None:
         for field in ("t", "q", "qd", "qdd", "acc", "gyro"):
             assert np.array_equal(_cat(a, name, field), _cat(b, name, field)), (name, field)
     assert np.allclose(a[-1]["p"].extra["damage_time"], [0.3])
+
+
+# ----------------------------------------------------------------------------------- sensing presets
+def _streams(chunks: list, name: str) -> dict[str, np.ndarray]:
+    recs = [c[name] for c in chunks if name in c]
+    return {f: np.concatenate([getattr(r, f) for r in recs]) for f in ("t", "t_q", "q", "acc", "gyro")}
+
+
+def test_robot_sensing_gives_continuous_multirate_chunks_independent_of_chunking(seed: int) -> None:
+    robots = {"u": "ur5e", "p": "paper-3"}
+    a = Farm(robots, seed=seed, sensing="robot")
+    b = Farm(robots, seed=seed, sensing="robot")
+    ca = [a.advance(0.1) for _ in range(8)]
+    cb = [b.advance(0.25), b.advance(0.05), b.advance(0.5)]
+    for name in robots:
+        recs = [c[name] for c in ca]
+        assert all(r.is_multirate and r.qd is None for r in recs)
+        # each step after the first brings 0.1 s of both streams (minus the rare drop)
+        assert all(9 <= r.n_samples <= 10 and 23 <= r.t_q.shape[0] <= 25 for r in recs[1:])
+        sa, sb = _streams(ca, name), _streams(cb, name)
+        for stamps in ("t", "t_q"):
+            assert np.all(np.diff(sa[stamps]) > 0), (name, stamps)  # continuous, never restarted
+        # the encoder clock starts at 0, the IMU's stamps are late by the skew and filter delay
+        assert abs(sa["t_q"][0]) < 0.005 and 0.012 < sa["t"][0] < 0.025
+        # what came out of both farms so far is the same samples, bit for bit up to float rounding
+        n, nq = min(len(sa["t"]), len(sb["t"])), min(len(sa["t_q"]), len(sb["t_q"]))
+        assert n > 70 and nq > 180
+        for f in ("t", "acc", "gyro"):
+            np.testing.assert_allclose(sa[f][:n], sb[f][:n], rtol=0, atol=1e-9, err_msg=f"{name} {f}")
+        for f in ("t_q", "q"):
+            np.testing.assert_allclose(sa[f][:nq], sb[f][:nq], rtol=0, atol=1e-9, err_msg=f"{name} {f}")
+        # 14-bit encoders: positions on the quantization grid
+        lsb = 2 * np.pi / 2**14
+        np.testing.assert_allclose(sa["q"] / lsb, np.round(sa["q"] / lsb), atol=1e-6)
+
+
+def test_robot_sensing_stream_equals_the_sensing_model_on_the_whole_run(seed: int) -> None:
+    """The farm's per-step sensing is the one-shot model applied to the whole physics run: the filter
+    and the stamps carry on across steps instead of starting over."""
+    from dataclasses import replace
+
+    from simulators.sensing import PRESETS, apply_sensing
+
+    opts = replace(PRESETS["robot"], jitter=0.0, drop=0.0)
+    fine = Farm({"p": "paper-3"}, seed=seed, sensing="ideal", rate=1000.0, imu_model="ideal")
+    sensed = Farm({"p": "paper-3"}, seed=seed, sensing=opts, imu_model="ideal")
+    fine_chunks = [fine.advance(0.1)["p"] for _ in range(10)]
+    steps = [sensed.advance(0.1) for _ in range(10)]
+    whole = apply_sensing(
+        Recording(
+            t=np.concatenate([c.t for c in fine_chunks]),
+            joint_names=fine_chunks[0].joint_names,
+            q=np.concatenate([c.q for c in fine_chunks]),
+            qd=np.concatenate([c.qd for c in fine_chunks]),
+            imu_names=fine_chunks[0].imu_names,
+            acc=np.concatenate([c.acc for c in fine_chunks]),
+            gyro=np.concatenate([c.gyro for c in fine_chunks]),
+        ),
+        opts,
+        np.random.default_rng(0),
+    )
+    got = _streams(steps, "p")
+    n, nq = len(got["t"]), len(got["t_q"])
+    # everything but the last ~latency of the run came out
+    assert whole.t[n - 1] > 0.9 and whole.t_q[nq - 1] > 0.9
+    np.testing.assert_array_equal(got["t"], whole.t[:n])
+    np.testing.assert_array_equal(got["t_q"], whole.t_q[:nq])
+    np.testing.assert_array_equal(got["q"], whole.q[:nq])
+    scale = np.abs(whole.gyro).max()
+    np.testing.assert_allclose(got["gyro"], whole.gyro[:n], rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(got["acc"], whole.acc[:n], rtol=0, atol=1e-9 * np.abs(whole.acc).max())
+
+
+def test_sensing_preset_is_checked() -> None:
+    with pytest.raises(ValueError, match="unknown sensing 'blurry'"):
+        Farm({"a": "ur5e"}, seed=0, sensing="blurry")
+    ideal = Farm({"a": "paper-1"}, seed=0, sensing="ideal").advance(0.1)["a"]
+    assert not ideal.is_multirate and ideal.n_samples == 10 and ideal.qd is not None

@@ -1,0 +1,36 @@
+"""``GET /api/v1/robots/{robot}/status``: the monitoring answer — healthy, damaged or undetermined.
+
+Computed here from what the store holds (newest topology, baseline, alerts) by
+:func:`service.status.robot_status`, so the answer is the same whether or not a worker runs in this
+process, and it is never more certain than the stored evidence (the rule is in :mod:`service.status`).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter, Depends, Query
+
+from service.api.deps import get_robot, get_store
+from service.api.schemas import StatusOut
+from service.status import robot_status
+from service.store import RobotInfo, Store
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"])
+
+
+@router.get(
+    "/status",
+    response_model=StatusOut,
+    summary="healthy, damaged or undetermined, with the reasons, the trees that fit and what would decide",
+)
+def status(
+    info: RobotInfo = Depends(get_robot),
+    store: Store = Depends(get_store),
+    method: Literal["fast", "network", "network-paper", "mlp"] | None = Query(
+        None, description="judge the newest topology of this method (default: fast)"
+    ),
+) -> StatusOut:
+    return StatusOut.of(robot_status(store, info.name, method))

@@ -1,0 +1,263 @@
+"""A robot's monitoring answer — ``healthy``, ``damaged`` or ``undetermined`` — from what the store holds.
+
+The worker stores each learned topology, the baseline and the alerts; this module reads them back and
+says what they add up to, with the pure :mod:`bodyschema.diff` functions, so the API and the dashboard
+give the same three-valued answer as ``bodyhealth diff`` (docs/design.md §1 "Three answers, not two").
+Nothing here writes to the store.
+
+How the answer is decided, in this order:
+
+1. **damaged** — the robot has *active* alerts. An alert becomes active only after its finding held
+   ``alert_hysteresis_m`` worker cycles in a row, and the worker holds placement findings (``imu_moved``
+   and the like) in cycles whose estimate was ambiguous, so an active alert is damage seen repeatedly on
+   evidence that could decide it: that is certain enough to outrank an ambiguous current estimate (the
+   answer still carries how many trees fit and what would decide). An acknowledged alert is still
+   active: an ack says someone saw it, not that it was repaired. *Pending* alerts (seen, not yet
+   confirmed) never make a robot damaged.
+2. **undetermined** — any reason not to say "no change": nothing learned yet, no baseline yet, the
+   current estimate is not unique (several trees fit), joints the window did not move enough to place
+   (``insufficient_excitation``), a baseline that is itself ambiguous, pending alerts, or a difference
+   from the baseline the worker has not confirmed yet. Each comes with a sentence in ``reasons``.
+3. **healthy** — only when none of that holds: one tree fits, every joint was placed, and the diff
+   against a unique baseline finds nothing.
+
+Example
+-------
+>>> from bodyschema.topology import Topology
+>>> a = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+>>> b = Topology({"j1": None, "j2": None}, {"i1": "j1", "i2": "j2"})
+>>> judge("arm", a, a).status
+'healthy'
+>>> s = judge("arm", Topology(a.joint_parent, a.imu_joint, unique=False, candidates=(b,)), a)
+>>> s.status, s.trees_fit, s.decide_by
+('undetermined', 2, ('j1', 'j2'))
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from bodyschema.diff import diff_bodies, is_ambiguous, undetermined_reasons
+from bodyschema.findings import DAMAGE_KINDS, Diff
+from bodyschema.topology import Topology
+from service.store import AlertRecord, Store, TopologyRecord
+
+__all__ = [
+    "MAX_ALTERNATIVES",
+    "STATUSES",
+    "RobotStatus",
+    "StatusValue",
+    "decide_by",
+    "judge",
+    "robot_status",
+    "trees_fit",
+]
+
+StatusValue = Literal["healthy", "damaged", "undetermined"]
+STATUSES: tuple[str, ...] = ("healthy", "damaged", "undetermined")
+
+#: Alternative trees carried in one answer; the count (``trees_fit``) is always complete as far as the
+#: estimator listed them, the trees themselves are bounded so a badly under-instrumented robot cannot
+#: blow up every poll of the dashboard.
+MAX_ALTERNATIVES = 8
+
+
+@dataclass(frozen=True)
+class RobotStatus:
+    """The three-valued answer for one robot and everything it rests on.
+
+    ``trees_fit`` is 1 for a unique estimate, the number of trees the estimator listed when several fit
+    (the estimator lists a bounded number, so this is a lower bound for very ambiguous data), None when
+    nothing was learned or the estimate says "not unique" without listing them. ``alternatives`` are the
+    other fitting trees (at most :data:`MAX_ALTERNATIVES`). ``decide_by`` names the joints whose motion,
+    each on its own with the others still, would decide between the trees or place an unplaced joint.
+    ``topology`` is the estimate judged; ``current`` and ``baseline`` are the store's records when the
+    answer was read from a store.
+    """
+
+    robot: str
+    status: StatusValue
+    reasons: tuple[str, ...]
+    trees_fit: int | None = None
+    alternatives: tuple[Topology, ...] = ()
+    decide_by: tuple[str, ...] = ()
+    insufficient_excitation: tuple[str, ...] = ()
+    alerts: tuple[AlertRecord, ...] = ()
+    pending: tuple[AlertRecord, ...] = ()
+    diff: Diff | None = None
+    topology: Topology | None = None
+    current: TopologyRecord | None = None
+    baseline: TopologyRecord | None = None
+
+    @property
+    def timing(self) -> dict[str, float | None]:
+        """The judged estimate's IMU-to-encoder timing (multi-rate data), non-finite values as None."""
+        return _finite(self.topology.timing) if self.topology is not None else {}
+
+    @property
+    def training(self) -> dict[str, float | None]:
+        """The judged estimate's training record (network methods), non-finite values as None."""
+        return _finite(self.topology.training) if self.topology is not None else {}
+
+
+def _finite(d: dict[str, float]) -> dict[str, float | None]:
+    # JSON has no NaN: a loss that diverged is reported as unknown rather than failing the response.
+    return {k: (float(v) if math.isfinite(float(v)) else None) for k, v in d.items()}
+
+
+def trees_fit(topo: Topology | None) -> int | None:
+    """How many trees fit: 1 when unique, the listed count when several, None when unknown.
+
+    >>> trees_fit(Topology({"j1": None}, {"i1": "j1"}))
+    1
+    >>> trees_fit(Topology({"j1": None}, {"i1": "j1"}, unique=False)) is None
+    True
+    """
+    if topo is None:
+        return None
+    if not is_ambiguous(topo):
+        return 1
+    return 1 + len(topo.candidates) if topo.candidates else None
+
+
+def decide_by(topo: Topology | None) -> tuple[str, ...]:
+    """Joints to move, each on its own with the others still, to decide what the data left open.
+
+    The same joints :func:`bodyschema.diff.undetermined_reasons` names: every joint whose parent differs
+    between the fitting trees, the joints those parents could be, the joints an IMU could ride, and the
+    joints without enough excitation; in the topology's joint order.
+
+    >>> a = Topology({"j1": None, "j2": "j1", "j3": None}, {"i1": "j1", "i2": "j2"}, undetermined=("j3",))
+    >>> decide_by(a)
+    ('j3',)
+    """
+    if topo is None:
+        return ()
+    involved: set[str] = set(topo.undetermined)
+    trees = [topo, *topo.candidates]
+    for j in topo.joint_parent:
+        options = {t.joint_parent.get(j) for t in trees}
+        if len(options) > 1:
+            involved.add(j)
+            involved.update(o for o in options if o)
+    for imu in topo.imu_joint:
+        options = {t.imu_joint.get(imu) for t in trees}
+        if len(options) > 1:
+            involved.update(o for o in options if o)
+    return tuple(j for j in topo.joint_parent if j in involved)
+
+
+def _alert_text(a: AlertRecord) -> str:
+    f = a.finding or {}
+    if a.kind in ("imu_moved", "joint_reparented"):
+        where = f" ({f.get('from') or 'base'} → {f.get('to') or 'base'})"
+    else:
+        where = f" ({f['detail']})" if f.get("detail") else ""
+    return f"{a.kind} on {a.part}{where}"
+
+
+def _finding_text(f: dict[str, Any]) -> str:
+    part = f.get("imu") or f.get("joint") or "?"
+    if "to" in f:
+        return f"{f['kind']} {part} ({f.get('from') or 'base'} → {f.get('to') or 'base'})"
+    return f"{f['kind']} {part}"
+
+
+def _topology(rec: TopologyRecord | Topology | None) -> Topology | None:
+    return rec.topology if isinstance(rec, TopologyRecord) else rec
+
+
+def judge(
+    robot: str,
+    current: TopologyRecord | Topology | None,
+    baseline: TopologyRecord | Topology | None,
+    active: Sequence[AlertRecord] = (),
+    pending: Sequence[AlertRecord] = (),
+) -> RobotStatus:
+    """The answer from the newest learned topology, the baseline and the robot's alerts (pure).
+
+    Records or bare topologies are accepted, so the rule can be checked without a store; the rule and
+    its order are in the module doc.
+    """
+    cur, base = _topology(current), _topology(baseline)
+    cur_rec = current if isinstance(current, TopologyRecord) else None
+    base_rec = baseline if isinstance(baseline, TopologyRecord) else None
+    diff = diff_bodies(base, cur) if cur is not None and base is not None else None
+    common: dict[str, Any] = {
+        "robot": robot,
+        "trees_fit": trees_fit(cur),
+        "alternatives": tuple(cur.candidates[:MAX_ALTERNATIVES]) if cur is not None else (),
+        "decide_by": decide_by(cur),
+        "insufficient_excitation": tuple(cur.undetermined) if cur is not None else (),
+        "alerts": tuple(active),
+        "pending": tuple(pending),
+        "diff": diff,
+        "topology": cur,
+        "current": cur_rec,
+        "baseline": base_rec,
+    }
+    ambiguous = cur is not None and is_ambiguous(cur)
+    ambiguity: list[str] = list(undetermined_reasons(cur)) if cur is not None else []
+    unplaced = [j for j in cur.undetermined if j in cur.joint_parent] if cur is not None else []
+    if unplaced:
+        ambiguity.append(
+            f"the window does not move joint{'s' if len(unplaced) > 1 else ''} {', '.join(unplaced)} "
+            "enough to place them; to decide, move each on its own with the others still"
+        )
+
+    if active:
+        n = len(active)
+        head = f"{n} active alert{'s' if n > 1 else ''}: " + "; ".join(_alert_text(a) for a in active)
+        return RobotStatus(status="damaged", reasons=(head, *ambiguity), **common)
+
+    reasons: list[str] = []
+    if cur is None:
+        reasons.append("nothing learned yet: the worker has not had a full window of this robot")
+    if base is None:
+        reasons.append(
+            "no baseline yet, so nothing to compare with: one is adopted once the same unique tree is "
+            "learned several cycles in a row, or an operator approves one"
+        )
+    elif is_ambiguous(base):
+        reasons.append("the baseline itself is not unique: approve a body that one tree fits")
+    reasons.extend(ambiguity)
+    if pending:
+        reasons.append(
+            "seen but not yet confirmed (an alert needs several worker cycles in a row): "
+            + "; ".join(_alert_text(a) for a in pending)
+        )
+    if diff is not None and not ambiguous:
+        # a difference already pending as an alert is reported once, above
+        seen = {a.part for a in pending}
+        unconfirmed = [f for f in diff.findings if f.kind in DAMAGE_KINDS and f.part not in seen]
+        if unconfirmed:
+            reasons.append(
+                "the newest estimate differs from the baseline, not yet confirmed by the worker: "
+                + "; ".join(_finding_text(f.to_json()) for f in unconfirmed)
+            )
+    if reasons:
+        return RobotStatus(status="undetermined", reasons=tuple(reasons), **common)
+    return RobotStatus(
+        status="healthy",
+        reasons=("one tree fits the data, every joint is placed, and it matches the baseline",),
+        **common,
+    )
+
+
+def robot_status(store: Store, robot: str, method: str | None = None) -> RobotStatus:
+    """Read the robot's newest topology (of ``method``; default the fast estimator's, else any), its
+    baseline and its open alerts from ``store`` and :func:`judge` them. Raises
+    :class:`~service.store.UnknownRobot` for a robot the store does not know."""
+    cur = store.latest_topology(robot, method=method or "fast")
+    if cur is None and method is None:
+        cur = store.latest_topology(robot)
+    return judge(
+        robot,
+        cur,
+        store.baseline(robot),
+        store.alerts(robot, active=True),
+        store.alerts(robot, state="pending"),
+    )
