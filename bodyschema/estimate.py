@@ -87,14 +87,16 @@ def estimate_topology(
         timing = {
             "lag_ms": float(timed.lag_ms or 0.0),
             "skew_ms": float(timed.skew_ms or 0.0),
-            "drift_ppm": float(timed.drift_ppm or 0.0),
+            **({} if timed.drift_ppm is None else {"drift_ppm": float(timed.drift_ppm)}),
             "band_hz": float(timed.band_hz or 0.0),
             "at_s": float(timed.lag_time or 0.0),
         }
         if method != "fast":
             from bodyschema.timing import aligned_recording
 
-            rec = aligned_recording(rec, 1e-3 * timing["lag_ms"], 1e-6 * timing["drift_ppm"], timing["at_s"])
+            rec = aligned_recording(
+                rec, 1e-3 * timing["lag_ms"], 1e-6 * timing.get("drift_ppm", 0.0), timing["at_s"]
+            )
     rec = rec.derived()
     assert rec.qd is not None and rec.q is not None
     excitation = np.sqrt(np.mean(rec.qd**2, axis=0))

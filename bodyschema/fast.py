@@ -122,7 +122,8 @@ class FastFit:
     edges: list[tuple[int, int, tuple[int, ...], float]] = field(default_factory=list)
     #: Timed data only (:func:`fast_fit_timed`): the IMU's lag behind the encoders at encoder-clock
     #: time ``lag_time`` s (the middle of the fit; clock skew plus filter delay), the skew alone (lag
-    #: less the stated filter delay), the clock drift (the lag's slope), all as estimated, and the
+    #: less the stated filter delay), the clock drift (the lag's slope; None from under 30 s of data,
+    #: where there are not two 15 s segments to take a slope through), all as estimated, and the
     #: comparison band.
     lag_ms: float | None = None
     lag_time: float | None = None
@@ -749,12 +750,28 @@ def fast_fit_timed(
         # the shift (both sides band-limited to fc <= 10 Hz, whose period is >= 100 ms)
         shift_step = 1.0e-3
         shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
-        rss = np.array(
-            [
-                _edge_rss(fit, sigma_b, gyro_g, q_s, qd_s, grid - lag_at(grid) - d, band_fn, segs)
-                for d in shifts
-            ]
-        )
+
+        def edge_rss(center: float) -> np.ndarray:
+            return np.array(
+                [
+                    _edge_rss(
+                        fit, sigma_b, gyro_g, q_s, qd_s, grid - lag_at(grid) - center - d, band_fn, segs
+                    )
+                    for d in shifts
+                ]
+            )
+
+        # the first lag can be several ms off (seen: 6.5 ms on a UR5e): while the whole fit's best
+        # shift sits on the edge of the window, move the window there (at most ``max_lag`` away)
+        center = 0.0
+        rss = edge_rss(center)
+        while True:
+            j = int(np.argmin(rss.sum(axis=1)))
+            if 0 < j < len(shifts) - 1 or abs(center + shifts[j]) > max_lag:
+                break
+            center += shifts[j]
+            rss = edge_rss(center)
+        shifts = shifts + center
         seg_lags = []
         for i, part in enumerate(segs):
             j = int(np.argmin(rss[:, i]))
@@ -792,7 +809,8 @@ def fast_fit_timed(
     fit.lag_ms = 1e3 * float(lag_mid)
     fit.lag_time = t_mid
     fit.skew_ms = 1e3 * float(lag_mid - imu_delay)
-    fit.drift_ppm = 1e6 * float(drift)
+    # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
+    fit.drift_ppm = 1e6 * float(drift) if n_seg >= 2 and fit.edges else None
     fit.band_hz = fc
     return fit
 

@@ -78,6 +78,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--network-robots", type=int, default=2, help="robots per size the network method runs on"
     )
+    parser.add_argument(
+        "--catalog-seeds",
+        type=int,
+        default=5,
+        help="seeds per catalog robot run on the robot preset with the fast method (0: none)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="robots simulated and estimated in parallel")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
@@ -145,6 +151,31 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
+def _catalog_task(job: dict[str, Any]) -> dict[str, Any]:
+    """One catalog robot on the robot preset, estimated by ``fast`` (runs in a worker process)."""
+    from threadpoolctl import threadpool_limits
+
+    from bodyschema.estimate import estimate_topology
+    from simulators.simulation import simulate
+
+    rec = simulate(job["robot"], seconds=job["seconds"], seed=job["seed"], sensing="robot")
+    with threadpool_limits(1):
+        start = time.process_time()
+        topo = estimate_topology(rec, "fast")
+        cpu = time.process_time() - start
+    robot = PRESETS["robot"]
+    truth_ms = 1e3 * (robot.skew + 1e-6 * robot.drift_ppm * topo.timing["at_s"])
+    return {
+        "robot": job["robot"],
+        "seed": job["seed"],
+        "joints": rec.n_joints,
+        "imus": rec.n_imus,
+        "verdict": _classify(topo, rec.truth_parent_map, rec.truth_imu_map),
+        "cpu_s": round(cpu, 3),
+        "skew_err_ms": round(topo.timing["skew_ms"] - truth_ms, 3),
+    }
+
+
 def run(args: argparse.Namespace) -> Path:
     sizes = [int(x) for x in args.joints.split(",") if x.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -171,25 +202,59 @@ def run(args: argparse.Namespace) -> Path:
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         for part in tqdm(pool.map(_robot_task, jobs), total=len(jobs), desc="bench realism", unit="robot"):
             rows.extend(part)
+    catalog: list[dict[str, Any]] = []
+    if args.catalog_seeds > 0:
+        from simulators.catalog import CATALOG
+
+        cjobs = [
+            {"robot": name, "seed": seed, "seconds": args.seconds}
+            for name in CATALOG
+            for seed in range(args.catalog_seeds)
+        ]
+        with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+            runs = pool.map(_catalog_task, cjobs)
+            catalog = list(tqdm(runs, total=len(cjobs), desc="catalog, robot preset", unit="run"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = (
         f"bodyhealth bench realism --joints {args.joints} --robots {args.robots} --seconds {args.seconds:g} "
         f"--methods {args.methods} --network-cells '{args.network_cells}' "
-        f"--network-robots {args.network_robots} --seed {args.seed}"
+        f"--network-robots {args.network_robots} --catalog-seeds {args.catalog_seeds} --seed {args.seed}"
     )
     summary = _summary(rows, sizes, methods)
-    (out / "realism.json").write_text(
-        json.dumps(
-            {"machine": machine_note(), "command": command, "summary": summary, "rows": rows}, indent=1
-        )
-        + "\n",
-        encoding="utf-8",
-    )
+    data = {"machine": machine_note(), "command": command, "summary": summary, "rows": rows}
+    data["catalog"] = catalog
+    (out / "realism.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     _plot(summary, sizes, methods, out / "realism.png")
     path = out / "realism.md"
-    path.write_text(_markdown(summary, sizes, methods, command, rows), encoding="utf-8")
+    text = _markdown(summary, sizes, methods, command, rows) + _catalog_markdown(catalog)
+    path.write_text(text, encoding="utf-8")
     return path
+
+
+def _catalog_markdown(catalog: list[dict[str, Any]]) -> str:
+    """The catalog section: exact / undetermined / wrong per robot on the robot preset."""
+    if not catalog:
+        return ""
+    lines = [
+        "## The catalog on the robot preset (`fast`)",
+        "",
+        f"{sum(c['verdict'] == 'exact' for c in catalog)} of {len(catalog)} exact, "
+        f"{sum(c['verdict'] == 'undetermined' for c in catalog)} undetermined, "
+        f"**{sum(c['verdict'] == 'wrong' for c in catalog)} confidently wrong**; skew error at most "
+        f"{max(abs(c['skew_err_ms']) for c in catalog):.2f} ms.",
+        "",
+        "| robot | joints | IMUs | exact | CPU s (mean) | max skew error, ms |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name in dict.fromkeys(c["robot"] for c in catalog):
+        runs = [c for c in catalog if c["robot"] == name]
+        lines.append(
+            f"| {name} | {runs[0]['joints']} | {runs[0]['imus']} | "
+            f"{sum(c['verdict'] == 'exact' for c in runs)}/{len(runs)} | "
+            f"{np.mean([c['cpu_s'] for c in runs]):.2f} | {max(abs(c['skew_err_ms']) for c in runs):.2f} |"
+        )
+    return "\n".join([*lines, ""])
 
 
 def _summary(rows: list[dict], sizes: list[int], methods: list[str]) -> dict[str, Any]:

@@ -43,12 +43,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz (default 100)")
     p.add_argument(
         "--sensing",
-        default="ideal",
-        metavar="ideal|robot",
-        help="how the robot senses and stamps its motion: ideal (synced exact velocities at --rate) "
-        "or robot (14-bit position-only encoders at 250 Hz, 100 Hz IMUs with a 42 Hz low-pass, 8 ms "
-        "skew, 30 ppm drift, jitter, 0.5%% drops; a multi-rate recording, docs/recording-format.md; "
-        "--rate is then unused). Default ideal",
+        default="robot",
+        metavar="robot|ideal|JSON",
+        help="how the robot senses and stamps its motion: robot (the default: 14-bit position-only "
+        "encoders at 250 Hz, 100 Hz IMUs with a 42 Hz low-pass, 8 ms skew, 30 ppm drift, jitter, 0.5%% "
+        "drops; a multi-rate recording, docs/recording-format.md; --rate is then unused), ideal (synced "
+        "exact velocities at --rate, what a simulator hands out and no robot does) or a JSON object of "
+        "simulators.sensing.SensingOptions",
     )
     p.add_argument("--out", type=Path, default=Path("rec.npz"), help="recording to write (default rec.npz)")
     p.set_defaults(func=_simulate)

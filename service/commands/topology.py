@@ -106,6 +106,21 @@ def format_tree(topo: Topology) -> str:
     tail = f"method {topo.method}, {topo.seconds:.2f} CPU s, "
     tail += "unique" if topo.unique else f"not unique: {1 + len(topo.candidates)} trees fit the data"
     lines.append(tail)
+    if not topo.unique:
+        from bodyschema.diff import undetermined_reasons
+
+        lines += list(undetermined_reasons(topo))[1:]  # the first repeats the count above
+    if topo.timing:
+        tm = topo.timing
+        drift = f"drift {tm['drift_ppm']:.0f} ppm" if "drift_ppm" in tm else "drift not estimated (< 30 s)"
+        lines.append(
+            f"IMU-to-encoder skew {tm['skew_ms']:.2f} ms (IMU lag {tm['lag_ms']:.2f} ms at "
+            f"{tm['at_s']:.1f} s, {drift}, compared below {tm['band_hz']:.1f} Hz)"
+        )
+    if topo.training:
+        tr = topo.training
+        state = "converged" if tr.get("converged") else "stopped at its epoch bound"
+        lines.append(f"networks trained {tr['epochs']:.0f} epochs ({state})")
     return "\n".join(lines)
 
 

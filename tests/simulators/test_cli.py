@@ -38,6 +38,8 @@ def test_simulate_writes_a_recording_with_truth_from_the_model(tmp_path, capsys)
             "sine",
             "--damage",
             "encoder_fault:joint=elbow,at=0.2",
+            "--sensing",
+            "ideal",
             "--out",
             str(out),
         ]
@@ -75,6 +77,8 @@ def test_simulate_with_an_imu_model_file_and_bad_input(tmp_path, capsys) -> None
                 "hold",
                 "--imu-model",
                 str(model),
+                "--sensing",
+                "ideal",
                 "--out",
                 str(out),
             ]
@@ -87,3 +91,26 @@ def test_simulate_with_an_imu_model_file_and_bad_input(tmp_path, capsys) -> None
     assert main(["simulate", "paper-1", "--imu-model", "nope.json", "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert "paper-9" in err and "imu99" in err and "nope.json" in err
+
+
+def test_simulate_defaults_to_the_robot_sensing_preset(tmp_path, capsys) -> None:
+    """What a robot logs, not what a simulator hands out: position-only 14-bit encoders at 250 Hz on
+    their own stamps, 100 Hz IMUs, and the topology command finds the 8 ms skew in it."""
+    out = tmp_path / "rec.npz"
+    assert main(["simulate", "ur5e", "--seconds", "20", "--seed", "2", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    rec = load_recording(out)
+    assert f"encoders {rec.t_q.shape[0]} samples at 250 Hz" in printed
+    # 0.5 % of the 5001 encoder and 2001 IMU samples dropped, first and last kept
+    assert 4940 <= rec.t_q.shape[0] < 5001 and 1970 <= rec.n_samples < 2001
+    assert rec.is_multirate and rec.qd is None
+    assert round(rec.sample_rate) == 100 and round(rec.encoder_rate) == 250
+    lsb = 2 * np.pi / 2**14
+    assert np.allclose(rec.q / lsb, np.round(rec.q / lsb), atol=1e-6)
+    assert main(["topology", str(out), "--json"]) == 0
+    topo = json.loads(capsys.readouterr().out)
+    assert topo["unique"] is True
+    assert {j: v["parent"] for j, v in topo["joints"].items()} == rec.truth_parent_map
+    assert abs(topo["timing"]["skew_ms"] - (8.0 + 0.03 * topo["timing"]["at_s"])) < 1.0
+    assert main(["topology", str(out)]) == 0
+    assert "IMU-to-encoder skew" in capsys.readouterr().out
