@@ -11,10 +11,8 @@ from service.bench import realism
 def test_small_realism_grid_is_exact_everywhere_and_written(tmp_path):
     parser = argparse.ArgumentParser()
     realism.add_arguments(parser)
-    args = parser.parse_args(
-        ["--joints", "4", "--robots", "1", "--seconds", "20", "--methods", "fast", "--catalog-seeds", "0"]
-        + ["--out", str(tmp_path)]
-    )
+    small = ["--joints", "4", "--robots", "1", "--seconds", "20", "--methods", "fast", "--catalog-seeds", "0"]
+    args = parser.parse_args([*small, "--out", str(tmp_path)])
     md = realism.run(args)
     data = json.loads((tmp_path / "realism.json").read_text())
     rows = data["rows"]
