@@ -44,7 +44,14 @@ from bodyschema.findings import Diff, Finding
 from bodyschema.health import SignalHealth
 from bodyschema.topology import Topology
 
-__all__ = ["STRUCTURAL_KINDS", "DiffThresholds", "diff_bodies", "is_ambiguous", "undetermined_reasons"]
+__all__ = [
+    "STRUCTURAL_KINDS",
+    "DiffThresholds",
+    "diff_bodies",
+    "is_ambiguous",
+    "undetermined_reasons",
+    "unplaced_reasons",
+]
 
 #: Kinds read from where the estimate places parts; an ambiguous estimate cannot make them.
 STRUCTURAL_KINDS: tuple[str, ...] = ("imu_moved", "imu_detached", "joint_reparented", "link_lost")
@@ -97,6 +104,26 @@ def undetermined_reasons(topo: Topology) -> tuple[str, ...]:
             f"to decide, move each of these joints on its own with the others still: {', '.join(names)}"
         )
     return tuple(reasons)
+
+
+def unplaced_reasons(topo: Topology) -> tuple[str, ...]:
+    """Why joints the window did not move keep even a unique ``topo`` from backing a "no change".
+
+    Such a joint's child link moves like its parent link within noise, so the estimate is exact only on
+    the tree with that joint contracted: nothing is known of the joint itself.
+
+    >>> t = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"}, undetermined=("j2",))
+    >>> unplaced_reasons(t)[0].split(";")[0]
+    'the window does not move joint j2 enough to place it'
+    """
+    unplaced = [j for j in topo.undetermined if j in topo.joint_parent]
+    if not unplaced:
+        return ()
+    many = len(unplaced) > 1
+    return (
+        f"the window does not move joint{'s' if many else ''} {', '.join(unplaced)} enough to place "
+        f"{'them' if many else 'it'}; to decide, move each on its own with the others still",
+    )
 
 
 @dataclass(frozen=True)
@@ -307,4 +334,4 @@ def diff_bodies(
             continue
         findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf(f"joint:{j}")))
 
-    return Diff(findings=tuple(findings), reasons=undetermined_reasons(current))
+    return Diff(findings=tuple(findings), reasons=undetermined_reasons(current) + unplaced_reasons(current))

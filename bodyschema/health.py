@@ -14,6 +14,12 @@ dependency". This module looks at the raw signals to make those calls:
   the link relative to its parent; how much of it the encoder explains tells a frozen or wrong encoder
   (link turns, encoder does not agree) from a locked joint (neither turns).
 
+A multi-rate window (encoders on their own stamps, docs/recording-format.md) is judged per stream:
+IMUs on their own samples; joints on :func:`one_clock`, the encoder stream moved onto the IMU's time
+by the lag the estimator found (``current.timing``) with velocities from the band-limited
+differentiator of :mod:`bodyschema.timing` (central differences of 14-bit positions are mostly
+quantization noise, and an uncorrected lag of a few ms reads as motion the encoder does not explain).
+
 Everything here is pure numpy; thresholds are plain arguments so callers can tune them.
 
 Example
@@ -45,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from bodyschema.recording import Recording
+from bodyschema.timing import aligned_recording
 from bodyschema.topology import Topology
 
 __all__ = [
@@ -58,6 +65,7 @@ __all__ = [
     "drop_impacts",
     "fingerprints",
     "imu_health",
+    "one_clock",
     "relative_motion",
     "signal_health",
 ]
@@ -92,10 +100,20 @@ class HealthThresholds:
     ``explained``: fraction of that relative motion the encoder must explain to count as consistent.
     ``frozen_fraction``: share of repeated consecutive samples that makes an IMU frozen.
     ``zero_abs``: readings below this magnitude (both acc and gyro) count as zero.
+    ``repeat_abs``: consecutive readings closer than this count as one repeated sample: far below one
+    LSB of any 16-bit IMU (MPU-6050: 1.3e-4 rad/s, 6e-4 m/s² at the finest range) and far above the
+    round-off that resampling or filtering a frozen output leaves.
     ``min_samples``: fewer samples than this and nothing is judged.
     ``max_pairs``: IMUs per link used for the relative-motion fits (each side).
     ``shift_ratio``/``shift_rad_s``: a baseline fingerprint that leaves more than ``shift_ratio`` times
     the window's own residual, and more than ``shift_rad_s`` RMS, marks a shifted encoder.
+    ``lock_seconds``: a joint whose encoder and link have both been still this long, to the end of the
+    window, does not move now (a policy: the worker's cycle interval, so two cycles see it).
+    ``still_rad``/``still_seconds``: an encoder whose last ``still_seconds`` or more stay within
+    ``still_rad`` of its last reading is still *now*; the default is two steps of the coarsest encoder
+    of docs/design.md §4 (12 bits per turn), so quantization flicker of a held joint stays inside it.
+    A link turning against its parent at ``motion_rad_s`` covers 0.05 rad in a second, sixteen times
+    ``still_rad``: an encoder that stays still that long while the gyros see such motion contradicts them.
     """
 
     excitation_rad_s: float = 0.05
@@ -103,10 +121,14 @@ class HealthThresholds:
     explained: float = 0.8
     frozen_fraction: float = 0.9
     zero_abs: float = 1e-6
+    repeat_abs: float = 1e-6
     min_samples: int = 20
     max_pairs: int = 3
     shift_ratio: float = 3.0
     shift_rad_s: float = 0.05
+    still_rad: float = 2 * 2 * np.pi / 4096
+    still_seconds: float = 1.0
+    lock_seconds: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -204,16 +226,56 @@ def imu_health(
         return ImuHealth(name, "silent")
     both = np.concatenate([acc, gyro], axis=1)
     gyro_rms = float(np.sqrt(np.mean(np.sum((gyro - gyro.mean(axis=0)) ** 2, axis=1))))
-    if np.all(np.abs(both) < th.zero_abs):
+    zero = np.all(np.abs(both) < th.zero_abs, axis=1)
+    if zero.all() or _trailing(zero) >= th.min_samples:
         return ImuHealth(name, "zero", gyro_rms)
     if both.shape[0] >= 2:
-        repeated = np.all(np.diff(both, axis=0) == 0.0, axis=1)
-        if float(np.mean(repeated)) >= th.frozen_fraction:
+        repeated = np.all(np.abs(np.diff(both, axis=0)) <= th.repeat_abs, axis=1)
+        if float(np.mean(repeated)) >= th.frozen_fraction or _trailing(repeated) >= th.min_samples:
             return ImuHealth(name, "frozen", gyro_rms)
     return ImuHealth(name, "ok", gyro_rms)
 
 
+def _trailing(flags: np.ndarray) -> int:
+    """Length of the run of True at the end of ``flags``.
+
+    A sensor that died mid-window is dead *now*: its last samples are zeros or one repeated sample,
+    while the window as a whole is still mostly live. A live MEMS IMU's noise (docs/design.md §4: a few
+    LSB RMS on every axis) makes two equal consecutive six-axis samples rare and ``min_samples`` in a
+    row impossible, so a trailing run that long is a dead sensor however short a part of the window it
+    is; judging the share of the whole window instead would call the IMU alive until the window is
+    mostly dead, and meanwhile the estimator, seeing it follow nothing, would report it detached.
+
+    >>> _trailing(np.array([True, False, True, True])), _trailing(np.array([True, False]))
+    (2, 0)
+    """
+    off = np.flatnonzero(~flags)
+    return int(flags.shape[0] - (off[-1] + 1 if off.size else 0))
+
+
 # -------------------------------------------------------------------------------------------- joints
+def one_clock(rec: Recording, current: Topology | None = None) -> Recording:
+    """``rec`` with encoders and IMUs on one clock, velocities derived (what the joint checks compare).
+
+    A single-clock ``rec`` comes back derived. A multi-rate one is aligned with
+    :func:`bodyschema.timing.aligned_recording` using the lag, drift and reference time the estimator
+    reported in ``current.timing`` (none: no lag); when the streams overlap too little for that, the
+    encoder positions are interpolated at the IMU stamps (:meth:`Recording.synced`).
+    """
+    if rec.t_q is None:
+        return rec.derived()
+    timing = current.timing if current is not None else {}
+    try:
+        return aligned_recording(
+            rec,
+            lag=float(timing.get("lag_ms", 0.0)) * 1e-3,
+            drift=float(timing.get("drift_ppm", 0.0)) * 1e-6,
+            lag_time=float(timing.get("at_s", 0.0)),
+        )
+    except ValueError:
+        return rec.synced().derived()
+
+
 def _lstsq_residual(X: np.ndarray, Y: np.ndarray) -> float:
     """Sum of squared residuals of the least-squares fit Y ≈ X B (columns scaled for conditioning)."""
     scale = np.sqrt(np.mean(X**2, axis=0))
@@ -271,7 +333,7 @@ def fingerprints(
     from the best-fitting child/reference IMU pair; learn them on the window the baseline came from."""
     health = signal_health(rec, layout, current=current, thresholds=thresholds)
     th = thresholds or HealthThresholds()
-    d = rec.derived()
+    rec = d = one_clock(rec, current)
     assert d.q is not None and d.qd is not None
     present = {n: k for k, n in enumerate(rec.imu_names)}
     out: dict[str, JointFingerprint] = {}
@@ -400,7 +462,10 @@ def signal_health(
     joints: dict[str, JointHealth] = {}
     if rec.q is None or rec.n_joints == 0 or not enough:
         return SignalHealth(imus, joints)
-    d = rec.derived()
+    still_since = _still_since(rec, th)
+    rec = d = one_clock(rec, current)  # IMUs were judged on their own stream above
+    if d.n_samples < th.min_samples:
+        return SignalHealth(imus, joints)
     assert d.qd is not None and d.q is not None
     healthy = {n for n, h in imus.items() if not h.dead and n in present}
     for j_idx, j in enumerate(rec.joint_names):
@@ -438,6 +503,10 @@ def signal_health(
                 )
                 motion, explained = fits[pick]
                 state = states[pick]
+                if state not in ("frozen_encoder", "still"):
+                    late = _still_lately(rec, d, j_idx, still_since[j_idx], child, refs, present, th)
+                    if late is not None:
+                        state, excitation, motion, explained = late
                 fp = (fingerprints or {}).get(j)
                 if (
                     state == "ok"
@@ -451,6 +520,76 @@ def signal_health(
     return SignalHealth(imus, joints)
 
 
+def _still_since(rec: Recording, th: HealthThresholds) -> np.ndarray:
+    """Per joint, the time since which its encoder stays within ``still_rad`` of its last reading
+    (the encoder's own stamps, before any alignment: a band-limited resampling would smear the edge).
+    ``inf`` when it moved at the very end."""
+    assert rec.q is not None
+    t = rec.t_q if rec.t_q is not None else rec.t
+    out = np.full(rec.n_joints, np.inf)
+    for k in range(rec.n_joints):
+        moved = np.flatnonzero(np.abs(rec.q[:, k] - rec.q[-1, k]) > th.still_rad)
+        first = 0 if moved.size == 0 else int(moved[-1]) + 1
+        if first < len(t):
+            out[k] = float(t[first])
+    return out
+
+
+def _still_lately(
+    rec: Recording,
+    d: Recording,
+    k: int,
+    since: float,
+    child: list[str],
+    refs: list[np.ndarray | None],
+    present: dict[str, int],
+    th: HealthThresholds,
+) -> tuple[str, float, float, float | None] | None:
+    """Judge joint ``k`` on its encoder's trailing still stretch (from ``since``): ``(state,
+    excitation, relative motion, explained)`` when that stretch decides, else None.
+
+    A window that straddles a change is a mix of the body before and after it, and over the whole
+    window the change hides: a frozen encoder still explains much of its link's motion, and the
+    estimator, seeing the IMUs below follow the joint only part of the time, loses their dependency,
+    which reads as a lost link; a seized joint still shows most of the window's excitation. The
+    stretch since the encoder last moved is all after such a change, so it is judged on its own:
+
+    * every child IMU turns against the parent link (``motion_rad_s``) while the encoder stays within
+      ``still_rad`` for ``still_seconds``: a physical contradiction (see :class:`HealthThresholds`),
+      ``frozen_encoder``, however the rest of the window looks;
+    * every child IMU stays rigid with the parent link and the stretch lasts ``lock_seconds``: the
+      joint does not move now, ``still`` (the diff calls it locked only if others move and it moved
+      on the baseline). ``lock_seconds`` is a policy, how long a joint that moved on the baseline
+      may rest before it counts as locked; without it a whole window has to pass.
+
+    Anything in between (some IMUs turn, some do not: a moved or loose IMU on the link) is left to the
+    whole-window judgement.
+    """
+    stretch = float(d.t[-1]) - since
+    if not np.isfinite(since) or stretch < th.still_seconds:
+        return None
+    seg = np.flatnonzero(d.t >= since)
+    if seg.size < th.min_samples:
+        return None
+    assert d.q is not None and d.qd is not None
+    q, qd = d.q[seg, k], d.qd[seg, k]
+    rates = [
+        min(
+            relative_motion(rec.gyro[seg, present[c], :], None if pg is None else pg[seg], q, qd)[0]
+            for pg in refs
+        )
+        for c in child[: th.max_pairs]
+    ]
+    if not rates:
+        return None
+    excitation = float(np.sqrt(np.mean(qd**2)))
+    if min(rates) > th.motion_rad_s:
+        return "frozen_encoder", excitation, min(rates), 0.0
+    if max(rates) <= th.motion_rad_s and stretch >= th.lock_seconds:
+        return "still", excitation, max(rates), None
+    return None
+
+
 def drop_impacts(rec: Recording, factor: float = 24.0) -> Recording:
     """``rec`` with velocities derived, minus the samples around encoder impacts.
 
@@ -461,6 +600,9 @@ def drop_impacts(rec: Recording, factor: float = 24.0) -> Recording:
     acceleration. ``qd``/``qdd`` are derived on the full window first, so the kept samples carry the
     right values. Returns ``rec`` itself (derived) when nothing is dropped.
 
+    A multi-rate ``rec`` comes back as it is: its estimators band-limit the encoder positions
+    themselves, and a central-difference acceleration of quantized positions would mark noise.
+
     >>> import numpy as np
     >>> from bodyschema.recording import Recording
     >>> t = np.arange(400) * 0.01
@@ -470,6 +612,8 @@ def drop_impacts(rec: Recording, factor: float = 24.0) -> Recording:
     >>> drop_impacts(rec).n_samples < 400, drop_impacts(rec).qd is not None
     (True, True)
     """
+    if rec.t_q is not None:
+        return rec
     d = rec.derived()
     if d.qdd is None or d.n_samples < 5:
         return d

@@ -40,7 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from bodyschema.diff import diff_bodies, is_ambiguous, undetermined_reasons
+from bodyschema.diff import diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
 from bodyschema.findings import DAMAGE_KINDS, Diff
 from bodyschema.topology import Topology
 from service.store import AlertRecord, Store, TopologyRecord
@@ -200,13 +200,7 @@ def judge(
         "baseline": base_rec,
     }
     ambiguous = cur is not None and is_ambiguous(cur)
-    ambiguity: list[str] = list(undetermined_reasons(cur)) if cur is not None else []
-    unplaced = [j for j in cur.undetermined if j in cur.joint_parent] if cur is not None else []
-    if unplaced:
-        ambiguity.append(
-            f"the window does not move joint{'s' if len(unplaced) > 1 else ''} {', '.join(unplaced)} "
-            "enough to place them; to decide, move each on its own with the others still"
-        )
+    ambiguity: list[str] = [*undetermined_reasons(cur), *unplaced_reasons(cur)] if cur is not None else []
 
     if active:
         n = len(active)

@@ -10,7 +10,11 @@ One cycle, for every robot the store knows:
 4. without a baseline: adopt the fast topology once it has come out the same ``baseline_repeat_k``
    cycles in a row (an operator may also approve one, :meth:`Worker.approve_baseline`);
 5. with a baseline: :func:`bodyschema.diff.diff_bodies` → :class:`service.alerts.AlertTracker`
-   (hysteresis) → alerts in the store;
+   (hysteresis) → alerts in the store. An IMU moved to another link while the window straddles
+   the move fits neither link and reads as ``imu_detached``; such a finding is judged again on the
+   part of the window after the cycle that first saw the IMU displaced (all of it after the change,
+   see :meth:`Worker._after_onset`), so a move raises ``imu_moved`` and a detachment
+   ``imu_detached``, and never the one before the other;
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The worker runs in its own thread so the API and the ingest pipeline never wait for it; a failing robot
@@ -27,10 +31,12 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
 from bodyschema.findings import Diff, Finding
 from bodyschema.health import JointFingerprint, SignalHealth, drop_impacts, fingerprints, signal_health
-from bodyschema.recording import Recording
+from bodyschema.recording import Recording, RecordingError
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
 from service.metrics import Metrics
@@ -98,6 +104,10 @@ class Worker:
         #: that matches the baseline.
         self.fingerprints_: dict[str, dict[str, JointFingerprint]] = {}
         self._requests: dict[str, set[str]] = {}
+        #: Per (robot, IMU): window end of the first cycle of the current run of cycles whose diff
+        #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
+        #: recorded after the change.
+        self._onset: dict[tuple[str, str], float] = {}
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
         self._stop = threading.Event()
@@ -163,6 +173,7 @@ class Worker:
                     self.store.update_alert(a.id, state="resolved", updated_at=now)
             self.tracker.forget(robot)
             self.fingerprints_.pop(robot, None)
+            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
         base = self.store.baseline(robot)
         assert base is not None
         log.info("baseline approved", extra={"robot": robot, "source": "operator"})
@@ -255,7 +266,10 @@ class Worker:
         res.diff = diff_bodies(base.topology, fast, res.health)
         if robot not in self.fingerprints_ and not res.diff.findings:
             self.fingerprints_[robot] = fingerprints(rec, base.topology, current=fast)
-        hold = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
+        hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
+        if not hold:
+            res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)
+            hold = held
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
         for tr in res.transitions:
@@ -272,6 +286,74 @@ class Worker:
                 },
             )
         return res
+
+    def _after_onset(
+        self, robot: str, rec: Recording, diff: Diff, baseline: Topology
+    ) -> tuple[Diff, tuple[str, ...]]:
+        """Judge each ``imu_detached`` finding on the data recorded after its onset.
+
+        The onset of an IMU's displacement is the end of the first window (of the current run of
+        cycles) whose diff placed it elsewhere than the baseline: every later sample was recorded
+        after the change. A window that straddles an IMU's move holds both of its placements; the
+        joint-velocity model of either link fits only part of it, so the estimate on the whole window
+        follows no joint, the same answer a detached IMU gives. Only the part after the onset says
+        which it is, and the window's own estimate is trusted again once it starts after the onset.
+        Until then, per detached IMU, one fast estimate of the post-onset part (shared by IMUs with the
+        same onset, paid only while a detachment is reported and the window straddles it):
+
+        * no post-onset data yet, or an estimate that is not unique: the finding is held (neither
+          raised nor counted as gone);
+        * the IMU follows no joint there either: the detachment stands;
+        * it follows another joint: the finding becomes ``imu_moved`` to that joint;
+        * it follows its baseline joint again: the finding is held (the estimate of the next windows
+          decides whether anything changed at all).
+
+        Returns the diff to track and the kinds to hold.
+        """
+        window_end, window_start = float(rec.t[-1]), float(rec.t[0])
+        displaced = {f.imu for f in diff.findings if f.kind in ("imu_detached", "imu_moved") and f.imu}
+        for key in [k for k in self._onset if k[0] == robot and k[1] not in displaced]:
+            del self._onset[key]
+        for imu in displaced:
+            self._onset.setdefault((robot, imu), window_end)
+        findings: list[Finding] = []
+        held = False
+        estimates: dict[float, Topology | None] = {}
+        for f in diff.findings:
+            since = self._onset.get((robot, f.imu or ""), window_start)
+            if f.kind != "imu_detached" or since <= window_start:
+                findings.append(f)
+                continue
+            if since not in estimates:
+                estimates[since] = self._estimate_after(rec, since)
+            topo = estimates[since]
+            if topo is None or is_ambiguous(topo) or f.imu not in topo.imu_joint:
+                held = True
+                continue
+            now = topo.imu_joint[f.imu]
+            if now is None:
+                findings.append(f)
+            elif now != baseline.imu_joint.get(f.imu):
+                conf = float(topo.confidence.get(f"imu:{f.imu}", 1.0))
+                findings.append(Finding("imu_moved", imu=f.imu, from_=f.from_, to=now, confidence=conf))
+            else:
+                held = True
+        return Diff(findings=tuple(findings), reasons=diff.reasons), (
+            "imu_detached",
+            "imu_moved",
+        ) if held else ()
+
+    def _estimate_after(self, rec: Recording, since: float) -> Topology | None:
+        """The fast estimate of the part of ``rec`` after ``since`` (None: too little data there)."""
+        if float(rec.t[-1]) <= since:
+            return None
+        try:
+            after = rec.window(since, np.inf)
+        except RecordingError:  # the streams do not overlap yet
+            return None
+        if after.n_samples < self.min_samples or after.duration <= 0:
+            return None
+        return self.estimator(after, "fast")
 
     def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:
         """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""

@@ -18,10 +18,21 @@ Example
 'wrist_3'
 >>> farm.truth("ur5e-1").imu_joint["imu3"]
 'wrist_3'
+
+With ``sensing="robot"`` (:mod:`simulators.sensing`) the physics runs at the options' inner rate (1 kHz)
+and each robot's chunks come out as a real robot logs them: multi-rate, IMU and encoders on their own
+stamps, continuing from chunk to chunk (one :class:`~simulators.sensing.SensingStream` per robot), the
+output trailing the physics by the stream's latency (about 50 ms):
+
+>>> farm = Farm(robots={"p": "paper-2"}, seed=0, imu_model="ideal", sensing="robot")
+>>> rec = farm.advance(seconds=0.2)["p"]
+>>> rec.is_multirate, rec.qd is None, rec.t_q.shape[0] > 2 * rec.n_samples > 0
+(True, True, True)
 """
 
 from __future__ import annotations
 
+import copy
 import time
 import zlib
 from collections.abc import Iterator, Mapping
@@ -33,7 +44,8 @@ from bodyschema.findings import Diff
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from simulators.excitation import Excitation
-from simulators.imu_model import ImuModel
+from simulators.imu_model import ImuModel, resolve_imu_model
+from simulators.sensing import SensingOptions, SensingStream, resolve_sensing
 from simulators.simulation import Simulation
 
 __all__ = ["Farm"]
@@ -42,6 +54,11 @@ __all__ = ["Farm"]
 class Farm:
     """Robots by name -> catalog name (or model file). All share ``imu_model``, ``excitation`` and
     ``rate`` unless ``overrides[name]`` gives ``imu_model``/``excitation``/``rate`` for one robot.
+
+    ``sensing`` (a :mod:`simulators.sensing` preset or options, shared by all robots): ``ideal`` gives
+    single-clock chunks at ``rate``; anything else simulates at the options' inner rate (``rate`` and
+    per-robot rate overrides are then unused) and gives multi-rate chunks, each robot's sensing drawn
+    from its own seed stream.
 
     Each robot simulates at least ``readahead`` seconds per physics call and serves smaller chunks
     from that buffer (damage rewinds to the last returned sample first), so small chunks cost little
@@ -58,10 +75,13 @@ class Farm:
         rate: float = 100.0,
         overrides: Mapping[str, Mapping[str, Any]] | None = None,
         readahead: float = 1.0,
+        sensing: str | SensingOptions | None = "ideal",
     ) -> None:
         if not robots:
             raise ValueError("a farm needs at least one robot")
+        self.sensing = resolve_sensing(sensing)
         self.seed = int(seed)
+        self._streams: dict[str, SensingStream] = {}
         self._catalog: dict[str, str] = {}
         self._sims: dict[str, Simulation] = {}
         overrides = overrides or {}
@@ -73,7 +93,16 @@ class Farm:
                 raise ValueError("robot names must be non-empty strings")
             kw: dict[str, Any] = {"imu_model": imu_model, "excitation": excitation, "rate": rate}
             kw.update(overrides.get(name, {}))
-            ss = np.random.SeedSequence([self.seed, zlib.crc32(name.encode("utf-8"))])
+            key = [self.seed, zlib.crc32(name.encode("utf-8"))]
+            ss = np.random.SeedSequence(key)
+            if not self.sensing.is_ideal:
+                if resolve_imu_model(kw["imu_model"]).rate is not None:
+                    raise ValueError("an IMU model with its own sample_rate cannot be combined with sensing")
+                kw["rate"] = self.sensing.inner_rate
+                # a stream after the four the simulation spawns: the motion and the IMU noise stay
+                # those of the same seed's run at the inner rate
+                sensing_rng = np.random.default_rng(np.random.SeedSequence(key).spawn(5)[4])
+                self._streams[name] = SensingStream(self.sensing, sensing_rng)
             exc: str | Excitation = kw["excitation"]
             self._sims[name] = Simulation(
                 source,
@@ -117,7 +146,10 @@ class Farm:
 
     # ------------------------------------------------------------------ running
     def advance(self, seconds: float) -> dict[str, Recording]:
-        """Run every robot ``seconds`` further; return each robot's new samples (t continues)."""
+        """Run every robot ``seconds`` further; return each robot's new samples (t continues).
+
+        Under non-ideal sensing a robot is left out of the result while its sensing stream holds back
+        everything it has (a step shorter than a few samples)."""
         if not seconds > 0:
             raise ValueError("seconds must be > 0")
         target = self._elapsed + float(seconds)
@@ -125,9 +157,36 @@ class Farm:
         for name, sim in self._sims.items():
             n = round(target * sim.rate) - round(sim.time * sim.rate)
             if n > 0:
-                out[name] = sim.advance(n)
+                rec = sim.advance(n)
+                stream = self._streams.get(name)
+                if stream is not None:
+                    sensed = stream.push(rec)
+                    if sensed is None:
+                        continue
+                    rec = sensed
+                out[name] = rec
         self._elapsed = target
         return out
+
+    def fork(self) -> Farm:
+        """An independent copy of the farm at this instant: the same robots in the same state, with the
+        same random streams, so both continue with the same data until one of them is changed.
+
+        Damage scenarios that share a healthy history fork the farm where they diverge instead of
+        simulating that history once per scenario. Every part is deep-copied; the editable MuJoCo spec
+        of each robot cannot be pickled and is copied with ``MjSpec.copy`` (the compiled model and its
+        state are copied as they are, so a later recompile keeps the state as in the original).
+
+        >>> farm = Farm({"p": "paper-1"}, seed=0, imu_model="ideal")
+        >>> _ = farm.advance(0.5)
+        >>> twin = farm.fork()
+        >>> _ = twin.inject("p", "imu_dead", imu="imu0")
+        >>> a, b = farm.advance(0.2)["p"], twin.advance(0.2)["p"]
+        >>> bool((a.q == b.q).all()), bool((a.gyro[:, 0] == b.gyro[:, 0]).all()), farm.diff("p").findings
+        (True, False, ())
+        """
+        memo: dict[int, Any] = {id(sim.robot.spec): sim.robot.spec.copy() for sim in self._sims.values()}
+        return copy.deepcopy(self, memo)
 
     def inject(self, robot: str, kind: str, **kwargs: Any) -> Diff:
         """Damage ``robot`` now; parts left out are picked by the robot's seeded damage generator."""

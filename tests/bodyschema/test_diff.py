@@ -232,3 +232,17 @@ def test_ambiguous_estimate_gives_only_signal_findings() -> None:
     assert kinds(d) == [("imu_dead", "imu:e1")]
     d = diff_bodies(BASE, cur, health(joints={"j3": "frozen_encoder"}, excitation={"j3": 0.0}))
     assert kinds(d) == [("encoder_fault", "joint:j3")]
+
+
+def test_a_joint_the_window_did_not_move_is_never_no_change():
+    """Unique, matching the baseline everywhere it decides, but one joint unplaced: undetermined."""
+    base = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+    still = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"}, undetermined=("j2",))
+    d = diff_bodies(base, still)
+    assert d.changed is None
+    assert d.to_json()["changed"] is None
+    assert d.reasons == (
+        "the window does not move joint j2 enough to place it; to decide, move each on its own with the "
+        "others still",
+    )
+    assert diff_bodies(base, base).changed is False

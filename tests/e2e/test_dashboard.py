@@ -152,6 +152,9 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
     )
     assert page.locator("article[data-robot='arm'] rect.imu-node.changed[data-imu='i4']").count() == 2
     assert page.locator("article[data-robot='leg'] .changed").count() == 0
+    # the active alert makes arm damaged; leg's unique body matches its baseline
+    assert page.locator("article[data-robot='arm'] .verdict").inner_text() == "damaged"
+    assert page.locator("article[data-robot='leg'] .verdict").inner_text() == "healthy"
     row = page.locator("#alerts tr[data-kind='imu_moved']")
     assert row.count() == 1 and "imu:i4" in row.inner_text() and "j3 → j4" in row.inner_text()
     # only the simulated robot has the damage control; using it posts to the API
@@ -186,6 +189,7 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, St
     assert store.baseline("arm").source == "operator"
     assert store.baseline("arm").topology.imu_joint["i4"] == "j4"
     page.wait_for_function("document.querySelectorAll('#alerts tr.alert').length === 0", timeout=10_000)
+    page.wait_for_selector("article[data-robot='arm'][data-status='healthy']", timeout=10_000)
     assert errors == []
     page.close()
 
@@ -195,8 +199,9 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
     browser: Any, tmp_path: Path, e2e_db_url: str
 ) -> None:
     """The real thing: ``serve --demo`` at 20×, the page draws each learned tree with one node per joint,
-    a damage injected from the page becomes an alert row. With BODYHEALTH_UPDATE_SCREENSHOT=1 the
-    screenshot goes to docs/dashboard.png."""
+    a damage injected from the page becomes an alert row, and every robot shows one of the three
+    statuses. (docs/dashboard.png comes from tests/e2e/test_dashboard_status.py, which shows one robot
+    of each status.)"""
     import os
     import signal
     import subprocess
@@ -248,14 +253,14 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
         page.wait_for_selector(
             "article[data-robot='paper-3-1'] rect.imu-node.changed[data-imu='imu30']", timeout=10_000
         )
-        # The documentation's screenshot is refreshed on request (or when missing), so a test run
-        # leaves the working tree as it found it.
+        for r in robots:
+            verdict = page.locator(f"article[data-robot='{r['name']}'] .verdict")
+            assert verdict.inner_text() in ("healthy", "damaged", "undetermined"), r["name"]
+        # an active alert makes the robot damaged (at the latest by the next poll)
+        page.wait_for_selector("article[data-robot='paper-3-1'][data-status='damaged']", timeout=10_000)
         shot = tmp_path / "dashboard.png"
         page.screenshot(path=str(shot), full_page=True)
         assert shot.stat().st_size > 10_000
-        if os.environ.get("BODYHEALTH_UPDATE_SCREENSHOT") or not SCREENSHOT.exists():
-            SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
-            SCREENSHOT.write_bytes(shot.read_bytes())
         page.close()
     finally:
         proc.send_signal(signal.SIGTERM)

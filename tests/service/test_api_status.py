@@ -134,7 +134,7 @@ def test_healthy_only_when_unique_placed_and_matching(store: Store) -> None:
     assert body["status"] == "undetermined"
     assert (body["trees_fit"], body["insufficient_excitation"], body["decide_by"]) == (1, ["j3"], ["j3"])
     assert body["reasons"] == [
-        "the window does not move joint j3 enough to place them; to decide, move each on its own "
+        "the window does not move joint j3 enough to place it; to decide, move each on its own "
         "with the others still"
     ]
     assert [f["kind"] for f in body["diff"]["findings"]] == ["insufficient_excitation"]
