@@ -945,6 +945,45 @@ def _gravity_networks(b: _Bench) -> str:
     )
 
 
+def _realism(b: _Bench) -> str:
+    d = b.json("realism.json")
+    assert isinstance(d, dict)
+    summary, rows, catalog = d["summary"], d["rows"], d.get("catalog", [])
+    sizes = sorted({r["joints"] for r in rows})
+    n_robots = len({(r["joints"], r["robot"]) for r in rows})
+    parts = []
+    for method, s in summary.items():
+        if not s["robots"]:
+            continue
+        big = [r for r in rows if r["method"] == method and r["joints"] == sizes[-1] and r["cell"] != "ideal"]
+        cost = (
+            f"; {np.mean([r['cpu_s'] for r in big]):.1f} CPU s per robot on average and at most "
+            f"{max(r['cpu_s'] for r in big):.1f} at {sizes[-1]} joints (sensed cells)"
+            if big
+            else ""
+        )
+        skew = s["max_abs_skew_err_ms_where_exact"]
+        parts.append(
+            f"`{method}`: {s['exact']} of {s['robots']} estimates exact, {s['undetermined']} "
+            f"undetermined, {s['wrong']} confidently wrong"
+            + (f", skew within {skew:.2f} ms wherever exact" if skew is not None else "")
+            + cost
+        )
+    text = (
+        f"On random MuJoCo robots of {', '.join(map(str, sizes))} joints ({n_robots} "
+        f"robots, {len({r['cell'] for r in rows})} sensing conditions; {b.provenance('realism')}): "
+        + "; ".join(parts)
+        + "."
+    )
+    if catalog:
+        exact = sum(c["verdict"] == "exact" for c in catalog)
+        text += (
+            f" The catalog on the robot preset: {exact} of {len(catalog)} exact with `fast`, skew error at "
+            f"most {max(abs(c['skew_err_ms']) for c in catalog):.2f} ms."
+        )
+    return text
+
+
 @dataclass(frozen=True)
 class Figure:
     """One marked block: which doc, which marker id, which bench file it is rendered from, and how."""
@@ -984,6 +1023,8 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/sim2real.md", "results", "sim2real", _sim2real_doc),
     _f("docs/sim2real.md", "gravity", "gravity.json", _gravity_doc),
     _f("docs/sim2real.md", "gravity-networks", "gravity.json", _gravity_networks),
+    _f("docs/topology.md", "realism", "realism.json", _realism),
+    _f("README.md", "realism", "realism.json", _realism),
 )
 
 

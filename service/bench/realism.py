@@ -237,6 +237,7 @@ def _catalog_markdown(catalog: list[dict[str, Any]]) -> str:
     if not catalog:
         return ""
     lines = [
+        "",
         "## The catalog on the robot preset (`fast`)",
         "",
         f"{sum(c['verdict'] == 'exact' for c in catalog)} of {len(catalog)} exact, "
@@ -348,8 +349,14 @@ def _plot(summary: dict, sizes: list[int], methods: list[str], path: Path) -> No
     import matplotlib.pyplot as plt
 
     shown = [m for m in methods if summary[m]["robots"]]
-    fig, axes = plt.subplots(1, len(shown), figsize=(5.5 * len(shown), 5.2), squeeze=False)
-    for ax, m in zip(axes[0], shown, strict=True):
+    fig, axes = plt.subplots(
+        1,
+        len(shown) + 1,
+        figsize=(5.5 * len(shown) + 0.8, 5.2),
+        squeeze=False,
+        gridspec_kw={"width_ratios": [1.0] * len(shown) + [0.05]},
+    )
+    for ax, m in zip(axes[0][:-1], shown, strict=True):
         cells = list(summary[m]["cells"])
         share = np.full((len(cells), len(sizes)), np.nan)
         for i, cell in enumerate(cells):
@@ -364,5 +371,5 @@ def _plot(summary: dict, sizes: list[int], methods: list[str], path: Path) -> No
         ax.set_yticks(range(len(cells)), cells, fontsize=8)
         ax.set_xlabel("joints")
         ax.set_title(f"{m}: share exact")
-    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8)
+    fig.colorbar(im, cax=axes[0][-1], label="share exact")
     save_figure(fig, path)

@@ -3,8 +3,8 @@ file and on a PostgreSQL database.
 
 Baselines are learned for every robot and must equal each robot's true body (every joint's parent,
 every IMU's joint, unique); then each damage kind is injected in turn into ``paper-3-1``
-over the REST API, and within 3 worker cycles (``MAX_CYCLES`` for the exceptions) an active alert must
-name the kind and the part. The
+over the REST API, and an active alert must name the kind and the part, with no alert of another
+kind or part raised on the way (``MAX_CYCLES`` says how many worker cycles it may take). The
 other robots stay undamaged and must not raise a single alert during the whole run. SIGTERM ends it
 with exit code 0.
 """
@@ -43,13 +43,30 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
 ]
 
 
-#: Worker cycles within which each alert must come: a straddling window plus M = 2 (each cycle at 20x
-#: speed and a 2 s interval sees a fresh 20 s window). ``joint_locked`` on the robot preset is slower:
-#: the locked joint still yields under its commanded torque, by more than two encoder steps now and
-#: then, which restarts the still stretch the lock is judged on; measured 8 and 16 cycles (SQLite and
-#: PostgreSQL runs, paper-3 after four earlier damages). The bound keeps the first alert's kind honest
-#: while that latency is open.
+#: Worker cycles within which each alert must come. Each cycle at 20x speed and a 2 s interval sees a
+#: fresh 20 s window, so a straddling window plus M = 2 makes 3 on an idle machine; but the farm paces
+#: device time against the wall clock and the worker's interval is wall time, so on a loaded machine
+#: (the suite beside other work) cycles cover uneven device time and the count wanders (seen: 5 for
+#: ``link_lost``). What this test holds is the kind and part of the first alert; latency in device
+#: time is the damage suite's (tests/service/test_damage_worker.py). ``joint_locked`` on the robot
+#: preset is slower still: the locked joint yields under its commanded torque by more than two encoder
+#: steps now and then, restarting the still stretch the lock is judged on (seen: 3, 8 and 16 cycles).
 MAX_CYCLES: dict[str, int] = {"joint_locked": 24}
+DEFAULT_MAX_CYCLES = 12
+#: Alerts of another kind a damage is known to raise besides its own, in this accumulated sequence
+#: (an open defect, not a rule): ``joint_locked`` on ``j4``, after ``j3``'s encoder froze and two of
+#: ``j2``'s link IMUs were detached and killed, also raises ``link_lost`` on ``j2`` (both backends, every
+#: run so far; it may come during the next step instead). Each damage on a healthy robot raises only its
+#: own (tests/service/test_damage_worker.py).
+_J2_LOST = {("link_lost", "joint:j2")}
+KNOWN_EXTRA: dict[str, set[tuple[str, str]]] = {"joint_locked": _J2_LOST, "link_lost": _J2_LOST}
+
+
+def raised(service: Service) -> set[tuple[str, str]]:
+    """(kind, part) of every alert the damaged robot has raised (active or resolved; pending is not
+    raised)."""
+    alerts = service.get(f"/api/v1/robots/{DAMAGED}/alerts")
+    return {(a["kind"], a["part"]) for a in alerts if a["state"] != "pending"}
 
 
 class Service:
@@ -146,6 +163,7 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
     report = []
     for kind, body, part in DAMAGES:
         no_alert_on_healthy()
+        before = raised(service)
         r = service.client.post(f"/api/v1/robots/{DAMAGED}/simulate/damage", json={"kind": kind, **body})
         assert r.status_code == 201, r.text
         truth = r.json()["truth"]["findings"][0]
@@ -163,7 +181,11 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
         took = service.cycles() - c0
         report.append((kind, part, took))
         print(f"{kind} on {part}: alert after {took} worker cycles ({time.monotonic() - t0:.0f} s)")
-        assert took <= MAX_CYCLES.get(kind, 3), f"{kind} on {part} took {took} worker cycles"
+        assert took <= MAX_CYCLES.get(kind, DEFAULT_MAX_CYCLES), f"{kind} on {part} took {took} cycles"
+        # the first alert this damage raised is its own: no transient alert of another kind or part
+        now = raised(service)
+        extra = now - before - {(kind, part)}
+        assert extra <= KNOWN_EXTRA.get(kind, set()), f"{kind}: alerts raised besides it: {extra}"
     print("cycles to alert:", report)
     no_alert_on_healthy()
     # the alerts are served the same way across robots, with the part split out
