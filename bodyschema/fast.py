@@ -717,7 +717,6 @@ def fast_fit_timed(
     # a first-order roll-off's gain varies over the motion's band by about 1 - |H(f_rms)| (its phase is
     # a delay, which the lag absorbs; a constant gain folds into the model's coefficients)
     roll = 1 - 1 / np.sqrt(1 + (f_rms / bw) ** 2)
-    eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
     qdb = band_fn(qda, axis=0)
     excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
     sigma_ref = float(np.median(sigma_b)) if K else 0.0
@@ -726,22 +725,27 @@ def fast_fit_timed(
     )
     active = ~undetermined
     qd_var = float(np.max(qd_noise[active] ** 2)) if active.any() else 0.0
-    floor_add = eps2 * rms**2 + qd_var
     n_eff = min(1.0, 2 * fc * step / f_imu)
-    fit = _fit(
-        qa,
-        qda,
-        gyro_g,
-        fit_ratio=fit_ratio,
-        rel_tol=0.0,
-        min_excitation_snr=min_excitation_snr,
-        min_excitation=min_excitation,
-        band=band_fn,
-        sigma=sigma_b,
-        floor_add=floor_add,
-        n_eff=n_eff,
-        undetermined=undetermined,
-    )
+
+    def fit_at(qa: np.ndarray, qda: np.ndarray, lag_unc: float) -> FastFit:
+        """The tests of :func:`fast_fit` on the aligned signals, with the error model at ``lag_unc``."""
+        eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
+        return _fit(
+            qa,
+            qda,
+            gyro_g,
+            fit_ratio=fit_ratio,
+            rel_tol=0.0,
+            min_excitation_snr=min_excitation_snr,
+            min_excitation=min_excitation,
+            band=band_fn,
+            sigma=sigma_b,
+            floor_add=eps2 * rms**2 + qd_var,
+            n_eff=n_eff,
+            undetermined=undetermined,
+        )
+
+    fit = fit_at(qa, qda, lag_unc)
     # 6. the lag again, now from the accepted models themselves (exact where the linear search above
     # is only nearly so: it ignores the rotation terms), per segment for the drift; then the final fit
     if fit.edges:
@@ -790,22 +794,7 @@ def fast_fit_timed(
         else:
             lag_mid = float(ys[0])
         shifted = grid - lag_at(grid)
-        qa, qda = q_s(shifted), qd_s(shifted)
-        eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
-        fit = _fit(
-            qa,
-            qda,
-            gyro_g,
-            fit_ratio=fit_ratio,
-            rel_tol=0.0,
-            min_excitation_snr=min_excitation_snr,
-            min_excitation=min_excitation,
-            band=band_fn,
-            sigma=sigma_b,
-            floor_add=eps2 * rms**2 + qd_var,
-            n_eff=n_eff,
-            undetermined=undetermined,
-        )
+        fit = fit_at(q_s(shifted), qd_s(shifted), lag_unc)
     fit.lag_ms = 1e3 * float(lag_mid)
     fit.lag_time = t_mid
     fit.skew_ms = 1e3 * float(lag_mid - imu_delay)

@@ -144,6 +144,9 @@ class Simulation:
             if seconds is None:
                 raise ValueError("give n_samples or seconds")
             n_samples = round((self.time + seconds) * self.rate) - self._served
+        elif isinstance(n_samples, bool) or not isinstance(n_samples, int | np.integer):
+            # advance(60.0) reads as seconds but would be a sample count: refuse it rather than guess
+            raise TypeError(f"n_samples must be an int (a count; use seconds= for time), got {n_samples!r}")
         if n_samples < 1:
             raise ValueError("a chunk needs at least one sample")
         while self._buffered() < n_samples:

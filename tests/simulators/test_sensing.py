@@ -135,3 +135,13 @@ def test_cli_writes_a_multirate_recording_that_loads(tmp_path):
     assert rec.is_multirate and rec.qd is None
     assert 240 <= rec.t_q.shape[0] <= 251 and 90 <= rec.n_samples <= 100
     assert rec.truth_joint_parent == ("", "j1", "j2", "j1", "j4")
+
+
+def test_advance_refuses_a_float_sample_count():
+    from simulators.simulation import Simulation
+
+    sim = Simulation("paper-1", seed=0)
+    with pytest.raises(TypeError, match="use seconds="):
+        sim.advance(60.0)
+    assert sim.advance(seconds=0.05).n_samples == 5
+    assert sim.advance(np.int64(3)).n_samples == 3
