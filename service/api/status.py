@@ -7,12 +7,11 @@ process, and it is never more certain than the stored evidence (the rule is in :
 
 from __future__ import annotations
 
-from typing import Literal
-
 from fastapi import APIRouter, Depends, Query
 
 from service.api.deps import get_robot, get_store
 from service.api.schemas import StatusOut
+from service.api.topology import Method
 from service.status import robot_status
 from service.store import RobotInfo, Store
 
@@ -29,7 +28,7 @@ router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"])
 def status(
     info: RobotInfo = Depends(get_robot),
     store: Store = Depends(get_store),
-    method: Literal["fast", "network", "network-paper", "mlp"] | None = Query(
+    method: Method | None = Query(
         None, description="judge the newest topology of this method (default: fast)"
     ),
 ) -> StatusOut:
