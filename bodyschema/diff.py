@@ -47,6 +47,7 @@ from bodyschema.topology import Topology
 __all__ = [
     "STRUCTURAL_KINDS",
     "DiffThresholds",
+    "deciding_joints",
     "diff_bodies",
     "is_ambiguous",
     "undetermined_reasons",
@@ -83,27 +84,47 @@ def undetermined_reasons(topo: Topology) -> tuple[str, ...]:
     trees = [topo, *topo.candidates]
     count = f"{len(trees)} trees fit the data" if topo.candidates else "more than one tree fits the data"
     parts: list[str] = []
-    involved: set[str] = set(topo.undetermined)
     for j in topo.joint_parent:
         options = {t.joint_parent.get(j) for t in trees}
         if len(options) > 1:
             parts.append(f"joint {j} (parent {' or '.join(sorted(o or 'base' for o in options))})")
+    for imu in topo.imu_joint:
+        options = {t.imu_joint.get(imu) for t in trees}
+        if len(options) > 1:
+            parts.append(f"IMU {imu} (on {' or '.join(sorted(o or 'base' for o in options))})")
+    head = count + (f"; they differ in {', '.join(parts)}" if parts else "")
+    reasons = [head]
+    names = deciding_joints(topo)
+    if names:
+        reasons.append(
+            f"to decide, move each of these joints on its own with the others still: {', '.join(names)}"
+        )
+    return tuple(reasons)
+
+
+def deciding_joints(topo: Topology) -> tuple[str, ...]:
+    """Joints to move, each on its own with the others still, to decide what the data left open.
+
+    Every joint whose parent differs between the trees that fit, the joints those parents could be,
+    the joints an IMU could ride, and the joints without enough excitation; in the topology's joint
+    order.
+
+    >>> a = Topology({"j1": None, "j2": "j1", "j3": None}, {"i1": "j1", "i2": "j2"}, undetermined=("j3",))
+    >>> deciding_joints(a)
+    ('j3',)
+    """
+    trees = [topo, *topo.candidates]
+    involved: set[str] = set(topo.undetermined)
+    for j in topo.joint_parent:
+        options = {t.joint_parent.get(j) for t in trees}
+        if len(options) > 1:
             involved.add(j)
             involved.update(o for o in options if o)
     for imu in topo.imu_joint:
         options = {t.imu_joint.get(imu) for t in trees}
         if len(options) > 1:
-            parts.append(f"IMU {imu} (on {' or '.join(sorted(o or 'base' for o in options))})")
             involved.update(o for o in options if o)
-    head = count + (f"; they differ in {', '.join(parts)}" if parts else "")
-    reasons = [head]
-    if involved:
-        order = list(topo.joint_parent)
-        names = sorted(involved & set(order), key=order.index)
-        reasons.append(
-            f"to decide, move each of these joints on its own with the others still: {', '.join(names)}"
-        )
-    return tuple(reasons)
+    return tuple(j for j in topo.joint_parent if j in involved)
 
 
 def unplaced_reasons(topo: Topology) -> tuple[str, ...]:

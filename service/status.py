@@ -40,7 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from bodyschema.diff import diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
+from bodyschema.diff import deciding_joints, diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
 from bodyschema.findings import DAMAGE_KINDS, Diff
 from bodyschema.topology import Topology
 from service.store import AlertRecord, Store, TopologyRecord
@@ -126,28 +126,14 @@ def trees_fit(topo: Topology | None) -> int | None:
 def decide_by(topo: Topology | None) -> tuple[str, ...]:
     """Joints to move, each on its own with the others still, to decide what the data left open.
 
-    The same joints :func:`bodyschema.diff.undetermined_reasons` names: every joint whose parent differs
-    between the fitting trees, the joints those parents could be, the joints an IMU could ride, and the
-    joints without enough excitation; in the topology's joint order.
+    :func:`bodyschema.diff.deciding_joints`, the joints :func:`bodyschema.diff.undetermined_reasons`
+    names; none when nothing was learned.
 
     >>> a = Topology({"j1": None, "j2": "j1", "j3": None}, {"i1": "j1", "i2": "j2"}, undetermined=("j3",))
     >>> decide_by(a)
     ('j3',)
     """
-    if topo is None:
-        return ()
-    involved: set[str] = set(topo.undetermined)
-    trees = [topo, *topo.candidates]
-    for j in topo.joint_parent:
-        options = {t.joint_parent.get(j) for t in trees}
-        if len(options) > 1:
-            involved.add(j)
-            involved.update(o for o in options if o)
-    for imu in topo.imu_joint:
-        options = {t.imu_joint.get(imu) for t in trees}
-        if len(options) > 1:
-            involved.update(o for o in options if o)
-    return tuple(j for j in topo.joint_parent if j in involved)
+    return () if topo is None else deciding_joints(topo)
 
 
 def _alert_text(a: AlertRecord) -> str:
