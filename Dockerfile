@@ -8,6 +8,10 @@ COPY pyproject.toml README.md ./
 COPY bodyschema bodyschema
 COPY simulators simulators
 COPY service service
+COPY emulators emulators
+COPY sim2real sim2real
+COPY bench bench
+COPY cli cli
 COPY migrations migrations
 RUN pip install --no-cache-dir .
 EXPOSE 8000

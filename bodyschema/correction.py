@@ -430,21 +430,46 @@ def _escape(pb: _Problem, s: _State, tries: int, deep: int = 12) -> list[_State]
     if k == 0:
         return []
     pick = np.argpartition(flat, k - 1)[:k]
-    out = {}
+    out: dict[bytes, _State] = {}
+    _escape_by_moves(pb, s, rehang, swap, pick, deep, out)
+    _escape_by_rotations(pb, s, out)
+    return list(out.values())
+
+
+def _keep_below(out: dict[bytes, _State], ys: tuple[_State, ...], cost: int) -> None:
+    """Record in ``out`` (keyed by state) each of ``ys`` that costs less than ``cost``, in order."""
+    for y in ys:
+        if y.cost < cost:
+            out[y.key()] = y
+
+
+def _escape_by_moves(
+    pb: _Problem,
+    s: _State,
+    rehang: np.ndarray,
+    swap: np.ndarray,
+    pick: np.ndarray,
+    deep: int,
+    out: dict[bytes, _State],
+) -> None:
+    """The move half of :func:`_escape`: apply each picked move (flat index over rehang then swap),
+    re-pair both ways, and while nothing has helped yet descend fully from the best of them (at most
+    ``deep`` times)."""
     for f in pick:
         if f < rehang.size:
             x = _apply(pb, s, 0, *(int(u) for u in np.unravel_index(f, rehang.shape)))
         else:
             x = _apply(pb, s, 1, *(int(u) for u in np.unravel_index(f - rehang.size, swap.shape)))
         ys = (x, _repair(pb, x), _repair_nodes(pb, x), _repair_nodes(pb, _repair(pb, x)))
-        for y in ys:
-            if y.cost < s.cost:
-                out[y.key()] = y
+        _keep_below(out, ys, s.cost)
         if not out and deep > 0:
             deep -= 1
-            y = _quick(pb, min(ys, key=lambda z: z.cost))
-            if y.cost < s.cost:
-                out[y.key()] = y
+            _keep_below(out, (_quick(pb, min(ys, key=lambda z: z.cost)),), s.cost)
+
+
+def _escape_by_rotations(pb: _Problem, s: _State, out: dict[bytes, _State]) -> None:
+    """The rotation half of :func:`_escape`: each link trades places with its parent (two variants),
+    then re-pairing; a full descent from the best of them when nothing has helped yet."""
     for c in np.flatnonzero(s.parent >= 0):  # rotations: a link trades places with its parent p
         p = int(s.parent[c])
         for others_move, kids_move in ((False, True), (False, False)):
@@ -456,15 +481,10 @@ def _escape(pb: _Problem, s: _State, tries: int, deep: int = 12) -> list[_State]
             parent[c], parent[p] = s.parent[p], c
             x = _new(pb, parent, s.col)
             ys = (x, _repair(pb, x), _repair_nodes(pb, x))
-            for y in ys:
-                if y.cost < s.cost:
-                    out[y.key()] = y
+            _keep_below(out, ys, s.cost)
             low = min(ys, key=lambda z: z.cost)
             if not out and low.cost <= s.cost + 1:
-                y = _quick(pb, low)
-                if y.cost < s.cost:
-                    out[y.key()] = y
-    return list(out.values())
+                _keep_below(out, (_quick(pb, low),), s.cost)
 
 
 def _quick(pb: _Problem, s: _State) -> _State:

@@ -16,7 +16,9 @@ reported again:
 A joint-level cause claims its whole subtree's structure changes (an upstream fault scrambles the
 estimate below it), so one broken joint gives one finding.
 
-5. ``imu_detached`` / ``imu_moved`` — one IMU follows no joint any more / follows another joint.
+5. ``imu_detached`` / ``imu_moved`` — one IMU follows no joint any more / follows another joint; or
+   (signal health) it still follows its joint, but far more loosely than on the baseline next to the
+   other IMUs of its link: an IMU hanging on a short tether turns with its link and is placed there.
 6. ``joint_reparented`` — a joint hangs under another joint than in the baseline.
 7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
    that depend on it are not judged.
@@ -177,6 +179,52 @@ def _depends(topo: Topology, imu: str, joint: str) -> bool:
     return joint in topo.ancestors(j)
 
 
+class _Claims:
+    """The comparison under way: findings so far and the IMUs and joints a found cause explains."""
+
+    def __init__(self, baseline: Topology, current: Topology, thresholds: DiffThresholds) -> None:
+        self.baseline = baseline
+        self.current = current
+        self.th = thresholds
+        self.findings: list[Finding] = []
+        self.imus: set[str] = set()
+        self.joints: set[str] = set()
+        self.order = _order(baseline)
+        # An estimate that is not unique (several trees fit the data) says nothing reliable about where
+        # a part hangs: only the signal-level findings are made from it.
+        self.structural = not is_ambiguous(current)
+
+    def conf(self, key: str) -> float:
+        """The current estimate's confidence in part ``key`` (``imu:NAME``, ``joint:NAME``), 1 if unstated."""
+        return float(self.current.confidence.get(key, 1.0))
+
+    def lost_below(self, j: str) -> tuple[list[str], list[str]]:
+        """Live (unclaimed) baseline IMUs of ``j``'s subtree, and those no longer depending on ``j``."""
+        sub = set(self.baseline.subtree(j))
+        live = [i for i, jj in self.baseline.imu_joint.items() if jj in sub and i not in self.imus]
+        return live, [i for i in live if not _depends(self.current, i, j)]
+
+    def claim_subtree(self, j: str) -> None:
+        """A cause at ``j`` explains the subtree's structure changes: every joint below ``j`` and every
+        IMU below it that lost its dependency on ``j`` (an IMU that still depends on ``j`` but moved
+        within the subtree is judged on its own)."""
+        self.joints.update(self.baseline.subtree(j))
+        self.imus.update(self.lost_below(j)[1])
+        self.imus.update(i for i, jj in self.baseline.imu_joint.items() if jj == j)
+
+    def link_lost(self, j: str, n_live: int) -> None:
+        """Report that the ``n_live`` live IMUs below ``j`` no longer follow it, and claim the subtree."""
+        self.findings.append(
+            Finding(
+                "link_lost",
+                joint=j,
+                from_=self.baseline.joint_parent[j],
+                detail=f"{n_live} IMUs no longer follow {j}",
+            )
+        )
+        self.claim_subtree(j)
+
+
 def diff_bodies(
     baseline: Topology,
     current: Topology,
@@ -189,170 +237,170 @@ def diff_bodies(
     as layout) adds the signal-level findings; without it only structure is compared and a missing IMU
     counts as dead.
     """
-    th = thresholds or DiffThresholds()
-    findings: list[Finding] = []
-    claimed_imus: set[str] = set()
-    claimed_joints: set[str] = set()
-    order = _order(baseline)
-
-    # An estimate that is not unique (several trees fit the data) says nothing reliable about where
-    # a part hangs: only the signal-level findings are made from it.
-    structural = not is_ambiguous(current)
-
-    def conf(key: str) -> float:
-        return float(current.confidence.get(key, 1.0))
-
-    # 1. dead IMUs -------------------------------------------------------------------------------
-    for imu, joint in baseline.imu_joint.items():
-        h = health.imus.get(imu) if health is not None else None
-        if h is not None and h.dead:
-            findings.append(Finding("imu_dead", imu=imu, from_=joint, detail=h.state))
-            claimed_imus.add(imu)
-        elif imu not in current.imu_joint:
-            findings.append(Finding("imu_dead", imu=imu, from_=joint, detail="silent"))
-            claimed_imus.add(imu)
-
-    def lost_below(j: str) -> tuple[list[str], list[str]]:
-        """Live (unclaimed) baseline IMUs of ``j``'s subtree, and those no longer depending on ``j``."""
-        sub = set(baseline.subtree(j))
-        live = [i for i, jj in baseline.imu_joint.items() if jj in sub and i not in claimed_imus]
-        return live, [i for i in live if not _depends(current, i, j)]
-
-    def claim_subtree(j: str) -> None:
-        """A cause at ``j`` explains the subtree's structure changes: every joint below ``j`` and every
-        IMU below it that lost its dependency on ``j`` (an IMU that still depends on ``j`` but moved
-        within the subtree is judged on its own)."""
-        claimed_joints.update(baseline.subtree(j))
-        claimed_imus.update(lost_below(j)[1])
-        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
-
-    # 2.-4. joint-level causes from signal health ------------------------------------------------
+    st = _Claims(baseline, current, thresholds or DiffThresholds())
+    _dead_imus(st, health)
     judged: set[str] = set()
     if health is not None:
-        moving = set(health.moving_joints)
-        for j in order:
-            jh = health.joints.get(j)
-            if jh is None or j in claimed_joints:
-                continue
-            if jh.state not in ("moving", "flat"):
-                judged.add(j)  # the IMUs on its link were judged: no structure-only verdict on it
-            live, lost = lost_below(j)
-            # The encoder already disagrees with the link here; the estimate's placement (even an
-            # ambiguous one) only has to confirm that nothing below follows the joint.
-            all_lost = bool(live) and len(lost) == len(live)
-            if jh.state in ("wrong_encoder", "unfollowed") and all_lost:
-                # the encoder turns, but nothing below follows it: the link broke off
-                findings.append(
-                    Finding(
-                        "link_lost",
-                        joint=j,
-                        from_=baseline.joint_parent[j],
-                        detail=f"{len(live)} IMUs no longer follow {j}",
-                    )
-                )
-                claim_subtree(j)
-            elif jh.state in ("frozen_encoder", "wrong_encoder", "shifted_encoder"):
-                detail = {
-                    "frozen_encoder": "encoder flat while its link turns",
-                    "wrong_encoder": "encoder disagrees with its link's motion",
-                    "shifted_encoder": "encoder reads shifted against the baseline",
-                }[jh.state]
-                c = (
-                    1.0
-                    if jh.explained is None or jh.state == "shifted_encoder"
-                    else max(0.5, 1.0 - jh.explained)
-                )
-                findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
-                claim_subtree(j)
-            elif jh.state in ("still", "flat"):
-                base_exc = baseline.excitation.get(j)
-                was_moving = base_exc is None or base_exc > th.excitation_rad_s
-                if was_moving and moving - {j}:
-                    findings.append(
-                        Finding(
-                            "joint_locked",
-                            joint=j,
-                            detail=f"encoder {jh.excitation:.3f} rad/s while others move",
-                        )
-                    )
-                    claim_subtree(j)
+        judged = _joint_causes(st, health)
     elif current.excitation:
-        # Structure only: a joint whose encoder went flat while others move is locked (without IMU
-        # health an encoder fault reads the same).
-        moving = {j for j, e in current.excitation.items() if e > th.excitation_rad_s}
-        for j in order:
-            e = current.excitation.get(j)
-            base_exc = baseline.excitation.get(j)
-            if (
-                j not in claimed_joints
-                and e is not None
-                and e <= th.excitation_rad_s
-                and moving - {j}
-                and (base_exc is None or base_exc > th.excitation_rad_s)
-            ):
-                findings.append(Finding("joint_locked", joint=j, detail=f"encoder {e:.3f} rad/s"))
-                claim_subtree(j)
+        _locked_by_excitation(st)
+    # 7 (first half). undecidable joints: nothing that hangs on them is judged
+    undecided = [j for j in current.undetermined if j in baseline.joint_parent and j not in st.joints]
+    _lost_links(st, undecided, judged)
+    _undecided_joints(st, undecided)
+    _single_imus(st, undecided)
+    if health is not None:
+        _loose_imus(st, health, undecided)
+    _reparented_joints(st, undecided)
+    return Diff(
+        findings=tuple(st.findings), reasons=undetermined_reasons(current) + unplaced_reasons(current)
+    )
 
-    # 7 (first half). undecidable joints: nothing that hangs on them is judged ----------------------
-    undecided = [j for j in current.undetermined if j in baseline.joint_parent and j not in claimed_joints]
 
-    # structure-only lost links (joints whose child link no IMU health could judge) ------------------
-    for j in order:
-        if not structural or j in claimed_joints or j in undecided or j in judged:
+def _dead_imus(st: _Claims, health: SignalHealth | None) -> None:
+    """1. IMUs that health calls dead, or that the current estimate lacks."""
+    for imu, joint in st.baseline.imu_joint.items():
+        h = health.imus.get(imu) if health is not None else None
+        if h is not None and h.dead:
+            st.findings.append(Finding("imu_dead", imu=imu, from_=joint, detail=h.state))
+            st.imus.add(imu)
+        elif imu not in st.current.imu_joint:
+            st.findings.append(Finding("imu_dead", imu=imu, from_=joint, detail="silent"))
+            st.imus.add(imu)
+
+
+_ENCODER_DETAIL = {
+    "frozen_encoder": "encoder flat while its link turns",
+    "wrong_encoder": "encoder disagrees with its link's motion",
+    "shifted_encoder": "encoder reads shifted against the baseline",
+}
+
+
+def _joint_causes(st: _Claims, health: SignalHealth) -> set[str]:
+    """2.-4. joint-level causes from signal health, root first; returns the joints whose links' IMUs
+    health judged (no structure-only verdict on them)."""
+    judged: set[str] = set()
+    moving = set(health.moving_joints)
+    for j in st.order:
+        jh = health.joints.get(j)
+        if jh is None or j in st.joints:
             continue
-        live, lost = lost_below(j)
-        if live and len(lost) == len(live) and len(live) >= th.min_link_imus:
-            findings.append(
-                Finding(
-                    "link_lost",
-                    joint=j,
-                    from_=baseline.joint_parent[j],
-                    detail=f"{len(live)} IMUs no longer follow {j}",
-                )
-            )
-            claim_subtree(j)
+        if jh.state not in ("moving", "flat"):
+            judged.add(j)  # the IMUs on its link were judged: no structure-only verdict on it
+        live, lost = st.lost_below(j)
+        # The encoder already disagrees with the link here; the estimate's placement (even an
+        # ambiguous one) only has to confirm that nothing below follows the joint.
+        all_lost = bool(live) and len(lost) == len(live)
+        if jh.state in ("wrong_encoder", "unfollowed") and all_lost:
+            st.link_lost(j, len(live))  # the encoder turns, but nothing below follows it: the link broke off
+        elif jh.state in _ENCODER_DETAIL:
+            if jh.explained is None or jh.state == "shifted_encoder":
+                c = 1.0
+            else:
+                c = max(0.5, 1.0 - jh.explained)
+            detail = _ENCODER_DETAIL[jh.state]
+            st.findings.append(Finding("encoder_fault", joint=j, confidence=c, detail=detail))
+            st.claim_subtree(j)
+        elif jh.state in ("still", "flat"):
+            base_exc = st.baseline.excitation.get(j)
+            was_moving = base_exc is None or base_exc > st.th.excitation_rad_s
+            if was_moving and moving - {j}:
+                detail = f"encoder {jh.excitation:.3f} rad/s while others move"
+                st.findings.append(Finding("joint_locked", joint=j, detail=detail))
+                st.claim_subtree(j)
+    return judged
 
+
+def _locked_by_excitation(st: _Claims) -> None:
+    """Structure only: a joint whose encoder went flat while others move is locked (without IMU
+    health an encoder fault reads the same)."""
+    limit = st.th.excitation_rad_s
+    moving = {j for j, e in st.current.excitation.items() if e > limit}
+    for j in st.order:
+        e = st.current.excitation.get(j)
+        base_exc = st.baseline.excitation.get(j)
+        if (
+            j not in st.joints
+            and e is not None
+            and e <= limit
+            and moving - {j}
+            and (base_exc is None or base_exc > limit)
+        ):
+            st.findings.append(Finding("joint_locked", joint=j, detail=f"encoder {e:.3f} rad/s"))
+            st.claim_subtree(j)
+
+
+def _lost_links(st: _Claims, undecided: list[str], judged: set[str]) -> None:
+    """Structure-only lost links: joints whose child link no IMU health could judge, where every live
+    IMU of the subtree (at least ``min_link_imus``) stopped following the joint."""
+    for j in st.order:
+        if not st.structural or j in st.joints or j in undecided or j in judged:
+            continue
+        live, lost = st.lost_below(j)
+        if live and len(lost) == len(live) and len(live) >= st.th.min_link_imus:
+            st.link_lost(j, len(live))
+
+
+def _undecided_joints(st: _Claims, undecided: list[str]) -> None:
+    """7. joints the current estimate could not decide: reported, and their IMUs and children left
+    unjudged."""
     for j in undecided:
-        if j in claimed_joints:
+        if j in st.joints:
             continue
-        findings.append(
+        st.findings.append(
             Finding(
                 "insufficient_excitation",
                 joint=j,
-                confidence=conf(f"joint:{j}"),
+                confidence=st.conf(f"joint:{j}"),
                 detail="the window does not move this joint enough to place it",
             )
         )
-        claimed_joints.add(j)
-        claimed_imus.update(i for i, jj in baseline.imu_joint.items() if jj == j)
-        claimed_joints.update(baseline.children(j))
+        st.joints.add(j)
+        st.imus.update(i for i, jj in st.baseline.imu_joint.items() if jj == j)
+        st.joints.update(st.baseline.children(j))
 
-    # 5. single IMUs -------------------------------------------------------------------------------
-    for imu, b in baseline.imu_joint.items():
-        if not structural or imu in claimed_imus or imu not in current.imu_joint:
+
+def _single_imus(st: _Claims, undecided: list[str]) -> None:
+    """5. single IMUs that follow no joint any more or another joint, unless a cause explains them."""
+    for imu, b in st.baseline.imu_joint.items():
+        if not st.structural or imu in st.imus or imu not in st.current.imu_joint:
             continue
-        c = current.imu_joint[imu]
-        if c == b or conf(f"imu:{imu}") < th.min_confidence:
+        c = st.current.imu_joint[imu]
+        if c == b or st.conf(f"imu:{imu}") < st.th.min_confidence:
             continue
-        if c in undecided or c in claimed_joints:
+        if c in undecided or c in st.joints:
             continue
         if c is None and b is not None:
             # the estimator's confidence is in its (base) placement; report how sure "follows nothing" is
             key = f"imu:{imu}"
-            sure = 1.0 if key not in current.confidence else min(1.0, max(0.5, 1.0 - conf(key)))
-            findings.append(Finding("imu_detached", imu=imu, from_=b, confidence=sure))
+            sure = 1.0 if key not in st.current.confidence else min(1.0, max(0.5, 1.0 - st.conf(key)))
+            st.findings.append(Finding("imu_detached", imu=imu, from_=b, confidence=sure))
         else:
-            findings.append(Finding("imu_moved", imu=imu, from_=b, to=c, confidence=conf(f"imu:{imu}")))
+            st.findings.append(Finding("imu_moved", imu=imu, from_=b, to=c, confidence=st.conf(f"imu:{imu}")))
 
-    # 6. re-parented joints ------------------------------------------------------------------------
-    for j in order:
-        if not structural or j in claimed_joints or j not in current.joint_parent:
-            continue
-        b, c = baseline.joint_parent[j], current.joint_parent[j]
-        if b == c or conf(f"joint:{j}") < th.min_confidence:
-            continue
-        if c in claimed_joints or c in undecided:
-            continue
-        findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf(f"joint:{j}")))
 
-    return Diff(findings=tuple(findings), reasons=undetermined_reasons(current) + unplaced_reasons(current))
+def _loose_imus(st: _Claims, health: SignalHealth, undecided: list[str]) -> None:
+    """5 (second half). IMUs that health finds loose on their baseline link, unless a cause explains
+    them or the diff already placed them elsewhere."""
+    placed = {f.imu for f in st.findings if f.imu}
+    for imu, growth in sorted(health.loose.items()):
+        b = st.baseline.imu_joint.get(imu)
+        if b is None or imu in st.imus or imu in placed or b in undecided or b in st.joints:
+            continue
+        detail = f"follows {b} loosely: residual {growth:.1f}x its share on the baseline"
+        st.findings.append(Finding("imu_detached", imu=imu, from_=b, detail=detail))
+        st.imus.add(imu)
+
+
+def _reparented_joints(st: _Claims, undecided: list[str]) -> None:
+    """6. joints that hang under another joint than in the baseline, unless a cause explains them."""
+    for j in st.order:
+        if not st.structural or j in st.joints or j not in st.current.joint_parent:
+            continue
+        b, c = st.baseline.joint_parent[j], st.current.joint_parent[j]
+        if b == c or st.conf(f"joint:{j}") < st.th.min_confidence:
+            continue
+        if c in st.joints or c in undecided:
+            continue
+        conf = st.conf(f"joint:{j}")
+        st.findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf))

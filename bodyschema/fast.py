@@ -34,6 +34,9 @@ Joints whose velocity the gyros cannot see above the noise (``min_excitation_snr
 undetermined and left out of every test: their child link is then indistinguishable from their parent
 link, and the answer is exact on the tree with those joints contracted.
 
+The settings (the test thresholds and, for data logged on two clocks, the IMU filter and the band) are
+one :class:`FastOptions`, shared by every entry point.
+
 Example
 -------
 >>> import numpy as np
@@ -51,8 +54,8 @@ Example
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -63,6 +66,7 @@ from bodyschema.recording import Recording
 __all__ = [
     "FastEstimator",
     "FastFit",
+    "FastOptions",
     "fast_fit",
     "fast_fit_recording",
     "fast_fit_timed",
@@ -99,6 +103,62 @@ def insufficient_excitation(
     sigma_ref = float(np.median(sigma[np.isfinite(sigma)])) if np.isfinite(sigma).any() else 0.0
     excitation = np.sqrt(np.mean(np.asarray(qd, dtype=float) ** 2, axis=0))
     return excitation < max(min_excitation, min_excitation_snr * sigma_ref)
+
+
+# ------------------------------------------------------------------------------------------ settings
+@dataclass(frozen=True)
+class FastOptions:
+    """The fast estimator's settings, shared by :func:`fast_fit`, :func:`fast_fit_timed`,
+    :func:`fast_fit_recording` and :class:`FastEstimator`; each also takes any field as a keyword,
+    which overrides the options given.
+
+    ``fit_ratio`` and the two excitation floors apply to every fit, ``rel_tol`` to synced data only
+    (timed data have an error model instead, :func:`fast_fit_timed`), the rest to timed data only.
+    """
+
+    #: Residual variance over the noise-only expectation above which a model is rejected.
+    fit_ratio: float = 25.0
+    #: Synced data: relative model error allowed on top of sensor noise (scale nonlinearity, derived
+    #: velocities), as a fraction of the signal RMS.
+    rel_tol: float = 2e-3
+    #: A joint is undetermined when its RMS velocity is below this many gyro noise standard deviations
+    #: (the gyros could not tell its two links apart).
+    min_excitation_snr: float = 15.0
+    #: Absolute floor on that RMS velocity, rad/s.
+    min_excitation: float = 2e-3
+    #: Timed data: the IMU's on-chip low-pass bandwidth, Hz (None: not stated; the IMU Nyquist
+    #: frequency is assumed, and :func:`fast_fit_recording` reads it from the recording when it can).
+    imu_bandwidth: float | None = None
+    #: Timed data: the stated on-chip filter delay, s, taken out of the lag to report the clock skew.
+    imu_delay: float = 0.0
+    #: Timed data: the comparison band, Hz (None: :func:`bodyschema.timing.choose_band` picks it).
+    band: float | None = None
+    #: Timed data: the largest lag of the IMU behind the encoders searched, s.
+    max_lag: float = 0.1
+    #: Timed data: the error model's relative model error before the lag and filter terms (the
+    #: ``model_tol²`` in ``ε²``, :func:`fast_fit_timed`).
+    model_tol: float = 2e-3
+
+
+_FIELDS = frozenset(f.name for f in fields(FastOptions))
+_SYNCED_FIELDS = frozenset({"fit_ratio", "rel_tol", "min_excitation_snr", "min_excitation"})
+
+
+def _options(options: FastOptions | None, overrides: Mapping[str, Any]) -> FastOptions:
+    """``options`` (default: the defaults) with the keywords ``overrides`` replacing its fields."""
+    unknown = sorted(set(overrides) - _FIELDS)
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s) {unknown}; the settings are FastOptions fields")
+    return replace(options or FastOptions(), **overrides)
+
+
+def _stated(options: FastOptions | None, overrides: Mapping[str, Any]) -> set[str]:
+    """The settings the caller stated: keywords given, and fields of ``options`` off their defaults."""
+    out = set(overrides)
+    if options is not None:
+        default = FastOptions()
+        out |= {f for f in _FIELDS if getattr(options, f) != getattr(default, f)}
+    return out
 
 
 @dataclass
@@ -218,38 +278,22 @@ def _two_hop_features(
 class FastEstimator:
     """Per-IMU ancestor sets from gyro regression tests (see the module docstring for the physics).
 
-    Hyper-parameters
-    ----------------
-    fit_ratio : residual variance over the noise-only expectation above which a model is rejected.
-    rel_tol : relative model error allowed on top of sensor noise (scale nonlinearity, derived
-        velocities), as a fraction of the signal RMS.
-    min_excitation_snr : a joint is undetermined when its RMS velocity is below this many gyro noise
-        standard deviations (the gyros could not tell its two links apart).
-    min_excitation : absolute floor on that RMS velocity, rad/s.
+    Settings: ``options`` (:class:`FastOptions`) with any of its fields given as a keyword replacing
+    its value (``FastEstimator(fit_ratio=10.0)``); kept as ``options``, and each field reads as an
+    attribute too. :meth:`fit` takes synced data, so the timed-data fields do not apply.
     """
 
-    def __init__(
-        self,
-        fit_ratio: float = 25.0,
-        rel_tol: float = 2e-3,
-        min_excitation_snr: float = 15.0,
-        min_excitation: float = 2e-3,
-    ):
-        self.fit_ratio = fit_ratio
-        self.rel_tol = rel_tol
-        self.min_excitation_snr = min_excitation_snr
-        self.min_excitation = min_excitation
+    def __init__(self, options: FastOptions | None = None, **overrides: Any):
+        self.options = _options(options, overrides)
+
+    def __getattr__(self, name: str) -> Any:
+        # only called for names not found otherwise: the settings read through to the options
+        if name != "options" and name in _FIELDS:
+            return getattr(self.options, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def fit(self, q: np.ndarray, qd: np.ndarray, gyro: np.ndarray) -> FastEstimator:
-        res = fast_fit(
-            q,
-            qd,
-            gyro,
-            fit_ratio=self.fit_ratio,
-            rel_tol=self.rel_tol,
-            min_excitation_snr=self.min_excitation_snr,
-            min_excitation=self.min_excitation,
-        )
+        res = fast_fit(q, qd, gyro, options=self.options)
         self.result_ = res
         self.dependency_ = res.dependency
         self.group_ = res.group
@@ -282,67 +326,100 @@ def fast_fit(
     q: np.ndarray,
     qd: np.ndarray | None,
     gyro: np.ndarray,
-    fit_ratio: float = 25.0,
-    rel_tol: float = 2e-3,
-    min_excitation_snr: float = 15.0,
-    min_excitation: float = 2e-3,
     *,
+    options: FastOptions | None = None,
     t: np.ndarray | None = None,
     t_q: np.ndarray | None = None,
-    **timing: Any,
+    **overrides: Any,
 ) -> FastFit:
     """Functional core of :class:`FastEstimator`: ``q``, ``qd`` (T, N), ``gyro`` (T, K, 3) -> FastFit.
 
-    With stamps ``t`` (IMU) and ``t_q`` (encoders; ``q`` then has one row per ``t_q``) the data are
-    taken as a real robot logs them and go through :func:`fast_fit_timed` (``qd`` is then unused;
-    ``timing`` holds its options). Without, the samples are taken as synced and exact, as the
-    simulator's ideal output is.
+    The settings are ``options`` with any :class:`FastOptions` field given as a keyword replacing its
+    value. With stamps ``t`` (IMU) and ``t_q`` (encoders; ``q`` then has one row per ``t_q``) the data
+    are taken as a real robot logs them and go through :func:`fast_fit_timed` (``qd`` and ``rel_tol``
+    are then unused). Without, the samples are taken as synced and exact, as the simulator's ideal
+    output is, and the timed-data keywords are refused.
     """
     if t is not None:
-        return fast_fit_timed(
-            q,
-            gyro,
-            t,
-            t if t_q is None else t_q,
-            fit_ratio=fit_ratio,
-            min_excitation_snr=min_excitation_snr,
-            min_excitation=min_excitation,
-            **timing,
-        )
+        timed = {k: v for k, v in overrides.items() if k != "rel_tol"}
+        return fast_fit_timed(q, gyro, t, t if t_q is None else t_q, options=options, **timed)
+    timing = sorted(k for k in overrides if k not in _SYNCED_FIELDS)
     if timing:
-        raise TypeError(f"timing options {sorted(timing)} need the stamps t (and t_q)")
+        raise TypeError(f"timing options {timing} need the stamps t (and t_q)")
     if qd is None:
         raise ValueError("qd is needed without stamps (give t and t_q to derive it from q)")
-    return _fit(
-        q,
-        qd,
-        gyro,
-        fit_ratio=fit_ratio,
-        rel_tol=rel_tol,
-        min_excitation_snr=min_excitation_snr,
-        min_excitation=min_excitation,
-    )
+    return _fit(q, qd, gyro, _options(options, overrides))
+
+
+@dataclass(frozen=True)
+class _TimedTerms:
+    """How timed data enter the tests (:func:`fast_fit_timed`); synced data have none of this.
+
+    ``apply(x, axis)`` low-passes and picks the fit samples of every regressor and of the gyro alike,
+    after the products are formed (the models stay exact); ``sigma`` (K,) is the in-band gyro noise
+    per sample, ``floor_add`` (K,) the error model's other variance, ``n_eff`` the independent
+    observations per fit sample, ``undetermined`` (N,) the joints the band cannot see.
+    """
+
+    apply: Callable[..., np.ndarray]
+    sigma: np.ndarray
+    floor_add: np.ndarray
+    n_eff: float
+    undetermined: np.ndarray
+
+
+def _identity(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    return x
+
+
+@dataclass(frozen=True)
+class _Signals:
+    """The data as the tests see them. ``gyroT`` (K, 3, T) is unfiltered (products are formed first);
+    ``gb`` the banded gyro, ``gc`` it centred, ``Tb`` its sample count; ``floor`` (K,) the variance a
+    right model leaves besides the noise ``sigma``; ``cos_q``, ``sin_q``, ``qda`` (T, Na) the signals
+    of the ``active`` (determined) joints."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    band: Callable[..., np.ndarray]
+    sigma: np.ndarray
+    gyroT: np.ndarray
+    gb: np.ndarray
+    gc: np.ndarray
+    Tb: int
+    floor: np.ndarray
+    excitation: np.ndarray
+    undetermined: np.ndarray
+    active: np.ndarray
+    n_eff: float
+    cos_q: np.ndarray
+    sin_q: np.ndarray
+    qda: np.ndarray
+
+    @property
+    def n_obs(self) -> float:
+        """Independent observations per output channel triple (the BIC's sample size)."""
+        return 3 * self.Tb * self.n_eff
 
 
 def _fit(
-    q: np.ndarray,
-    qd: np.ndarray,
-    gyro: np.ndarray,
-    *,
-    fit_ratio: float,
-    rel_tol: float,
-    min_excitation_snr: float,
-    min_excitation: float,
-    band: Callable[..., np.ndarray] | None = None,
-    sigma: np.ndarray | None = None,
-    floor_add: np.ndarray | float = 0.0,
-    n_eff: float = 1.0,
-    undetermined: np.ndarray | None = None,
+    q: np.ndarray, qd: np.ndarray, gyro: np.ndarray, opts: FastOptions, timed: _TimedTerms | None = None
 ) -> FastFit:
-    """The tests on one grid. ``band(x, axis)`` (timed data) low-passes and picks the fit samples of
-    every regressor and of the gyro alike after the products are formed (the models stay exact);
-    ``sigma`` is then the in-band gyro noise per sample, ``floor_add`` (K,) the error model's other
-    variance, ``n_eff`` the independent observations per fit sample. Identity for synced data."""
+    """The tests on one grid (the module docstring): synced data, or timed data through ``timed``."""
+    sig = _signals(*_checked(q, qd, gyro), opts, timed)
+    base_ratio = np.mean(sig.gc * sig.gc, axis=(0, 2)) / (sig.sigma**2 + sig.floor)
+    grp = _same_link_groups(sig, base_ratio, opts.fit_ratio)
+    ratio, s2 = _one_hinge_tests(sig, grp)
+    uf, used, tree_edges = _spanning_forest(ratio, s2, grp.G, sig.n_obs, opts.fit_ratio)
+    tree_edges += _two_hinge_edges(sig, grp, uf, used, opts.fit_ratio)
+    nbrs, anc, parent_of = _orient(tree_edges, grp.G)
+    edge_conf = _edge_confidence(sig, grp, s2, nbrs, parent_of, opts.fit_ratio)
+    return _assemble(sig, grp, base_ratio, anc, parent_of, edge_conf, opts.fit_ratio)
+
+
+def _checked(q: np.ndarray, qd: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``q``, ``qd``, ``gyro`` as float arrays, refused when their shapes disagree, they are too short
+    or not finite."""
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     gyro = np.asarray(gyro, dtype=float)
@@ -354,14 +431,15 @@ def _fit(
         raise ValueError(f"need at least 50 samples to test models, got {T}")
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(gyro))):
         raise ValueError("q, qd and gyro must be finite")
+    return q, qd, gyro
 
-    if band is None:
 
-        def band(x: np.ndarray, axis: int = -1) -> np.ndarray:
-            return x
-
-    if sigma is None:
-        sigma = noise_level(gyro)
+def _signals(
+    q: np.ndarray, qd: np.ndarray, gyro: np.ndarray, opts: FastOptions, timed: _TimedTerms | None
+) -> _Signals:
+    """Noise, banded and centred gyro, error floor, excitation and the determined joints."""
+    band = _identity if timed is None else timed.apply
+    sigma = noise_level(gyro) if timed is None else timed.sigma
     sigma = np.where(np.isfinite(sigma), sigma, 0.0)
     gyroT = np.ascontiguousarray(gyro.transpose(1, 2, 0))  # (K, 3, T), unfiltered: products first
     gb = band(gyro, axis=0)
@@ -370,16 +448,57 @@ def _fit(
     if Tb < 50:
         raise ValueError(f"need at least 50 samples to test models, got {Tb}")
     rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))  # (K,)
+    rel_tol, floor_add = (opts.rel_tol, 0.0) if timed is None else (0.0, timed.floor_add)
     floor = (rel_tol * rms) ** 2 + floor_add + 1e-12
 
     qdb = band(qd, axis=0)
     excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
-    if undetermined is None:
-        undetermined = insufficient_excitation(qd, gyro, min_excitation_snr, min_excitation)
+    if timed is None:
+        undetermined = insufficient_excitation(qd, gyro, opts.min_excitation_snr, opts.min_excitation)
+    else:
+        undetermined = timed.undetermined
     active = np.flatnonzero(~undetermined)
+    return _Signals(
+        q=q,
+        qd=qd,
+        band=band,
+        sigma=sigma,
+        gyroT=gyroT,
+        gb=gb,
+        gc=gc,
+        Tb=Tb,
+        floor=floor,
+        excitation=excitation,
+        undetermined=undetermined,
+        active=active,
+        n_eff=1.0 if timed is None else timed.n_eff,
+        cos_q=np.cos(q[:, active]),
+        sin_q=np.sin(q[:, active]),
+        qda=qd[:, active],
+    )
 
-    # ---- same-link and base tests, IMU against IMU
-    base_ratio = np.mean(gc * gc, axis=(0, 2)) / (sigma**2 + floor)
+
+@dataclass(frozen=True)
+class _Groups:
+    """IMUs grouped by the rigid link they ride: ``group`` (K,) (-1 = the fixed base), ``G`` groups,
+    each with its ``members`` and a representative ``rep`` (the least noisy member), whose centred
+    banded gyro ``Yg`` (Tb, 3G), energy ``ysq`` (G,) and noise ``sig_g`` (G,) stand for the group."""
+
+    group: np.ndarray
+    G: int
+    members: list[np.ndarray]
+    rep: np.ndarray
+    member_conf: np.ndarray
+    Yg: np.ndarray
+    ysq: np.ndarray
+    sig_g: np.ndarray
+
+
+def _same_link_groups(sig: _Signals, base_ratio: np.ndarray, fit_ratio: float) -> _Groups:
+    """The on-base test (``ω_k = b``: ``base_ratio`` below ``fit_ratio``) and the same-link test
+    (``ω_k = Q ω_m + b``, IMU against IMU) group the IMUs by link."""
+    gc, gb, Tb, sigma, floor = sig.gc, sig.gb, sig.Tb, sig.sigma, sig.floor
+    K = gc.shape[1]
     on_base = base_ratio < fit_ratio
     Fm = np.ascontiguousarray(gb.transpose(1, 2, 0))  # regress on one other IMU
     Y = gc.reshape(Tb, 3 * K)
@@ -402,42 +521,63 @@ def _fit(
         if len(m) > 1:
             worst = np.max(same[np.ix_(m, m)], axis=1)
             member_conf[m] = np.clip(1.5 - worst / fit_ratio, 0.0, 1.0)
-
-    # ---- one-hinge tests, all (child g, parent h, joint j) at once; h == G is the fixed world
     Wg = gc[:, rep, :]  # (Tb, G, 3)
-    Yg = Wg.reshape(Tb, 3 * G)
-    ysq = np.sum(Wg * Wg, axis=(0, 2))
-    sig_g = sigma[rep]
-    cos_q, sin_q = np.cos(q[:, active]), np.sin(q[:, active])
-    qda = qd[:, active]
-    Na = len(active)
-    cosT, sinT, qdT = (np.ascontiguousarray(x.T) for x in (cos_q, sin_q, qda))
+    return _Groups(
+        group=group,
+        G=G,
+        members=members,
+        rep=rep,
+        member_conf=member_conf,
+        Yg=Wg.reshape(Tb, 3 * G),
+        ysq=np.sum(Wg * Wg, axis=(0, 2)),
+        sig_g=sigma[rep],
+    )
+
+
+def _one_hinge_tests(sig: _Signals, grp: _Groups) -> tuple[np.ndarray, np.ndarray]:
+    """The one-hinge model for all (child g, parent h, joint) at once; h == G is the fixed world.
+
+    Returns the variance ratios and the residual variances per output, both (G, G + 1, Na), infinite
+    where a group would be its own parent.
+    """
+    G, Na = grp.G, len(sig.active)
+    cosT, sinT, qdT = (np.ascontiguousarray(x.T) for x in (sig.cos_q, sig.sin_q, sig.qda))
     ratio = np.full((G, G + 1, Na), np.inf)
     s2 = np.full((G, G + 1, Na), np.inf)  # residual variance per output
     if G and Na:
+        sig_g, floor_g = grp.sig_g, sig.floor[grp.rep]
         # the band is linear and per channel: the rows that do not depend on the parent (cos q, sin q,
         # q̇) and the parent's own gyro are filtered once, only the products per (parent, joint)
-        joint_b = band(np.stack([cosT, sinT, qdT], axis=1))  # (Na, 3, Tb)
+        joint_b = sig.band(np.stack([cosT, sinT, qdT], axis=1))  # (Na, 3, Tb)
         for h in range(G + 1):
             if h == G:
                 F = joint_b[:, 2:3]  # world: ω_g = e q̇_j + b
-                exp_var = sig_g**2 + floor[rep]
+                exp_var = sig_g**2 + floor_g
             else:
-                F = _hop_features_banded(band, gyroT[rep[h]], cosT, sinT, joint_b)
-                exp_var = sig_g**2 + sig_g[h] ** 2 + floor[rep]
-            ex = _explained(F, Yg).reshape(Na, G, 3).sum(-1)  # (Na, G)
-            dof = max(Tb - F.shape[1] - 1, 1)
-            s2[:, h, :] = ((ysq[None, :] - ex) / (3 * dof)).T
+                F = _hop_features_banded(sig.band, sig.gyroT[grp.rep[h]], cosT, sinT, joint_b)
+                exp_var = sig_g**2 + sig_g[h] ** 2 + floor_g
+            ex = _explained(F, grp.Yg).reshape(Na, G, 3).sum(-1)  # (Na, G)
+            dof = max(sig.Tb - F.shape[1] - 1, 1)
+            s2[:, h, :] = ((grp.ysq[None, :] - ex) / (3 * dof)).T
             ratio[:, h, :] = s2[:, h, :] / exp_var[:, None]
         for g in range(G):
             ratio[g, g, :] = np.inf
             s2[g, g, :] = np.inf
+    return ratio, s2
 
-    # ---- spanning forest over groups + world from accepted one-hinge edges (cheapest first)
+
+_Edge = tuple[int, int, tuple[int, ...], float]  # (node, node, active joints, variance ratio)
+
+
+def _spanning_forest(
+    ratio: np.ndarray, s2: np.ndarray, G: int, n_obs: float, fit_ratio: float
+) -> tuple[_UnionFind, set[int], list[_Edge]]:
+    """Kruskal over the groups and the world (node G) from the accepted one-hinge edges, cheapest
+    first, each joint used once. Returns the forest's components, the joints used and its edges."""
     world = G
+    Na = ratio.shape[2]
     # Ordered by a BIC-type score: the world model (1 regressor) is nested in every one-hinge model
     # (12), so a child of the base fits below any of its siblings too; parsimony must pick the world.
-    n_obs = 3 * Tb * n_eff
     penalty = np.log(n_obs) / n_obs
     cand: list[tuple[float, float, int, int, int]] = []
     for g in range(G):
@@ -457,50 +597,77 @@ def _fit(
     cand.sort()
     uf = _UnionFind(G + 1)
     used: set[int] = set()
-    tree_edges: list[tuple[int, int, tuple[int, ...], float]] = []  # (node, node, active joints, ratio)
+    tree_edges: list[_Edge] = []
     for _, r, g, h, a in cand:
         if a in used or uf.find(g) == uf.find(h):
             continue
         uf.union(g, h)
         used.add(a)
         tree_edges.append((g, h, (a,), r))
+    return uf, used, tree_edges
 
-    # ---- two-hinge edges to attach what is left (a link without IMUs in between). The model from h
-    # to g crossing (a then b) is the model from g to h crossing (b then a); both directions must pass.
-    # Batched like the one-hinge tests: per ordered joint pair, one solve for all parents and children.
-    spare = [a for a in range(Na) if a not in used]
-    if len(spare) >= 2 and len({uf.find(x) for x in range(G + 1)}) > 1:
-        pairs = [(a, b) for a in spare for b in spare if a != b]
-        pindex = {pq: i for i, pq in enumerate(pairs)}
-        r2 = np.full((G, G + 1, len(pairs)), np.inf)
-        wall = gyroT[rep]  # (G, 3, T)
-        for i, (a, b) in enumerate(pairs):
-            args = (cos_q[:, a], sin_q[:, a], qda[:, a], cos_q[:, b], sin_q[:, b], qda[:, b])
-            for h_slice, wh in ((slice(0, G), wall), (slice(G, G + 1), None)):
-                F = band(_two_hop_features(wh, *args))
-                ex = _explained(F, Yg).reshape(F.shape[0], G, 3).sum(-1)  # (H, G)
-                dof = max(Tb - F.shape[1] - 1, 1)
-                hs = np.arange(G + 1)[h_slice]
-                par_var = np.where(hs == world, 0.0, sig_g[hs % G] ** 2)[:, None]
-                ev = sig_g[None, :] ** 2 + floor[rep][None, :] + par_var
-                r2[:, h_slice, i] = (((ysq[None, :] - ex) / (3 * dof)) / ev).T
-            for g in range(G):
-                r2[g, g, i] = np.inf
-        cand2: list[tuple[float, int, int, tuple[int, int]]] = []
+
+def _two_hinge_edges(
+    sig: _Signals, grp: _Groups, uf: _UnionFind, used: set[int], fit_ratio: float
+) -> list[_Edge]:
+    """Two-hinge edges that attach what the one-hinge forest left apart (a link without IMUs in
+    between), cheapest first; ``uf`` is updated. The model from h to g crossing (a then b) is the model
+    from g to h crossing (b then a); both directions must pass."""
+    G, world = grp.G, grp.G
+    spare = [a for a in range(len(sig.active)) if a not in used]
+    if len(spare) < 2 or len({uf.find(x) for x in range(G + 1)}) <= 1:
+        return []
+    pairs = [(a, b) for a in spare for b in spare if a != b]
+    pindex = {pq: i for i, pq in enumerate(pairs)}
+    r2 = _two_hinge_ratios(sig, grp, pairs)
+    cand2: list[tuple[float, int, int, tuple[int, int]]] = []
+    for g in range(G):
+        for h in range(G + 1):
+            for i, (a, b) in enumerate(pairs):
+                r = r2[g, h, i] if h == world else max(r2[g, h, i], r2[h, g, pindex[(b, a)]])
+                if r < fit_ratio:
+                    cand2.append((float(r), g, h, (a, b)))
+    cand2.sort()
+    edges: list[_Edge] = []
+    for r, g, h, ab in cand2:
+        if uf.find(g) != uf.find(h):
+            uf.union(g, h)
+            edges.append((g, h, ab, r))
+    return edges
+
+
+def _two_hinge_ratios(sig: _Signals, grp: _Groups, pairs: list[tuple[int, int]]) -> np.ndarray:
+    """Variance ratios (G, G + 1, pairs) of the two-hinge model, batched like the one-hinge tests: per
+    ordered joint pair, one solve for all parents and children."""
+    G, world = grp.G, grp.G
+    r2 = np.full((G, G + 1, len(pairs)), np.inf)
+    wall = sig.gyroT[grp.rep]  # (G, 3, T)
+    cos_q, sin_q, qda = sig.cos_q, sig.sin_q, sig.qda
+    for i, (a, b) in enumerate(pairs):
+        args = (cos_q[:, a], sin_q[:, a], qda[:, a], cos_q[:, b], sin_q[:, b], qda[:, b])
+        for h_slice, wh in ((slice(0, G), wall), (slice(G, G + 1), None)):
+            F = sig.band(_two_hop_features(wh, *args))
+            ex = _explained(F, grp.Yg).reshape(F.shape[0], G, 3).sum(-1)  # (H, G)
+            dof = max(sig.Tb - F.shape[1] - 1, 1)
+            hs = np.arange(G + 1)[h_slice]
+            par_var = np.where(hs == world, 0.0, grp.sig_g[hs % G] ** 2)[:, None]
+            ev = grp.sig_g[None, :] ** 2 + sig.floor[grp.rep][None, :] + par_var
+            r2[:, h_slice, i] = (((grp.ysq[None, :] - ex) / (3 * dof)) / ev).T
         for g in range(G):
-            for h in range(G + 1):
-                for i, (a, b) in enumerate(pairs):
-                    r = r2[g, h, i] if h == world else max(r2[g, h, i], r2[h, g, pindex[(b, a)]])
-                    if r < fit_ratio:
-                        cand2.append((float(r), g, h, (a, b)))
-        cand2.sort()
-        for r, g, h, ab in cand2:
-            if uf.find(g) != uf.find(h):
-                uf.union(g, h)
-                tree_edges.append((g, h, ab, r))
+            r2[g, g, i] = np.inf
+    return r2
 
-    # ---- orient from the world; ancestor set = symmetric difference of joints along the path
-    nbrs: dict[int, list[tuple[int, tuple[int, ...], float]]] = {x: [] for x in range(G + 1)}
+
+_Nbrs = dict[int, list[tuple[int, tuple[int, ...], float]]]
+
+
+def _orient(
+    tree_edges: list[_Edge], G: int
+) -> tuple[_Nbrs, dict[int, frozenset[int]], dict[int, tuple[int, tuple[int, ...], float]]]:
+    """Root the forest at the world (node G): each group's neighbours, ancestor set (the symmetric
+    difference of the joints along its path from the world) and parent edge (parent, joints, ratio)."""
+    world = G
+    nbrs: _Nbrs = {x: [] for x in range(G + 1)}
     for g, h, js, r in tree_edges:
         nbrs[g].append((h, js, r))
         nbrs[h].append((g, js, r))
@@ -514,12 +681,27 @@ def _fit(
                 anc[y] = anc[x] ^ frozenset(js)
                 parent_of[y] = (x, js, r)
                 stack.append(y)
+    return nbrs, anc, parent_of
 
-    # ---- confidence: likelihood ratio of the chosen edge against the best rival attachment
-    # BIC-type log likelihood ratio of the chosen attachment against the best rival one. Rivals are all
-    # other (parent, joint) models for this group except the reversed edges of its own tree children
-    # (those describe the same hinge). Nested rivals (a sibling's model around a base joint) pay their
-    # extra parameters, so they do not erode the confidence.
+
+def _edge_confidence(
+    sig: _Signals,
+    grp: _Groups,
+    s2: np.ndarray,
+    nbrs: _Nbrs,
+    parent_of: dict[int, tuple[int, tuple[int, ...], float]],
+    fit_ratio: float,
+) -> np.ndarray:
+    """Confidence (G,) in each group's attachment.
+
+    BIC-type log likelihood ratio of the chosen attachment against the best rival one. Rivals are all
+    other (parent, joint) models for this group except the reversed edges of its own tree children
+    (those describe the same hinge). Nested rivals (a sibling's model around a base joint) pay their
+    extra parameters, so they do not erode the confidence.
+    """
+    G, world, Na = grp.G, grp.G, len(sig.active)
+    sig_g, floor, rep = grp.sig_g, sig.floor, grp.rep
+    n_obs = sig.n_obs
     edge_conf = np.zeros(G)
     half_log_n = 0.5 * np.log(n_obs)
     for g in range(G):
@@ -539,11 +721,25 @@ def _fit(
                 lam = min(lam, ll + (p2 - p_best) * half_log_n)
         fit_ok = 1.0 if r <= fit_ratio else fit_ratio / r
         edge_conf[g] = fit_ok / (1.0 + np.exp(-float(np.clip(lam, -50.0, 50.0))))
+    return edge_conf
 
+
+def _assemble(
+    sig: _Signals,
+    grp: _Groups,
+    base_ratio: np.ndarray,
+    anc: dict[int, frozenset[int]],
+    parent_of: dict[int, tuple[int, tuple[int, ...], float]],
+    edge_conf: np.ndarray,
+    fit_ratio: float,
+) -> FastFit:
+    """The answer: each IMU's ancestor set (its row of D), the confidences and the accepted edges."""
+    world, active = grp.G, sig.active
+    K, N = len(grp.group), sig.q.shape[1]
     dep = np.zeros((K, N), dtype=bool)
     imu_conf = np.zeros(K)
     for k in range(K):
-        g = group[k]
+        g = grp.group[k]
         if g < 0:
             # a non-rotating IMU: confident in proportion to how clearly it does not rotate
             imu_conf[k] = float(np.clip(1.5 - base_ratio[k] / fit_ratio, 0.0, 1.0))
@@ -551,13 +747,13 @@ def _fit(
         if g in anc:
             for a in anc[g]:
                 dep[k, active[a]] = True
-            imu_conf[k] = min(edge_conf[g], member_conf[k])
+            imu_conf[k] = min(edge_conf[g], grp.member_conf[k])
     joint_conf = np.zeros(N)
     child_of_joint: dict[int, int] = {}
     for g, (_, js, _) in parent_of.items():
         for a in js:  # both joints of a two-hinge edge: their order is the completion's business
             child_of_joint[a] = g
-    for a in range(Na):
+    for a in range(len(active)):
         g = child_of_joint.get(a)
         if g is None:
             continue
@@ -571,12 +767,12 @@ def _fit(
     ]
     return FastFit(
         dependency=dep,
-        group=group,
-        undetermined=np.flatnonzero(undetermined),
+        group=grp.group,
+        undetermined=np.flatnonzero(sig.undetermined),
         imu_confidence=imu_conf,
         joint_confidence=joint_conf,
-        excitation=excitation,
-        noise=sigma,
+        excitation=sig.excitation,
+        noise=sig.sigma,
         edges=edges,
     )
 
@@ -588,19 +784,15 @@ def fast_fit_timed(
     t: np.ndarray,
     t_q: np.ndarray,
     *,
-    imu_bandwidth: float | None = None,
-    imu_delay: float = 0.0,
-    band: float | None = None,
-    max_lag: float = 0.1,
-    fit_ratio: float = 25.0,
-    model_tol: float = 2e-3,
-    min_excitation_snr: float = 15.0,
-    min_excitation: float = 2e-3,
+    options: FastOptions | None = None,
+    **overrides: Any,
 ) -> FastFit:
     """The fast estimator on encoder positions ``q`` (T_q, N) stamped ``t_q`` and gyro rates ``gyro``
     (T, K, 3) stamped ``t`` on another clock (docs/recording-format.md).
 
-    Steps (the tools and their reasons are in :mod:`bodyschema.timing`):
+    The settings are ``options`` with any :class:`FastOptions` field but ``rel_tol`` (synced data only)
+    given as a keyword replacing its value. Steps (the tools and their reasons are in
+    :mod:`bodyschema.timing`):
 
     1. both streams go to uniform grids by cubic splines through their own stamps; gyro samples in
        gaps over 5 periods are left out;
@@ -626,8 +818,34 @@ def fast_fit_timed(
        are ranked by BIC with the effective sample size of the band-limited residuals,
        ``2 fc`` independent values per second and channel.
     """
-    from bodyschema import timing as tm
+    if "rel_tol" in overrides:
+        raise TypeError("rel_tol applies to synced data; timed data have an error model (model_tol)")
+    opts = _options(options, overrides)
+    q, gyro, t, t_q = _checked_timed(q, gyro, t, t_q)
+    data = _timed_grid(q, gyro, t, t_q, opts)
+    lag = _first_lag(data, opts.max_lag)
+    err = _error_model(q, data, lag, opts)
+    fit = _fit_at(data, err, lag, 2e-3, opts)  # the first lag is good to a ms or two
+    n_seg = int(min(4, (data.tk[-1] - data.tk[0]) // 15.0))
+    if fit.edges:
+        # the lag again, now from the accepted models themselves (exact where the first search is only
+        # nearly so: it ignores the rotation terms), per segment for the drift; then the final fit
+        lag, lag_unc = _refined_lag(fit, data, err, lag, n_seg, opts.max_lag)
+        fit = _fit_at(data, err, lag, lag_unc, opts)
+    fit.lag_ms = 1e3 * float(lag.mid)
+    fit.lag_time = lag.t_mid
+    fit.skew_ms = 1e3 * float(lag.mid - opts.imu_delay)
+    # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
+    fit.drift_ppm = 1e6 * float(lag.drift) if n_seg >= 2 and fit.edges else None
+    fit.band_hz = data.fc
+    return fit
 
+
+def _checked_timed(
+    q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The timed inputs as float arrays, refused when their shapes or stamps do not fit or they are
+    not finite."""
     q = np.asarray(q, dtype=float)
     gyro = np.asarray(gyro, dtype=float)
     t = np.asarray(t, dtype=float)
@@ -641,16 +859,58 @@ def fast_fit_timed(
             raise ValueError(f"{name} must hold at least 8 strictly increasing stamps")
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(gyro))):
         raise ValueError("q and gyro must be finite")
+    return q, gyro, t, t_q
+
+
+@dataclass(frozen=True)
+class _TimedGrid:
+    """Timed data on uniform grids. Rates ``f_imu``, ``f_enc`` and the comparison band ``fc`` (Hz);
+    the IMU ``grid`` and the gyro on it, ``gyro_g`` (n, K, 3); ``step`` the thinning of the fit
+    samples, which are ``ok`` (on the grid) and ``keep_d`` (among every ``step``-th grid point),
+    ``keep`` on the grid, at times ``tk``; ``gyro_b`` (fit samples, 3K) the banded gyro there;
+    ``q_s``, ``qd_s`` the positions and velocities as splines (everything the IMU grid can hold),
+    ``qd_c`` the velocities in the comparison band."""
+
+    f_imu: float
+    f_enc: float
+    fc: float
+    step: int
+    grid: np.ndarray
+    gyro_g: np.ndarray
+    ok: np.ndarray
+    keep_d: np.ndarray
+    keep: np.ndarray
+    tk: np.ndarray
+    gyro_b: np.ndarray
+    q_s: Callable[[np.ndarray], np.ndarray]
+    qd_s: Callable[[np.ndarray], np.ndarray]
+    qd_c: Callable[[np.ndarray], np.ndarray]
+
+    def band(self, x: np.ndarray, axis: int = -1) -> np.ndarray:
+        """One band for the gyro and every regressor, picked at the fit samples."""
+        from bodyschema import timing as tm
+
+        return np.take(tm.lowpass(x, self.f_imu, self.fc, axis=axis, step=self.step), self.keep_d, axis=axis)
+
+
+def _timed_grid(
+    q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, opts: FastOptions
+) -> _TimedGrid:
+    """Steps 1, 2 and the fit samples: uniform grids, band-limited splines, samples away from the ends
+    and from long gaps (the filter rings there), thinned."""
+    from scipy.interpolate import CubicSpline
+
+    from bodyschema import timing as tm
+
     K = gyro.shape[1]
     f_imu, f_enc = tm.median_rate(t), tm.median_rate(t_q)
-    fc = float(band) if band is not None else tm.choose_band(f_imu, f_enc, imu_bandwidth)
-    lo, hi = max(t[0], t_q[0]) + max_lag, min(t[-1], t_q[-1]) - max_lag
+    fc = float(opts.band) if opts.band is not None else tm.choose_band(f_imu, f_enc, opts.imu_bandwidth)
+    lo, hi = max(t[0], t_q[0]) + opts.max_lag, min(t[-1], t_q[-1]) - opts.max_lag
     if hi - lo < 4 * tm.edge_margin(fc):
         raise ValueError(
             f"the streams overlap for {min(t[-1], t_q[-1]) - max(t[0], t_q[0]):.3g} s; need at least "
-            f"{4 * tm.edge_margin(fc) + 2 * max_lag:.3g} s at a {fc:g} Hz band"
+            f"{4 * tm.edge_margin(fc) + 2 * opts.max_lag:.3g} s at a {fc:g} Hz band"
         )
-
     # 1. uniform grids; the IMU grid's length is ``step`` times a length the FFT handles fast (a few
     # samples at the end are given up so that no filter call pads: hundreds of calls per fit)
     step = max(1, int(f_imu // (2.5 * fc)))
@@ -660,16 +920,12 @@ def fast_fit_timed(
     gyro_g = g_flat.reshape(len(grid), K, 3)
     egrid = t_q[0] + np.arange(int(np.floor((t_q[-1] - t_q[0]) * f_enc)) + 1) / f_enc
     q_e, _ = tm.resample(t_q, q, egrid)
-
     # 2. band-limited positions and velocities on the encoder grid: ``fa`` keeps everything the IMU
     # grid can hold (they are sampled there next), ``fc`` is the comparison band for the lag search
     fa = min(0.4 * f_imu, 0.45 * f_enc)
-    from scipy.interpolate import CubicSpline
-
     q_s = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fa), axis=0)
     qd_s = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fa, derivative=True), axis=0)
     qd_c = CubicSpline(egrid, tm.lowpass(q_e, f_enc, fc, derivative=True), axis=0)
-
     # fit samples: away from the ends and from long gaps (the filter rings there), thinned
     margin = tm.edge_margin(fc)
     bad = ~valid
@@ -682,126 +938,161 @@ def fast_fit_timed(
     if len(keep) < 50:
         raise ValueError(f"only {len(keep)} usable samples in the {fc:g} Hz band; record longer")
     gyro_b = tm.lowpass(gyro_g, f_imu, fc, step=step)[keep_d].reshape(len(keep), 3 * K)
+    return _TimedGrid(
+        f_imu, f_enc, fc, step, grid, gyro_g, ok, keep_d, keep, grid[keep], gyro_b, q_s, qd_s, qd_c
+    )
 
-    # 3. lag: first from a linear regression of the gyro on all joint velocities (it ignores the
-    # rotation terms of the models, so it is good to a ms or two, the uncertainty used until step 6)
-    tk = grid[keep]
-    lag_mid, _, _ = tm.estimate_lag(gyro_b, lambda d: qd_c(tk - d), max_lag=max_lag, step=2e-3)
-    n_seg = int(min(4, (tk[-1] - tk[0]) // 15.0))
-    t_mid = float(tk.mean())
-    drift = 0.0
-    lag_unc = 2e-3
 
-    def lag_at(tt: np.ndarray) -> np.ndarray:
-        return lag_mid + drift * (tt - t_mid)
+@dataclass(frozen=True)
+class _Lag:
+    """The IMU's lag behind the encoders, s: ``mid`` at encoder-clock time ``t_mid``, with slope
+    ``drift`` (s/s)."""
 
-    # 4. aligned signals on the IMU grid; one band for the gyro and every regressor
-    shifted = grid - lag_at(grid)
-    qa, qda = q_s(shifted), qd_s(shifted)
+    mid: float
+    drift: float
+    t_mid: float
 
-    def band_fn(x: np.ndarray, axis: int = -1) -> np.ndarray:
-        return np.take(tm.lowpass(x, f_imu, fc, axis=axis, step=step), keep_d, axis=axis)
+    def at(self, tt: np.ndarray) -> np.ndarray:
+        return self.mid + self.drift * (tt - self.t_mid)
 
-    # 5. error model
+
+def _first_lag(data: _TimedGrid, max_lag: float) -> _Lag:
+    """Step 3, first pass: the lag from a linear regression of the gyro on all joint velocities (it
+    ignores the rotation terms of the models, so it is good to a ms or two)."""
+    from bodyschema import timing as tm
+
+    tk = data.tk
+    lag_mid, _, _ = tm.estimate_lag(data.gyro_b, lambda d: data.qd_c(tk - d), max_lag=max_lag, step=2e-3)
+    return _Lag(lag_mid, 0.0, float(tk.mean()))
+
+
+@dataclass(frozen=True)
+class _ErrorModel:
+    """Step 5's error model: in-band gyro noise ``sigma`` (K,), the gyro's in-band RMS ``rms`` and RMS
+    frequency ``f_rms`` (K,), the IMU filter's gain variation ``roll`` (K,), the encoders' derivative
+    noise variance ``qd_var``, the independent observations per fit sample ``n_eff`` and the joints
+    the band cannot see, ``undetermined`` (N,)."""
+
+    sigma: np.ndarray
+    rms: np.ndarray
+    f_rms: np.ndarray
+    roll: np.ndarray
+    qd_var: float
+    n_eff: float
+    undetermined: np.ndarray
+
+
+def _error_model(q: np.ndarray, data: _TimedGrid, lag: _Lag, opts: FastOptions) -> _ErrorModel:
+    """What a right model leaves in band: gyro noise, encoder derivative noise, relative model error;
+    and which joints move enough (at the first lag) to be tested."""
+    from bodyschema import timing as tm
+
+    f_imu, fc, step, K = data.f_imu, data.fc, data.step, data.gyro_g.shape[1]
     share = min(1.0, fc / (f_imu / 2))
-    sigma_raw = noise_level(gyro_g[ok])
+    sigma_raw = noise_level(data.gyro_g[data.ok])
     sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0) * np.sqrt(share)
-    qd_noise = tm.derivative_noise(tm.position_noise(q), f_enc, fc)
-    gc = gyro_b.reshape(len(keep), K, 3)
+    qd_noise = tm.derivative_noise(tm.position_noise(q), data.f_enc, fc)
+    gc = data.gyro_b.reshape(len(data.keep), K, 3)
     gc = gc - gc.mean(axis=0)
     rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))
     dg = np.diff(gc, axis=0) * (f_imu / step)
     f_rms = np.sqrt(np.mean(dg * dg, axis=(0, 2)) / np.maximum(np.mean(gc * gc, axis=(0, 2)), 1e-300))
     f_rms = f_rms / (2 * np.pi)
-    bw = imu_bandwidth if imu_bandwidth is not None else f_imu / 2
+    bw = opts.imu_bandwidth if opts.imu_bandwidth is not None else f_imu / 2
     # a first-order roll-off's gain varies over the motion's band by about 1 - |H(f_rms)| (its phase is
     # a delay, which the lag absorbs; a constant gain folds into the model's coefficients)
     roll = 1 - 1 / np.sqrt(1 + (f_rms / bw) ** 2)
-    qdb = band_fn(qda, axis=0)
+    qdb = data.band(data.qd_s(data.grid - lag.at(data.grid)), axis=0)
     excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
     sigma_ref = float(np.median(sigma_b)) if K else 0.0
     undetermined = excitation < np.maximum(
-        max(min_excitation, min_excitation_snr * sigma_ref), min_excitation_snr * qd_noise
+        max(opts.min_excitation, opts.min_excitation_snr * sigma_ref), opts.min_excitation_snr * qd_noise
     )
     active = ~undetermined
     qd_var = float(np.max(qd_noise[active] ** 2)) if active.any() else 0.0
     n_eff = min(1.0, 2 * fc * step / f_imu)
+    return _ErrorModel(sigma_b, rms, f_rms, roll, qd_var, n_eff, undetermined)
 
-    def fit_at(qa: np.ndarray, qda: np.ndarray, lag_unc: float) -> FastFit:
-        """The tests of :func:`fast_fit` on the aligned signals, with the error model at ``lag_unc``."""
-        eps2 = model_tol**2 + (2 * np.pi * f_rms * lag_unc) ** 2 + roll**2
-        return _fit(
-            qa,
-            qda,
-            gyro_g,
-            fit_ratio=fit_ratio,
-            rel_tol=0.0,
-            min_excitation_snr=min_excitation_snr,
-            min_excitation=min_excitation,
-            band=band_fn,
-            sigma=sigma_b,
-            floor_add=eps2 * rms**2 + qd_var,
-            n_eff=n_eff,
-            undetermined=undetermined,
+
+def _fit_at(data: _TimedGrid, err: _ErrorModel, lag: _Lag, lag_unc: float, opts: FastOptions) -> FastFit:
+    """Step 4 and the tests of :func:`fast_fit` on the signals aligned at ``lag``, with the error
+    model at the lag uncertainty ``lag_unc``."""
+    shifted = data.grid - lag.at(data.grid)
+    eps2 = opts.model_tol**2 + (2 * np.pi * err.f_rms * lag_unc) ** 2 + err.roll**2
+    timed = _TimedTerms(
+        apply=data.band,
+        sigma=err.sigma,
+        floor_add=eps2 * err.rms**2 + err.qd_var,
+        n_eff=err.n_eff,
+        undetermined=err.undetermined,
+    )
+    return _fit(data.q_s(shifted), data.qd_s(shifted), data.gyro_g, opts, timed)
+
+
+def _refined_lag(
+    fit: FastFit, data: _TimedGrid, err: _ErrorModel, lag: _Lag, n_seg: int, max_lag: float
+) -> tuple[_Lag, float]:
+    """Step 3, second pass: per segment, the shift that minimizes the accepted edge models' residual;
+    a line through the segments' lags gives the lag and the drift, its scatter the uncertainty."""
+    segs = np.array_split(np.arange(len(data.keep)), max(n_seg, 1))
+    shift_step = 1.0e-3
+    shifts, rss = _shift_window(fit, data, err, lag, segs, shift_step, max_lag)
+    seg_lags = []
+    for i, part in enumerate(segs):
+        j = int(np.argmin(rss[:, i]))
+        off = 0.0
+        if 0 < j < len(shifts) - 1:
+            r0, r1, r2 = rss[j - 1, i], rss[j, i], rss[j + 1, i]
+            den = r0 - 2 * r1 + r2
+            off = float(np.clip(0.5 * (r0 - r2) / den, -1, 1)) if den > 0 else 0.0
+        ts = float(data.tk[part].mean())
+        seg_lags.append((ts, float(lag.at(np.array([ts]))[0] + shifts[j] + off * shift_step)))
+    xs, ys = np.array(seg_lags).T
+    if len(xs) < 2:
+        return _Lag(float(ys[0]), lag.drift, lag.t_mid), 2e-3
+    drift, lag_mid = np.polyfit(xs - lag.t_mid, ys, 1)
+    resid = ys - (lag_mid + drift * (xs - lag.t_mid))
+    return _Lag(lag_mid, drift, lag.t_mid), max(0.25e-3, float(np.sqrt(np.mean(resid**2))))
+
+
+def _shift_window(
+    fit: FastFit,
+    data: _TimedGrid,
+    err: _ErrorModel,
+    lag: _Lag,
+    segs: list[np.ndarray],
+    shift_step: float,
+    max_lag: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The shifts tried around ``lag`` and the edge models' residual per (shift, segment).
+
+    ±4 ms around the lag in 1 ms steps, to be refined by a parabola: the residual is smooth in the
+    shift (both sides band-limited to fc <= 10 Hz, whose period is >= 100 ms). The first lag can be
+    several ms off (seen: 6.5 ms on a UR5e): while the whole fit's best shift sits on the edge of the
+    window, the window moves there (at most ``max_lag`` away).
+    """
+    shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
+    base = data.grid - lag.at(data.grid)
+
+    def edge_rss(center: float) -> np.ndarray:
+        return np.array(
+            [
+                _edge_rss(
+                    fit, err.sigma, data.gyro_g, data.q_s, data.qd_s, base - center - d, data.band, segs
+                )
+                for d in shifts
+            ]
         )
 
-    fit = fit_at(qa, qda, lag_unc)
-    # 6. the lag again, now from the accepted models themselves (exact where the linear search above
-    # is only nearly so: it ignores the rotation terms), per segment for the drift; then the final fit
-    if fit.edges:
-        segs = np.array_split(np.arange(len(keep)), max(n_seg, 1))
-        # ±4 ms around the first lag in 1 ms steps, refined by a parabola: the residual is smooth in
-        # the shift (both sides band-limited to fc <= 10 Hz, whose period is >= 100 ms)
-        shift_step = 1.0e-3
-        shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
-
-        def edge_rss(center: float) -> np.ndarray:
-            return np.array(
-                [
-                    _edge_rss(
-                        fit, sigma_b, gyro_g, q_s, qd_s, grid - lag_at(grid) - center - d, band_fn, segs
-                    )
-                    for d in shifts
-                ]
-            )
-
-        # the first lag can be several ms off (seen: 6.5 ms on a UR5e): while the whole fit's best
-        # shift sits on the edge of the window, move the window there (at most ``max_lag`` away)
-        center = 0.0
+    center = 0.0
+    rss = edge_rss(center)
+    while True:
+        j = int(np.argmin(rss.sum(axis=1)))
+        if 0 < j < len(shifts) - 1 or abs(center + shifts[j]) > max_lag:
+            break
+        center += shifts[j]
         rss = edge_rss(center)
-        while True:
-            j = int(np.argmin(rss.sum(axis=1)))
-            if 0 < j < len(shifts) - 1 or abs(center + shifts[j]) > max_lag:
-                break
-            center += shifts[j]
-            rss = edge_rss(center)
-        shifts = shifts + center
-        seg_lags = []
-        for i, part in enumerate(segs):
-            j = int(np.argmin(rss[:, i]))
-            off = 0.0
-            if 0 < j < len(shifts) - 1:
-                r0, r1, r2 = rss[j - 1, i], rss[j, i], rss[j + 1, i]
-                den = r0 - 2 * r1 + r2
-                off = float(np.clip(0.5 * (r0 - r2) / den, -1, 1)) if den > 0 else 0.0
-            ts = float(tk[part].mean())
-            seg_lags.append((ts, float(lag_at(np.array([ts]))[0] + shifts[j] + off * shift_step)))
-        xs, ys = np.array(seg_lags).T
-        if len(xs) >= 2:
-            drift, lag_mid = np.polyfit(xs - t_mid, ys, 1)
-            resid = ys - (lag_mid + drift * (xs - t_mid))
-            lag_unc = max(0.25e-3, float(np.sqrt(np.mean(resid**2))))
-        else:
-            lag_mid = float(ys[0])
-        shifted = grid - lag_at(grid)
-        fit = fit_at(q_s(shifted), qd_s(shifted), lag_unc)
-    fit.lag_ms = 1e3 * float(lag_mid)
-    fit.lag_time = t_mid
-    fit.skew_ms = 1e3 * float(lag_mid - imu_delay)
-    # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
-    fit.drift_ppm = 1e6 * float(drift) if n_seg >= 2 and fit.edges else None
-    fit.band_hz = fc
-    return fit
+    return shifts + center, rss
 
 
 def _fast_len_below(n: int) -> int:
@@ -849,27 +1140,29 @@ def _edge_rss(
     return out
 
 
-def fast_fit_recording(rec: Recording, **kw: Any) -> FastFit:
+def fast_fit_recording(rec: Recording, *, options: FastOptions | None = None, **overrides: Any) -> FastFit:
     """:func:`fast_fit` on a recording: timed (:func:`fast_fit_timed`) when the encoders have their own
-    stamps, synced otherwise.
+    stamps, synced otherwise. The settings are as for :func:`fast_fit`.
 
     For timed data the IMU's on-chip filter, when the recording states it (``extra["sensing"]`` JSON
     with ``dlpf_cfg``, docs/recording-format.md), sets ``imu_bandwidth`` and ``imu_delay`` unless
-    given.
+    given (as a keyword, or in ``options`` off its default); ``rel_tol`` does not apply there.
     """
     if rec.q is None:
         raise ValueError("the fast estimator needs joint positions q")
     if rec.t_q is None:
         d = rec.derived()
-        return fast_fit(d.q, d.qd, rec.gyro, **kw)
-    if "sensing" in rec.extra and "imu_bandwidth" not in kw:
+        return fast_fit(d.q, d.qd, rec.gyro, options=options, **overrides)
+    kw = {k: v for k, v in overrides.items() if k != "rel_tol"}
+    stated = _stated(options, kw)
+    if "sensing" in rec.extra and "imu_bandwidth" not in stated:
         import json
 
         from bodyschema.timing import DLPF_GYRO
 
         cfg = json.loads(str(rec.extra["sensing"])).get("dlpf_cfg")
         if cfg is not None:
-            kw.setdefault("imu_bandwidth", DLPF_GYRO[int(cfg)][0])
-            kw.setdefault("imu_delay", DLPF_GYRO[int(cfg)][1])
-    kw.pop("rel_tol", None)
-    return fast_fit_timed(rec.q, rec.gyro, rec.t, rec.t_q, **kw)
+            kw["imu_bandwidth"] = DLPF_GYRO[int(cfg)][0]
+            if "imu_delay" not in stated:
+                kw["imu_delay"] = DLPF_GYRO[int(cfg)][1]
+    return fast_fit_timed(rec.q, rec.gyro, rec.t, rec.t_q, options=options, **kw)

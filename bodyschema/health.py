@@ -57,14 +57,19 @@ from bodyschema.topology import Topology
 __all__ = [
     "IMU_STATES",
     "JOINT_STATES",
+    "BaselineFingerprints",
     "HealthThresholds",
+    "ImuFingerprint",
     "ImuHealth",
     "JointFingerprint",
     "JointHealth",
     "SignalHealth",
+    "baseline_fingerprints",
     "drop_impacts",
     "fingerprints",
+    "imu_fingerprints",
     "imu_health",
+    "loose_imus",
     "one_clock",
     "relative_motion",
     "signal_health",
@@ -107,6 +112,8 @@ class HealthThresholds:
     ``max_pairs``: IMUs per link used for the relative-motion fits (each side).
     ``shift_ratio``/``shift_rad_s``: a baseline fingerprint that leaves more than ``shift_ratio`` times
     the window's own residual, and more than ``shift_rad_s`` RMS, marks a shifted encoder.
+    ``loose_false_alarm``: the chance, per IMU and window, that a firmly mounted IMU reads as loose
+    (:func:`loose_imus`: the tolerance follows from it and the window's degrees of freedom).
     ``lock_seconds``: a joint whose encoder and link have both been still this long, to the end of the
     window, does not move now (a policy: the worker's cycle interval, so two cycles see it).
     ``still_rad``/``still_seconds``: an encoder whose last ``still_seconds`` or more stay within
@@ -129,6 +136,7 @@ class HealthThresholds:
     still_rad: float = 2 * 2 * np.pi / 4096
     still_seconds: float = 1.0
     lock_seconds: float = 5.0
+    loose_false_alarm: float = 1e-9
 
 
 @dataclass(frozen=True)
@@ -177,6 +185,9 @@ class SignalHealth:
 
     imus: dict[str, ImuHealth] = field(default_factory=dict)
     joints: dict[str, JointHealth] = field(default_factory=dict)
+    #: IMUs that follow their link more loosely than on the baseline, with the growth of their
+    #: residual share (:func:`loose_imus`); empty without IMU fingerprints.
+    loose: dict[str, float] = field(default_factory=dict)
 
     @property
     def dead_imus(self) -> list[str]:
@@ -206,6 +217,7 @@ class SignalHealth:
                 }
                 for n, h in self.joints.items()
             },
+            **({"loose": {n: r(v) for n, v in self.loose.items()}} if self.loose else {}),
         }
 
 
@@ -356,6 +368,194 @@ def fingerprints(
     return out
 
 
+@dataclass(frozen=True)
+class ImuFingerprint:
+    """How tightly one IMU followed its link on a healthy window, next to the other IMUs of the link.
+
+    ``share`` is its residual variance under the exact one-joint gyro model of :func:`relative_motion`
+    (joint ``joint``, reference gyro ``ref`` on the parent link, None = the fixed base) divided by the
+    median of the same for its siblings, the other IMUs of the link. Every IMU of a link sees the same
+    motion, so whatever the motion leaves in the residual (timing error times angular acceleration,
+    encoder quantization) cancels in the share; what remains is the IMU's own noise and mounting,
+    constant while it stays firmly mounted.
+    """
+
+    imu: str
+    joint: str
+    ref: str | None
+    share: float
+
+
+def _link_residuals(
+    d: Recording, present: dict[str, int], imus: list[str], joint: str, ref: str | None
+) -> dict[str, float]:
+    """Residual variance of each IMU of ``imus`` (one link, on ``joint``) under the one-joint model."""
+    assert d.q is not None and d.qd is not None
+    k = d.joint_names.index(joint)
+    X = _design(None if ref is None else d.gyro[:, present[ref], :], d.q[:, k], d.qd[:, k])
+    out = {}
+    for i in imus:
+        Y = d.gyro[:, present[i], :]
+        out[i] = float(np.mean((Y - X @ _fit(X, Y)) ** 2))
+    return out
+
+
+def _links(
+    layout: Topology, healthy: set[str], current: Topology | None
+) -> list[tuple[str, list[str], str | None]]:
+    """``(joint, IMUs of its link, reference IMU)`` for every link with two or more healthy IMUs that
+    the current estimate still places there, and a trusted reference (or the base)."""
+    out = []
+    for j, pj in layout.joint_parent.items():
+        imus = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in healthy)
+        if current is not None:
+            imus = [i for i in imus if current.imu_joint.get(i, "?") == j]
+        if len(imus) < 2:
+            continue
+        if pj is None:
+            out.append((j, imus, None))
+            continue
+        refs = sorted(i for i, jj in layout.imu_joint.items() if jj == pj and i in healthy)
+        if current is not None:
+            refs = [i for i in refs if current.imu_joint.get(i, "?") == pj]
+        if refs:
+            out.append((j, imus, refs[0]))
+    return out
+
+
+def _shares(residuals: dict[str, float]) -> dict[str, float]:
+    """Each IMU's residual over the median of its siblings'."""
+    out = {}
+    for i, v in residuals.items():
+        sib = float(np.median([w for n, w in residuals.items() if n != i]))
+        out[i] = v / sib if sib > 0 else float("inf")
+    return out
+
+
+def imu_fingerprints(
+    rec: Recording,
+    layout: Topology,
+    current: Topology | None = None,
+    thresholds: HealthThresholds | None = None,
+) -> dict[str, ImuFingerprint]:
+    """The :class:`ImuFingerprint` of every IMU on a link with two or more healthy IMUs; learn them on
+    a window that matches the baseline (as :func:`fingerprints`)."""
+    th = thresholds or HealthThresholds()
+    health = signal_health(rec, layout, current=current, thresholds=th)
+    present = {n: k for k, n in enumerate(rec.imu_names)}
+    healthy = {n for n, h in health.imus.items() if not h.dead and n in present}
+    d = one_clock(rec, current)
+    if d.q is None or d.n_samples < th.min_samples:
+        return {}
+    out = {}
+    for j, imus, ref in _links(layout, healthy, current):
+        for i, share in _shares(_link_residuals(d, present, imus, j, ref)).items():
+            out[i] = ImuFingerprint(i, j, ref, share)
+    return out
+
+
+@dataclass(frozen=True)
+class BaselineFingerprints:
+    """What one healthy window on the baseline teaches: how each joint's encoder relates to its link
+    (``joints``), and how tightly each IMU follows its link (``imus``)."""
+
+    joints: dict[str, JointFingerprint]
+    imus: dict[str, ImuFingerprint]
+
+
+def baseline_fingerprints(
+    rec: Recording,
+    layout: Topology,
+    current: Topology | None = None,
+    thresholds: HealthThresholds | None = None,
+) -> BaselineFingerprints:
+    """:func:`fingerprints` and :func:`imu_fingerprints` of one window."""
+    return BaselineFingerprints(
+        fingerprints(rec, layout, current, thresholds), imu_fingerprints(rec, layout, current, thresholds)
+    )
+
+
+def loose_tolerance(n_samples: int, rate_hz: float, band_hz: float | None, false_alarm: float) -> float:
+    """The largest growth of an IMU's residual share that a firmly mounted IMU shows by chance.
+
+    Error model: each residual variance is a mean of squares over ``n_samples`` samples of three axes,
+    correlated over ``rate_hz / (2 band_hz)`` samples when the gyro is low-passed to ``band_hz``, so it
+    has ``n = 3 n_samples min(1, 2 band_hz / rate_hz)`` degrees of freedom and its logarithm a standard
+    deviation of ``sqrt(2 / n)``. The growth compares four such estimates (the IMU and its siblings,
+    now and on the baseline; the siblings' median counted as one), so its logarithm has a standard
+    deviation of ``sqrt(8 / n)``; the tolerance is the one-sided normal quantile of ``false_alarm``
+    times that.
+
+    Assumed, not modelled: the residual is dominated by what the link's motion leaves (shared by the
+    siblings) or the siblings' own noise is alike. When the shared part changes between windows and
+    the siblings' own noise differs by a factor ``r``, a firm IMU's share can drift by up to ``r``
+    (measured on paper-1 and the UR5e, robot preset: within 1.7 % over four 30 s windows each, where a
+    tethered IMU grows 1.6-2.1x).
+
+    >>> round(loose_tolerance(3000, 100.0, None, 1e-9), 3)   # 30 s at 100 Hz, white residual
+    1.196
+    >>> round(loose_tolerance(3000, 100.0, 20.0, 1e-9), 3)   # the same low-passed to 20 Hz
+    1.327
+    """
+    from scipy.stats import norm
+
+    n = 3.0 * n_samples * (1.0 if band_hz is None else min(1.0, 2.0 * band_hz / rate_hz))
+    return float(np.exp(norm.isf(false_alarm) * np.sqrt(8.0 / max(n, 1.0))))
+
+
+def loose_imus(
+    rec: Recording,
+    fingerprints: dict[str, ImuFingerprint],
+    healthy: set[str],
+    current: Topology | None = None,
+    thresholds: HealthThresholds | None = None,
+) -> dict[str, float]:
+    """IMUs that follow their link more loosely than on the baseline: ``imu -> growth`` of the residual
+    share (:class:`ImuFingerprint`) beyond :func:`loose_tolerance`.
+
+    A detached IMU on a short tether keeps turning with its link (it hangs from it), and over a window
+    its gyro departs from the link's by a percent or two: inside what the topology estimators accept,
+    so they still place it on its link. Against its own share on the baseline it stands out (about
+    twice the variance, where a firm IMU's share varies by a percent between windows). Judged only for
+    IMUs the current estimate places on their baseline link, with their reference and at least one
+    sibling healthy; a window that straddles a change is not judged (the change shows there anyway).
+    """
+    th = thresholds or HealthThresholds()
+    present = {n: k for k, n in enumerate(rec.imu_names)}
+    return _loose(one_clock(rec, current), present, fingerprints, healthy, current, th)
+
+
+def _loose(
+    d: Recording,
+    present: dict[str, int],
+    fingerprints: dict[str, ImuFingerprint],
+    healthy: set[str],
+    current: Topology | None,
+    th: HealthThresholds,
+) -> dict[str, float]:
+    """:func:`loose_imus` on the window ``d`` already on one clock."""
+    if not fingerprints or d.q is None or d.n_samples < th.min_samples:
+        return {}
+    by_link: dict[tuple[str, str | None], list[str]] = {}
+    for i, fp in fingerprints.items():
+        placed = current is None or current.imu_joint.get(i, "?") == fp.joint
+        ref_ok = fp.ref is None or (fp.ref in healthy and fp.ref in present)
+        if i in healthy and i in present and placed and ref_ok:
+            by_link.setdefault((fp.joint, fp.ref), []).append(i)
+    rate = (d.n_samples - 1) / max(float(d.t[-1] - d.t[0]), 1e-9)
+    band = (current.timing or {}).get("band_hz") if current is not None else None
+    tol = loose_tolerance(d.n_samples, rate, band, th.loose_false_alarm)
+    out = {}
+    for (j, ref), imus in by_link.items():
+        if len(imus) < 2:
+            continue
+        for i, share in _shares(_link_residuals(d, present, imus, j, ref)).items():
+            growth = share / fingerprints[i].share
+            if growth > tol:
+                out[i] = growth
+    return out
+
+
 def _pairs(
     j: str,
     layout: Topology,
@@ -434,6 +634,7 @@ def signal_health(
     thresholds: HealthThresholds | None = None,
     current: Topology | None = None,
     fingerprints: dict[str, JointFingerprint] | None = None,
+    imu_fingerprints: dict[str, ImuFingerprint] | None = None,
 ) -> SignalHealth:
     """Health of every IMU and joint in ``rec``.
 
@@ -443,7 +644,9 @@ def signal_health(
     (the estimate from the same window) picks the reference IMUs on each parent link: those it still
     places where the layout does, so a moved or loose IMU does not serve as the parent link.
     ``fingerprints`` (from :func:`fingerprints` on the baseline window) turn an ``ok`` joint whose
-    encoder relates to its link differently than on the baseline into ``shifted_encoder``.
+    encoder relates to its link differently than on the baseline into ``shifted_encoder``;
+    ``imu_fingerprints`` (from :func:`imu_fingerprints`) name the IMUs that follow their link loosely
+    (``loose``, :func:`loose_imus`).
     """
     th = thresholds or HealthThresholds()
     present = {n: k for k, n in enumerate(rec.imu_names)}
@@ -517,7 +720,8 @@ def signal_health(
                 joints[j] = JointHealth(j, state, excitation, motion, explained)
                 continue
         joints[j] = JointHealth(j, _joint_state(excitation, motion, explained, th), excitation)
-    return SignalHealth(imus, joints)
+    loose = _loose(d, present, imu_fingerprints or {}, healthy, current, th)
+    return SignalHealth(imus, joints, loose)
 
 
 def _still_since(rec: Recording, th: HealthThresholds) -> np.ndarray:

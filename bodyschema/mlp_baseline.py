@@ -25,7 +25,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from bodyschema.networks import batched_layers, set_torch_threads
+from bodyschema.networks import batched_layers
+from bodyschema.threads import set_torch_threads
+from bodyschema.training import train_epochs
 
 __all__ = ["BatchedMLP", "mlp_jacobian", "train_mlp"]
 
@@ -68,7 +70,11 @@ def train_mlp(
     seed: int = 0,
     progress: bool = False,
 ) -> tuple[BatchedMLP, list[float]]:
-    """Fit the per-IMU MLPs on Eq. 25 (readings standardized per IMU and axis); loss per epoch."""
+    """Fit the per-IMU MLPs on Eq. 25 (readings standardized per IMU and axis); loss per epoch.
+
+    Adam at a constant rate ``lr`` for ``epochs`` epochs (:func:`bodyschema.training.train_epochs`);
+    threads follow :func:`bodyschema.threads.set_torch_threads`, a bar is shown when ``progress``.
+    """
     set_torch_threads()
     torch.manual_seed(int(seed))
     f32 = torch.float32
@@ -81,33 +87,24 @@ def train_mlp(
     net.out_mean.copy_(y.mean(1, keepdim=True))
     net.out_std.copy_(y.std(1, keepdim=True).clamp_min(1e-6))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
-    gen = torch.Generator().manual_seed(int(seed))
-    history: list[float] = []
-    bar = None
-    if progress:
-        from tqdm import tqdm
 
-        bar = tqdm(total=epochs, desc=f"MLP baseline ({K} IMUs)", unit="epoch", leave=False)
-    for epoch in range(epochs):
-        perm = torch.randperm(T, generator=gen)
-        total = 0.0
-        for start in range(0, T, batch_size):
-            idx = perm[start : start + batch_size]
-            err = (net(x[idx]) - y[:, idx]) / net.out_std
-            norms = torch.linalg.vector_norm(err.unflatten(-1, (2, 3)), dim=-1)  # (K, B, 2): acc, gyro
-            loss = norms.sum(-1).mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            total += float(loss.detach()) * len(idx)
-        history.append(total / T)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{history[-1]:.4f}")
-        if epoch % 10 == 9 or epoch == epochs - 1:
-            log.info("MLP baseline: epoch %d/%d loss %.5f", epoch + 1, epochs, history[-1])
-    if bar is not None:
-        bar.close()
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        err = (net(x[idx]) - y[:, idx]) / net.out_std
+        norms = torch.linalg.vector_norm(err.unflatten(-1, (2, 3)), dim=-1)  # (K, B, 2): acc, gyro
+        return norms.sum(-1).mean()
+
+    history = train_epochs(
+        opt,
+        batch_loss,
+        T,
+        epochs=epochs,
+        batch_size=batch_size,
+        seed=seed,
+        name="MLP baseline",
+        desc=f"MLP baseline ({K} IMUs)",
+        show_progress=progress,
+        logger=log,
+    )
     return net, history
 
 

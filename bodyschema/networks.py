@@ -36,13 +36,14 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import os
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
+
+from bodyschema.threads import set_torch_threads
+from bodyschema.training import epoch_schedule, train_epochs
 
 __all__ = [
     "SensorNetworks",
@@ -50,24 +51,10 @@ __all__ = [
     "mean_pose_gravity",
     "robot_scale",
     "rpy_to_matrix",
-    "set_torch_threads",
     "train_sensor_networks",
 ]
 
 log = logging.getLogger(__name__)
-
-
-def set_torch_threads(limit: int | None = None) -> int:
-    """Use ``limit`` CPU threads (default: ``BODYHEALTH_TORCH_THREADS`` or 1); returns it.
-
-    One thread by default: a training step here is a few small batched products, and a second
-    OpenMP thread mostly spin-waits — measured 7x more CPU time per step on a shared 2-core machine.
-    """
-    n = limit or int(os.environ.get("BODYHEALTH_TORCH_THREADS", "1"))
-    n = max(1, min(n, os.cpu_count() or 1))
-    if torch.get_num_threads() != n:
-        torch.set_num_threads(n)
-    return n
 
 
 def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
@@ -237,11 +224,12 @@ def train_sensor_networks(
 
     ``gravity`` None trains the gravity-free form (Eq. 11) — right only for data without gravity.
 
-    ``epochs`` None (the default) trains to convergence: a two-epoch warm-up to ``lr``, then the rate
-    is cut to 0.3x whenever the epoch loss has not improved by ``plateau_tol`` (relative) for 3 epochs,
-    and training stops after the third cut: the loss has flattened at three learning rates, the last
-    one 1/37 of the first. ``max_epochs`` bounds it; ``len(history) < max_epochs`` says it converged.
-    A count trains that many epochs on a one-cycle schedule (the paper's fixed budget).
+    ``epochs`` None (the default) trains to convergence (:class:`bodyschema.training.Plateau`): a
+    two-epoch warm-up to ``lr``, then the rate is cut to 0.3x whenever the epoch loss has not improved
+    by ``plateau_tol`` (relative) for 3 epochs, and training stops after the third cut: the loss has
+    flattened at three learning rates, the last one 1/37 of the first. ``max_epochs`` bounds it;
+    ``len(history) < max_epochs`` says it converged. A count trains that many epochs on a one-cycle
+    schedule (the paper's fixed budget). The loop is :func:`bodyschema.training.train_epochs`.
 
     Small batches: what under-fits the networks is the number of Adam steps, not the passes over the
     data. The networks of a robot are one batched model, so an epoch costs about the same CPU time at
@@ -249,8 +237,8 @@ def train_sensor_networks(
     joints, 54 IMUs, 60 s, 40 epochs): the final loss falls from 0.116 at 512 to 0.017 at 64 for 14 %
     more CPU time, the weakest true dependency feature rises from 0.04 to 0.12 and the strongest false
     one falls from 0.125 to 0.065, which is what makes the extracted tree exact there.
-    Threads follow :func:`set_torch_threads`; a tqdm bar is shown when ``progress``, and the loss is
-    logged every 10 epochs either way.
+    Threads follow :func:`set_torch_threads`; a bar (:func:`bodyschema.progress.progress`) is shown
+    when ``progress``, and the loss is logged every 10 epochs either way.
     """
     set_torch_threads()
     torch.manual_seed(int(seed))
@@ -272,54 +260,28 @@ def train_sensor_networks(
             net.gravity_dir.copy_(mean_pose_gravity(a_meas))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     per_epoch = max(1, math.ceil(T / batch_size))
-    plateau = None
-    if epochs is not None:
-        n_epochs = int(epochs)
-        sched: Any = torch.optim.lr_scheduler.OneCycleLR(
-            opt, max_lr=lr, total_steps=per_epoch * n_epochs, pct_start=0.15
-        )
-    else:
-        n_epochs = int(max_epochs)
-        warm = 2 * per_epoch
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: min(1.0, 0.1 + 0.9 * k / warm))
-        plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(
-            opt, factor=0.3, patience=3, threshold=plateau_tol, threshold_mode="rel"
-        )
-    gen = torch.Generator().manual_seed(int(seed))
-    history: list[float] = []
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
 
-        bar = tqdm(total=n_epochs, desc=f"sensor networks ({K} IMUs)", unit="epoch", leave=False)
-    for epoch in range(n_epochs):
-        perm = torch.randperm(T, generator=gen)
-        total = 0.0
-        for start in range(0, T, batch_size):
-            idx = perm[start : start + batch_size]
-            w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)
-            lw = (((w_hat - w_meas[:, idx]) / w_scale) ** 2).mean()
-            la = (((a_hat - a_meas[:, idx]) / a_scale) ** 2).mean()
-            loss = la + gyro_weight * lw
-            if input_sparsity > 0:  # group lasso: one group per (IMU, joint) input of the first layer
-                loss = loss + input_sparsity * torch.linalg.vector_norm(net.weights[0], dim=-1).sum() / K
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if plateau is None or epoch < 2:
-                sched.step()
-            total += float(loss.detach()) * len(idx)
-        history.append(total / T)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{history[-1]:.4f}")
-        if epoch % 10 == 9 or epoch == n_epochs - 1:
-            log.info("sensor networks: epoch %d/%d loss %.5f", epoch + 1, n_epochs, history[-1])
-        if plateau is not None and epoch >= 2:
-            plateau.step(history[-1])
-            if opt.param_groups[0]["lr"] < lr * 0.3**3 * 1.001:
-                log.info("sensor networks: converged after %d epochs, loss %.5f", epoch + 1, history[-1])
-                break
-    if bar is not None:
-        bar.close()
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)
+        lw = (((w_hat - w_meas[:, idx]) / w_scale) ** 2).mean()
+        la = (((a_hat - a_meas[:, idx]) / a_scale) ** 2).mean()
+        loss = la + gyro_weight * lw
+        if input_sparsity > 0:  # group lasso: one group per (IMU, joint) input of the first layer
+            loss = loss + input_sparsity * torch.linalg.vector_norm(net.weights[0], dim=-1).sum() / K
+        return loss
+
+    history = train_epochs(
+        opt,
+        batch_loss,
+        T,
+        epochs=int(epochs) if epochs is not None else int(max_epochs),
+        batch_size=batch_size,
+        seed=seed,
+        name="sensor networks",
+        desc=f"sensor networks ({K} IMUs)",
+        schedule=schedule,
+        show_progress=progress,
+        logger=log,
+    )
     return net, history

@@ -170,24 +170,37 @@ class Recording:
     # ------------------------------------------------------------ validation
     def validate(self) -> None:
         """Raise :class:`RecordingError` naming the first field that breaks the contract."""
+        T, Tq = self._validate_stamps()
+        N, K = self.n_joints, self.n_imus
+        self._validate_names(N, K)
+        self._validate_streams(T, Tq, N, K)
+        self._validate_extras(T, N, K)
+
+    def _validate_stamps(self) -> tuple[int, int]:
+        """Check ``t`` (and ``t_q`` with the overlap of the two streams); return (T, T_q)."""
         t = np.asarray(self.t)
         check_stamps(t, "t")
-        T, N, K = t.shape[0], self.n_joints, self.n_imus
-        Tq = T
-        if self.t_q is not None:
-            t_q = np.asarray(self.t_q)
-            check_stamps(t_q, "t_q")
-            Tq = t_q.shape[0]
-            lo, hi = max(t[0], t_q[0]), min(t[-1], t_q[-1])
-            if not hi > lo:
-                raise RecordingError(
-                    f"the IMU stream ({t[0]:.6g}..{t[-1]:.6g} s) and the encoder stream "
-                    f"({t_q[0]:.6g}..{t_q[-1]:.6g} s) do not overlap in time"
-                )
-        if len(set(self.joint_names)) != N:
-            raise RecordingError("joint_names must be unique")
-        if len(set(self.imu_names)) != K:
-            raise RecordingError("imu_names must be unique")
+        T = t.shape[0]
+        if self.t_q is None:
+            return T, T
+        t_q = np.asarray(self.t_q)
+        check_stamps(t_q, "t_q")
+        lo, hi = max(t[0], t_q[0]), min(t[-1], t_q[-1])
+        if not hi > lo:
+            raise RecordingError(
+                f"the IMU stream ({t[0]:.6g}..{t[-1]:.6g} s) and the encoder stream "
+                f"({t_q[0]:.6g}..{t_q[-1]:.6g} s) do not overlap in time"
+            )
+        return T, t_q.shape[0]
+
+    def _validate_names(self, N: int, K: int) -> None:
+        """Joint and IMU names must be unique (they key every per-joint and per-IMU result)."""
+        for name, names, n in (("joint_names", self.joint_names, N), ("imu_names", self.imu_names, K)):
+            if len(set(names)) != n:
+                raise RecordingError(f"{name} must be unique")
+
+    def _validate_streams(self, T: int, Tq: int, N: int, K: int) -> None:
+        """Shapes and finiteness of the encoder arrays (on ``t_q`` when present) and IMU arrays."""
         for name in ("q", "qd", "qdd"):
             v = getattr(self, name)
             if v is None:
@@ -201,18 +214,21 @@ class Recording:
             v = getattr(self, name)
             if v.shape != (T, K, 3):
                 raise RecordingError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
+
+    def _validate_extras(self, T: int, N: int, K: int) -> None:
+        """Gravity, the motion source (``q`` or ``ref_quat``), the reference motion and ground truth."""
         if np.asarray(self.gravity).shape != (3,):
             raise RecordingError("gravity must have shape (3,)")
         if self.q is None and self.ref_quat is None:
             raise RecordingError("a recording needs joint positions q or a reference motion ref_quat")
-        if self.ref_quat is not None and self.ref_quat.shape != (T, 4):
-            raise RecordingError(f"ref_quat must have shape {(T, 4)}, got {self.ref_quat.shape}")
-        if self.ref_pos is not None and self.ref_pos.shape != (T, 3):
-            raise RecordingError(f"ref_pos must have shape {(T, 3)}, got {self.ref_pos.shape}")
-        if self.truth_joint_parent is not None and len(self.truth_joint_parent) != N:
-            raise RecordingError("truth_joint_parent must have one entry per joint")
-        if self.truth_imu_joint is not None and len(self.truth_imu_joint) != K:
-            raise RecordingError("truth_imu_joint must have one entry per IMU")
+        for name, shape in (("ref_quat", (T, 4)), ("ref_pos", (T, 3))):
+            v = getattr(self, name)
+            if v is not None and v.shape != shape:
+                raise RecordingError(f"{name} must have shape {shape}, got {v.shape}")
+        for name, n, per in (("truth_joint_parent", N, "joint"), ("truth_imu_joint", K, "IMU")):
+            v = getattr(self, name)
+            if v is not None and len(v) != n:
+                raise RecordingError(f"{name} must have one entry per {per}")
 
     # -------------------------------------------------------------- derived
     def derived(self) -> Recording:

@@ -145,6 +145,18 @@ class _Model:
         self.lo.append(low)
         self.hi.append(up)
 
+    def matrix(self, n_cols: int) -> Any:
+        """The rows so far as a scipy sparse matrix with ``n_cols`` columns."""
+        from scipy.sparse import coo_matrix
+
+        m_rows = len(self.lo)
+        if not m_rows:
+            return coo_matrix((0, n_cols))
+        return coo_matrix(
+            (np.concatenate(self.va), (np.concatenate(self.ri), np.concatenate(self.ci))),
+            shape=(m_rows, n_cols),
+        )
+
 
 def _solve(
     d: np.ndarray,
@@ -160,69 +172,125 @@ def _solve(
     on one inactive 0 at cost 1 (one aggregate variable per row) to be non-empty.
     """
     import highspy
-    from scipy.sparse import coo_matrix
 
-    r, n = d.shape
-    act = np.zeros((r, n), dtype=bool)
+    act = _active_cells(d, rows, cols)
+    idx = np.full(d.shape, -1, dtype=np.int64)
+    nx = int(act.sum())
+    idx[act] = np.arange(nx)
+    v = _Vars(list(1.0 - 2.0 * d[act]), [True] * nx)
+    mdl = _Model()
+    fill = _add_nonempty_rows(mdl, v, d, act, idx)
+    _add_distinct_rows(mdl, v, rows, idx)
+    _add_nested_columns(mdl, v, cols, idx)
+    c = np.array(v.cost)
+    offset = float(d[act].sum())  # an inactive cell equals D and costs nothing
+    if upper is not None:  # cut-off: strictly closer than upper
+        mdl.row(np.flatnonzero(c), c[c != 0], -highspy.kHighsInf, upper - 1 - offset)
+    lp = binary_lp(c, v.integer, np.array(mdl.lo), np.array(mdl.hi), mdl.matrix(v.n), offset=offset)
+    h = _run_highs(lp, max_nodes)
+    status = h.getModelStatus()
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return "infeasible", None, float(upper if upper is not None else np.inf)
+    info = h.getInfo()
+    m = None
+    if info.primal_solution_status == 2:  # a feasible solution exists
+        m = _answer(h, d, act, nx, fill)
+    if status == highspy.HighsModelStatus.kOptimal and m is not None:
+        return "optimal", m, float(info.objective_function_value)
+    bound = info.mip_dual_bound
+    return "limit", m, float(bound) if np.isfinite(bound) else 0.0
+
+
+@dataclass
+class _Vars:
+    """The model's columns as they are added: cost and integrality of each."""
+
+    cost: list[float]
+    integer: list[bool]
+
+    @property
+    def n(self) -> int:
+        return len(self.cost)
+
+    def add(self, k: int, cost: float, integer: bool) -> np.ndarray:
+        """Append ``k`` columns alike; return their indices."""
+        first = self.n
+        self.cost.extend([cost] * k)
+        self.integer.extend([integer] * k)
+        return np.arange(first, first + k)
+
+
+def _active_cells(
+    d: np.ndarray, rows: set[tuple[int, int]], cols: dict[tuple[int, int], np.ndarray]
+) -> np.ndarray:
+    """The cells some pair constraint mentions: whole rows of row pairs, the pair's rows of column pairs."""
+    act = np.zeros(d.shape, dtype=bool)
     for a, b in rows:
         act[[a, b]] = True
     for (k, l), rs in cols.items():
         act[rs, k] = True
         act[rs, l] = True
-    idx = np.full((r, n), -1, dtype=np.int64)
-    cells = np.argwhere(act)
-    nx = len(cells)
-    idx[act] = np.arange(nx)
-    cost = list(1.0 - 2.0 * d[act])
-    integer = [True] * nx
-    nv = nx
-    mdl = _Model()
-    inf = highspy.kHighsInf
-    fill: dict[int, int] = {}  # row -> its aggregate "switch on an inactive 0" variable
+    return act
+
+
+def _add_nonempty_rows(
+    mdl: _Model, v: _Vars, d: np.ndarray, act: np.ndarray, idx: np.ndarray
+) -> dict[int, int]:
+    """A row with no inactive 1 needs one of its active cells, or its aggregate "switch on an inactive 0"
+    variable, set; returns row -> that aggregate variable."""
+    import highspy
+
+    fill: dict[int, int] = {}
     base = (d & ~act).sum(axis=1)
     for i in np.flatnonzero(base == 0):
         vs = idx[i][act[i]]
         coef = np.ones(len(vs))
         if (~act[i]).any():  # an inactive 0 is available to switch on
-            fill[int(i)] = nv
-            vs = np.append(vs, nv)
+            fill[int(i)] = v.n
+            vs = np.append(vs, v.add(1, 1.0, True))
             coef = np.append(coef, 1.0)
-            cost.append(1.0)
-            integer.append(True)
-            nv += 1
-        mdl.row(vs, coef, 1.0, inf)
-    for a, b in sorted(rows):  # rows a and b differ: z_j <= M_a + M_b, z_j <= 2 - M_a - M_b, sum z >= 1
-        z = np.arange(nv, nv + n)
-        cost.extend([0.0] * n)
-        integer.extend([False] * n)
-        nv += n
+        mdl.row(vs, coef, 1.0, highspy.kHighsInf)
+    return fill
+
+
+def _add_distinct_rows(mdl: _Model, v: _Vars, rows: set[tuple[int, int]], idx: np.ndarray) -> None:
+    """Rows a and b differ: z_j <= M_a + M_b, z_j <= 2 - M_a - M_b, sum z >= 1."""
+    import highspy
+
+    n = idx.shape[1]
+    for a, b in sorted(rows):
+        z = v.add(n, 0.0, False)
         for j in range(n):
-            mdl.row(np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, -1.0, -1.0]), -inf, 0.0)
-            mdl.row(np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, 1.0, 1.0]), -inf, 2.0)
-        mdl.row(z, np.ones(n), 1.0, inf)
-    for (k, l), rs in sorted(cols.items()):  # columns k, l nested (u: S_k in S_l, w: S_l in S_k) or disjoint
-        u, w = nv, nv + 1
-        cost.extend([0.0, 0.0])
-        integer.extend([True, True])
-        nv += 2
+            mdl.row(
+                np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, -1.0, -1.0]), -highspy.kHighsInf, 0.0
+            )
+            mdl.row(
+                np.array([z[j], idx[a, j], idx[b, j]]), np.array([1.0, 1.0, 1.0]), -highspy.kHighsInf, 2.0
+            )
+        mdl.row(z, np.ones(n), 1.0, highspy.kHighsInf)
+
+
+def _add_nested_columns(
+    mdl: _Model, v: _Vars, cols: dict[tuple[int, int], np.ndarray], idx: np.ndarray
+) -> None:
+    """Columns k, l nested (u: S_k in S_l, w: S_l in S_k) or disjoint, on the pair's rows."""
+    import highspy
+
+    inf = highspy.kHighsInf
+    for (k, l), rs in sorted(cols.items()):
+        u, w = (int(x) for x in v.add(2, 0.0, True))
         for a in rs:
             xk, xl = idx[a, k], idx[a, l]
             mdl.row(np.array([xk, xl, u]), np.array([1.0, -1.0, 1.0]), -inf, 1.0)
             mdl.row(np.array([xl, xk, w]), np.array([1.0, -1.0, 1.0]), -inf, 1.0)
             mdl.row(np.array([xk, xl, u, w]), np.array([1.0, 1.0, -1.0, -1.0]), -inf, 1.0)
-    c = np.array(cost)
-    offset = float(d[act].sum())  # an inactive cell equals D and costs nothing
-    if upper is not None:  # cut-off: strictly closer than upper
-        mdl.row(np.flatnonzero(c), c[c != 0], -inf, upper - 1 - offset)
-    m_rows = len(mdl.lo)
-    a = (
-        coo_matrix(
-            (np.concatenate(mdl.va), (np.concatenate(mdl.ri), np.concatenate(mdl.ci))), shape=(m_rows, nv)
-        )
-        if m_rows
-        else coo_matrix((0, nv))
-    )
-    lp = binary_lp(c, integer, np.array(mdl.lo), np.array(mdl.hi), a, offset=offset)
+
+
+def _run_highs(lp: Any, max_nodes: int) -> Any:
+    """A solver that has run on ``lp``: exact gap (the distance is an integer), node-capped, no primal
+    heuristics; raises when HiGHS reports an error."""
+    import highspy
+
     h = quiet_highs()
     h.setOptionValue("mip_rel_gap", 0.0)
     h.setOptionValue("mip_abs_gap", 0.5)  # the distance is an integer
@@ -234,22 +302,19 @@ def _solve(
         raise RuntimeError(
             f"HiGHS failed on the exact stage's model: {h.modelStatusToString(h.getModelStatus())}"
         )
-    status = h.getModelStatus()
-    if status == highspy.HighsModelStatus.kInfeasible:
-        return "infeasible", None, float(upper if upper is not None else np.inf)
-    info = h.getInfo()
-    m = None
-    if info.primal_solution_status == 2:  # a feasible solution exists
-        x = np.asarray(h.getSolution().col_value) > 0.5
-        m = d.copy()
-        m[act] = x[:nx]
-        for i, v in fill.items():
-            if x[v]:
-                m[i, int(np.flatnonzero(~act[i] & ~d[i])[0])] = True
-    if status == highspy.HighsModelStatus.kOptimal and m is not None:
-        return "optimal", m, float(info.objective_function_value)
-    bound = info.mip_dual_bound
-    return "limit", m, float(bound) if np.isfinite(bound) else 0.0
+    return h
+
+
+def _answer(h: Any, d: np.ndarray, act: np.ndarray, nx: int, fill: dict[int, int]) -> np.ndarray:
+    """The matrix of the solver's solution: D with the active cells as solved, and each row whose
+    aggregate variable is on given its first inactive 0."""
+    x = np.asarray(h.getSolution().col_value) > 0.5
+    m = d.copy()
+    m[act] = x[:nx]
+    for i, v in fill.items():
+        if x[v]:
+            m[i, int(np.flatnonzero(~act[i] & ~d[i])[0])] = True
+    return m
 
 
 def nearest_tree_matrix(
@@ -284,33 +349,10 @@ def nearest_tree_matrix(
             if upper is not None and dist >= upper:  # D is a tree matrix and upper is 0
                 return ExactResult(None, int(upper), True, used - 1)
             return ExactResult(m, dist, True, used - 1)
-        new = False
-        for pair in same:
-            new |= pair not in rows
-            rows.add(pair)
-        pairs = set(cross)
-        # a row that took a new 1 which made two columns cross would otherwise try its other columns one
-        # solve at a time: give every column a pair with each column of that row at once
-        added = m & ~d
-        for k, l in cross:
-            for i in np.flatnonzero((added[:, k] & m[:, l]) | (added[:, l] & m[:, k])):
-                if i not in hot:
-                    hot.add(int(i))
-                    for o in np.flatnonzero(d[i] | m[i]).tolist():
-                        pairs.update((min(j, o), max(j, o)) for j in range(d.shape[1]) if j != o)
-        # a row some answer changed gets into every pair at once: otherwise it tries one column per solve
-        fresh = np.flatnonzero((m != d).any(axis=1) & ~touched)
-        if len(fresh):
-            touched[fresh] = True
-            for key in cols:
-                cols[key] = np.union1d(cols[key], fresh)
-                new = True
-        for k, l in pairs:  # the pair, on every row where D or the last answer has a 1 in either column
-            rs = np.flatnonzero(d[:, k] | d[:, l] | m[:, k] | m[:, l] | touched)
-            old = cols.get((k, l))
-            if old is None or len(np.setdiff1d(rs, old)):
-                cols[(k, l)] = rs if old is None else np.union1d(old, rs)
-                new = True
+        new = _add_row_pairs(same, rows)
+        pairs = _column_pairs_wanted(d, m, cross, hot)
+        new = _widen_to_changed_rows(d, m, cols, touched) or new
+        new = _add_column_pairs(d, m, pairs, cols, touched) or new
         if len(cols) + len(rows) > (20 * d.shape[1] if max_pairs is None else max_pairs):
             return ExactResult(None, lower, False, used - 1)
         if used > 1 and not new:
@@ -325,3 +367,66 @@ def nearest_tree_matrix(
             return ExactResult(None, lower, False, used)
         m = m_new
     return ExactResult(None, lower, False, rounds)
+
+
+def _add_row_pairs(same: list[tuple[int, int]], rows: set[tuple[int, int]]) -> bool:
+    """Collect the equal-row pairs into ``rows``; whether any was new."""
+    new = False
+    for pair in same:
+        new |= pair not in rows
+        rows.add(pair)
+    return new
+
+
+def _column_pairs_wanted(
+    d: np.ndarray, m: np.ndarray, cross: list[tuple[int, int]], hot: set[int]
+) -> set[tuple[int, int]]:
+    """The crossing column pairs, plus pairs for the rows (not yet in ``hot``; added to it) that took a
+    new 1 making two columns cross.
+
+    Such a row would otherwise try its other columns one solve at a time: give every column a pair with
+    each column of that row at once.
+    """
+    pairs = set(cross)
+    added = m & ~d
+    for k, l in cross:
+        for i in np.flatnonzero((added[:, k] & m[:, l]) | (added[:, l] & m[:, k])):
+            if i not in hot:
+                hot.add(int(i))
+                for o in np.flatnonzero(d[i] | m[i]).tolist():
+                    pairs.update((min(j, o), max(j, o)) for j in range(d.shape[1]) if j != o)
+    return pairs
+
+
+def _widen_to_changed_rows(
+    d: np.ndarray, m: np.ndarray, cols: dict[tuple[int, int], np.ndarray], touched: np.ndarray
+) -> bool:
+    """Put each row the answer changed (first time only; marked in ``touched``) into every column pair
+    at once: otherwise it tries one column per solve. Whether a pair grew."""
+    new = False
+    fresh = np.flatnonzero((m != d).any(axis=1) & ~touched)
+    if len(fresh):
+        touched[fresh] = True
+        for key in cols:
+            cols[key] = np.union1d(cols[key], fresh)
+            new = True
+    return new
+
+
+def _add_column_pairs(
+    d: np.ndarray,
+    m: np.ndarray,
+    pairs: set[tuple[int, int]],
+    cols: dict[tuple[int, int], np.ndarray],
+    touched: np.ndarray,
+) -> bool:
+    """Write each pair on every row where D or the last answer has a 1 in either column (and on the
+    touched rows); whether a pair was new or gained rows."""
+    new = False
+    for k, l in pairs:
+        rs = np.flatnonzero(d[:, k] | d[:, l] | m[:, k] | m[:, l] | touched)
+        old = cols.get((k, l))
+        if old is None or len(np.setdiff1d(rs, old)):
+            cols[(k, l)] = rs if old is None else np.union1d(old, rs)
+            new = True
+    return new

@@ -20,15 +20,15 @@ from pathlib import Path
 from typing import Any
 
 from service.api import create_app
-from service.api.deps import DamageInjector
 from service.ingest.base import Source
+from service.ingest.farm import FarmDamage, FarmSource
 from service.ingest.pipeline import CommitLog, Pipeline
 from service.metrics import Metrics
 from service.settings import Settings
 from service.store import Store
 from service.worker import Estimator, Worker
 
-__all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_injector"]
+__all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage"]
 
 log = logging.getLogger(__name__)
 
@@ -45,25 +45,10 @@ def demo_spec(speed: float = 1.0) -> str:
     return f"farm:{','.join(DEMO_ROBOTS)}@{speed:g}"
 
 
-def farm_injector(sources: Sequence[Source]) -> DamageInjector | None:
-    """A damage injector over every farm source among ``sources`` (None when there is none).
-
-    The API passes ``(robot, kind, params)``; the farm that simulates ``robot`` applies the damage and
-    answers its ground-truth diff, returned as docs/design.md §2 diff JSON. ``KeyError`` means no farm here
-    simulates that robot.
-    """
-    farms = [s for s in sources if callable(getattr(s, "inject", None)) and hasattr(s, "robot_names")]
-    if not farms:
-        return None
-
-    def inject(robot: str, kind: str, params: dict[str, Any]) -> dict[str, Any]:
-        for src in farms:
-            if robot in src.robot_names:
-                truth = src.inject(robot, kind, **params)  # type: ignore[attr-defined]
-                return truth.to_json() if hasattr(truth, "to_json") else dict(truth or {})
-        raise KeyError(robot)
-
-    return inject
+def farm_damage(sources: Sequence[Source]) -> FarmDamage | None:
+    """The damage control over every farm source among ``sources`` (None when there is none)."""
+    farms = [s for s in sources if isinstance(s, FarmSource)]
+    return FarmDamage(farms) if farms else None
 
 
 @dataclass
@@ -88,6 +73,7 @@ class Daemon:
         s = self.settings
         _ensure_sqlite_dir(s.database_url)
         self.store = Store(s.database_url, settings=s)
+        self.store.upgrade()  # the schema step of every start (a store never migrates on its own)
         self.sources = [open_source(spec, s) for spec in self.specs]
         metrics = Metrics()
         self._commit_log = CommitLog(self.commit_log) if self.commit_log else None
@@ -98,7 +84,12 @@ class Daemon:
         self.worker.start()
         log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
         return create_app(
-            self.store, settings=s, worker=self.worker, metrics=metrics, injector=farm_injector(self.sources)
+            self.store,
+            settings=s,
+            pipeline=self.pipeline,
+            worker=self.worker,
+            metrics=metrics,
+            damage=farm_damage(self.sources),
         )
 
     def stop(self) -> None:

@@ -35,7 +35,13 @@ import numpy as np
 
 from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
 from bodyschema.findings import Diff, Finding
-from bodyschema.health import JointFingerprint, SignalHealth, drop_impacts, fingerprints, signal_health
+from bodyschema.health import (
+    BaselineFingerprints,
+    SignalHealth,
+    baseline_fingerprints,
+    drop_impacts,
+    signal_health,
+)
 from bodyschema.recording import Recording, RecordingError
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
@@ -99,10 +105,11 @@ class Worker:
         self.tracker = AlertTracker(m=self.settings.alert_hysteresis_m)
         self.cycles = 0
         self._recent: dict[str, deque[Topology]] = {}
-        #: Per robot, each joint's encoder-to-gyro relation on the baseline (learned state): set when
+        #: Per robot, each joint's encoder-to-gyro relation and each IMU's residual share on the
+        #: baseline (learned state, :class:`~bodyschema.health.BaselineFingerprints`): set when
         #: a baseline is adopted, or, after a restart or an operator approval, from the first window
         #: that matches the baseline.
-        self.fingerprints_: dict[str, dict[str, JointFingerprint]] = {}
+        self.fingerprints_: dict[str, BaselineFingerprints] = {}
         self._requests: dict[str, set[str]] = {}
         #: Per (robot, IMU): window end of the first cycle of the current run of cycles whose diff
         #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
@@ -157,25 +164,16 @@ class Worker:
     def approve_baseline(self, robot: str, topo: Topology | None = None) -> TopologyRecord:
         """Make ``topo`` (default: the newest fast topology) the robot's baseline, by operator decision.
 
-        Open alerts of the robot are resolved: they were differences to the old baseline.
+        Open alerts of the robot are resolved: they were differences to the old baseline. The store does
+        both in one transaction (:meth:`~service.store.Store.approve_baseline`); the worker forgets what
+        it tracked against the old baseline, under the cycle lock so no cycle sees half of it.
         Raises :class:`~service.store.UnknownRobot`, or ``LookupError`` when nothing was learned yet.
         """
-        if topo is None:
-            rec = self.store.latest_topology(robot, method="fast") or self.store.latest_topology(robot)
-            if rec is None:
-                raise LookupError(f"no topology learned for {robot!r} yet")
-            topo = rec.topology
         with self._cycle_lock:
-            self.store.set_baseline(robot, topo, "operator", wall_time=self.clock())
-            now = self.clock()
-            for a in self.store.alerts(robot):
-                if a.state != "resolved":
-                    self.store.update_alert(a.id, state="resolved", updated_at=now)
+            base = self.store.approve_baseline(robot, topo, source="operator", wall_time=self.clock())
             self.tracker.forget(robot)
             self.fingerprints_.pop(robot, None)
             self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
-        base = self.store.baseline(robot)
-        assert base is not None
         log.info("baseline approved", extra={"robot": robot, "source": "operator"})
         return base
 
@@ -254,7 +252,12 @@ class Worker:
         if fast is None:
             return res
         res.health = signal_health(
-            rec, layout, expected_imus, current=fast, fingerprints=self.fingerprints_.get(robot)
+            rec,
+            layout,
+            expected_imus,
+            current=fast,
+            fingerprints=fp.joints if (fp := self.fingerprints_.get(robot)) else None,
+            imu_fingerprints=fp.imus if fp else None,
         )
         res.topology = fast
         if fast.excitation:
@@ -265,7 +268,7 @@ class Worker:
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
         if robot not in self.fingerprints_ and not res.diff.findings:
-            self.fingerprints_[robot] = fingerprints(rec, base.topology, current=fast)
+            self.fingerprints_[robot] = baseline_fingerprints(rec, base.topology, current=fast)
         hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
         if not hold:
             res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)

@@ -16,29 +16,31 @@ Sensor damage acts on the readings: ``imu_dead`` (``frozen`` or ``zero`` output)
 Every call returns a :class:`bodyschema.findings.Diff` with one finding; omitted arguments are picked
 with the simulation's damage generator (seeded, reproducible).
 
+The handlers act on a :class:`DamageTarget`, the part of a running simulation damage needs; this
+module imports nothing of :mod:`simulators.simulation`, which imports it, so the two form no cycle.
+
 Example
 -------
 >>> from simulators.simulation import Simulation
 >>> sim = Simulation("paper-1", seed=0, imu_model="ideal")
->>> diff = inject(sim, "imu_moved", imu="imu0", to="j5")
+>>> diff = apply_damage(sim, "imu_moved", imu="imu0", to="j5")
 >>> diff.to_json()["findings"][0]["to"], sim.truth().imu_joint["imu0"]
 ('j5', 'j5')
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
 
 from bodyschema.findings import Diff, Finding
 from simulators.builder import LOOSE_PREFIX, surface_frames
+from simulators.imu_model import ImuStream
+from simulators.robot import Robot
 
-if TYPE_CHECKING:
-    from simulators.simulation import Simulation
-
-__all__ = ["DAMAGES", "inject", "parse_damage"]
+__all__ = ["DAMAGES", "DamageTarget", "apply_damage", "parse_damage"]
 
 DAMAGES: tuple[str, ...] = (
     "imu_moved",
@@ -48,6 +50,34 @@ DAMAGES: tuple[str, ...] = (
     "encoder_fault",
     "link_lost",
 )
+
+
+class DamageTarget(Protocol):
+    """What damage acts on: a running simulation (:class:`simulators.simulation.Simulation` is one)."""
+
+    #: The simulated robot; physical damage edits its spec.
+    robot: Robot
+    #: The IMU readings' stream; ``imu_dead`` kills one of its sensors.
+    stream: ImuStream
+    #: Picks what the caller left open (seeded, reproducible).
+    damage_rng: np.random.Generator
+    #: The keywords of the damage being applied (set by :func:`apply_damage`).
+    last_kwargs: dict[str, Any]
+    #: Joints locked so far.
+    locked: set[str]
+    #: Joints whose link broke off so far.
+    lost: set[str]
+    #: Encoder faults so far: joint -> (``stuck`` or ``offset``, value).
+    encoder_faults: dict[str, tuple[str, float]]
+
+    def sync(self) -> None:
+        """Bring the physics back to the last returned sample."""
+
+    def recompile(self) -> None:
+        """Recompile the robot after a spec edit, keeping the state."""
+
+    def record_damage(self, finding: Finding) -> None:
+        """Keep ``finding`` as part of the ground truth."""
 
 
 def parse_damage(text: str) -> tuple[str, dict[str, Any]]:
@@ -83,7 +113,7 @@ def _check(name: str | None, known: tuple[str, ...], what: str) -> None:
         raise ValueError(f"unknown {what} {name!r}")
 
 
-def _joint_body(sim: Simulation, joint: str | None) -> str:
+def _joint_body(sim: DamageTarget, joint: str | None) -> str:
     m = sim.robot.model
     if joint is None:
         return "base" if _has_body(m, "base") else m.body(1).name
@@ -98,17 +128,17 @@ def _has_body(m: mujoco.MjModel, name: str) -> bool:
     return True
 
 
-def _imu_joint(sim: Simulation, imu: str) -> str | None:
+def _imu_joint(sim: DamageTarget, imu: str) -> str | None:
     return sim.robot.truth().imu_joint.get(imu)
 
 
-def _attached_imus(sim: Simulation) -> list[str]:
+def _attached_imus(sim: DamageTarget) -> list[str]:
     _, _, detached = sim.robot.truth_arrays()
     dead = {sim.robot.imu_names[k] for k in sim.stream.dead}
     return [n for n, d in zip(sim.robot.imu_names, detached, strict=True) if not d and n not in dead]
 
 
-def _move_site(sim: Simulation, imu: str, body: str, pos: np.ndarray, quat: np.ndarray) -> None:
+def _move_site(sim: DamageTarget, imu: str, body: str, pos: np.ndarray, quat: np.ndarray) -> None:
     spec = sim.robot.spec
     old = spec.site(imu)
     size, rgba = list(old.size), list(old.rgba)
@@ -116,7 +146,7 @@ def _move_site(sim: Simulation, imu: str, body: str, pos: np.ndarray, quat: np.n
     spec.body(body).add_site(name=imu, pos=pos.tolist(), quat=quat.tolist(), size=size, rgba=rgba)
 
 
-def _imu_moved(sim: Simulation, imu: str | None = None, to: str | None = None) -> Finding:
+def _imu_moved(sim: DamageTarget, imu: str | None = None, to: str | None = None) -> Finding:
     r = sim.robot
     _check(imu, r.imu_names, "IMU")
     imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
@@ -137,7 +167,7 @@ def _imu_moved(sim: Simulation, imu: str | None = None, to: str | None = None) -
     return Finding(kind="imu_moved", imu=imu, from_=src, to=to)
 
 
-def _imu_detached(sim: Simulation, imu: str | None = None, tether: float = 0.05) -> Finding:
+def _imu_detached(sim: DamageTarget, imu: str | None = None, tether: float = 0.05) -> Finding:
     r = sim.robot
     _check(imu, r.imu_names, "IMU")
     imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
@@ -163,7 +193,7 @@ def _imu_detached(sim: Simulation, imu: str | None = None, tether: float = 0.05)
     return Finding(kind="imu_detached", imu=imu, from_=src, detail=f"hangs on a {tether:.3f} m tether")
 
 
-def _imu_dead(sim: Simulation, imu: str | None = None, mode: str = "frozen") -> Finding:
+def _imu_dead(sim: DamageTarget, imu: str | None = None, mode: str = "frozen") -> Finding:
     r = sim.robot
     _check(imu, r.imu_names, "IMU")
     imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
@@ -171,11 +201,11 @@ def _imu_dead(sim: Simulation, imu: str | None = None, mode: str = "frozen") -> 
     return Finding(kind="imu_dead", imu=imu, from_=_imu_joint(sim, imu), detail=mode)
 
 
-def _movable_joints(sim: Simulation) -> list[str]:
+def _movable_joints(sim: DamageTarget) -> list[str]:
     return [j for j in sim.robot.joint_names if j not in sim.locked and j not in sim.lost]
 
 
-def _joint_locked(sim: Simulation, joint: str | None = None) -> Finding:
+def _joint_locked(sim: DamageTarget, joint: str | None = None) -> Finding:
     r = sim.robot
     _check(joint, r.joint_names, "joint")
     joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
@@ -198,7 +228,7 @@ def _joint_locked(sim: Simulation, joint: str | None = None) -> Finding:
 
 
 def _encoder_fault(
-    sim: Simulation, joint: str | None = None, mode: str = "stuck", value: float = 0.3
+    sim: DamageTarget, joint: str | None = None, mode: str = "stuck", value: float = 0.3
 ) -> Finding:
     r = sim.robot
     _check(joint, r.joint_names, "joint")
@@ -214,7 +244,7 @@ def _encoder_fault(
     return Finding(kind="encoder_fault", joint=joint, detail=detail)
 
 
-def _link_lost(sim: Simulation, joint: str | None = None) -> Finding:
+def _link_lost(sim: DamageTarget, joint: str | None = None) -> Finding:
     r = sim.robot
     _check(joint, r.joint_names, "joint")
     joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.lost], "joint")
@@ -238,7 +268,7 @@ _HANDLERS = {
 }
 
 
-def inject(sim: Simulation, kind: str, **kwargs: Any) -> Diff:
+def apply_damage(sim: DamageTarget, kind: str, **kwargs: Any) -> Diff:
     """Apply damage ``kind`` to ``sim`` now; return its ground-truth diff (also kept by ``sim``)."""
     if kind not in _HANDLERS:
         raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")

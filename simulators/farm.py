@@ -14,7 +14,7 @@ Example
 (['paper-3-1', 'ur5e-1'], 10, (10, 12, 3))
 >>> float(farm.advance(seconds=0.1)["ur5e-1"].t[0])
 0.1
->>> farm.inject("ur5e-1", "imu_moved", imu="imu3", to="wrist_3").findings[0].to
+>>> farm.apply_damage("ur5e-1", "imu_moved", imu="imu3", to="wrist_3").findings[0].to
 'wrist_3'
 >>> farm.truth("ur5e-1").imu_joint["imu3"]
 'wrist_3'
@@ -180,7 +180,7 @@ class Farm:
         >>> farm = Farm({"p": "paper-1"}, seed=0, imu_model="ideal")
         >>> _ = farm.advance(0.5)
         >>> twin = farm.fork()
-        >>> _ = twin.inject("p", "imu_dead", imu="imu0")
+        >>> _ = twin.apply_damage("p", "imu_dead", imu="imu0")
         >>> a, b = farm.advance(0.2)["p"], twin.advance(0.2)["p"]
         >>> bool((a.q == b.q).all()), bool((a.gyro[:, 0] == b.gyro[:, 0]).all()), farm.diff("p").findings
         (True, False, ())
@@ -188,9 +188,9 @@ class Farm:
         memo: dict[int, Any] = {id(sim.robot.spec): sim.robot.spec.copy() for sim in self._sims.values()}
         return copy.deepcopy(self, memo)
 
-    def inject(self, robot: str, kind: str, **kwargs: Any) -> Diff:
+    def apply_damage(self, robot: str, kind: str, **kwargs: Any) -> Diff:
         """Damage ``robot`` now; parts left out are picked by the robot's seeded damage generator."""
-        return self._sims[self._known(robot)].inject(kind, **kwargs)
+        return self._sims[self._known(robot)].apply_damage(kind, **kwargs)
 
     def stream(
         self, chunk: float = 0.1, speed: float | None = 1.0, seconds: float | None = None

@@ -214,6 +214,78 @@ def _main(params: dict[str, Any], eff: str) -> Any:
     return params.get("value")
 
 
+def _check_sample_rate(p: ImuParams, eff: str, params: dict[str, Any], what: str) -> ImuParams:
+    hz = float(_main(params, eff))
+    if not hz > 0:
+        raise ValueError(f"{what}: hz must be > 0")
+    return p
+
+
+def _set_gravity(p: ImuParams, eff: str, params: dict[str, Any], what: str) -> ImuParams:
+    return replace(p, gravity=_vec3(_main(params, eff), what))
+
+
+def _set_noise(p: ImuParams, eff: str, params: dict[str, Any], what: str) -> ImuParams:
+    kind = "std" if ("gyro_std" in params or "acc_std" in params) else "density"
+    g = _vec3(params.get(f"gyro_{kind}", 0.0), what)
+    a = _vec3(params.get(f"acc_{kind}", 0.0), what)
+    if np.any(g < 0) or np.any(a < 0):
+        raise ValueError(f"{what}: noise must be >= 0")
+    return replace(p, noise_kind=kind, gyro_noise=g, acc_noise=a)
+
+
+def _set_quantization(p: ImuParams, eff: str, params: dict[str, Any], what: str) -> ImuParams:
+    return replace(
+        p,
+        gyro_lsb=float(params.get("gyro_lsb", 0.0)),
+        acc_lsb=float(params.get("acc_lsb", 0.0)),
+        gyro_range=float(params.get("gyro_range", math.inf)),
+        acc_range=float(params.get("acc_range", math.inf)),
+    )
+
+
+#: Effects shared by all IMUs of a robot: no per-IMU value and no draw.
+_SHARED_EFFECTS = {
+    "sample_rate": _check_sample_rate,
+    "gravity": _set_gravity,
+    "noise": _set_noise,
+    "quantization": _set_quantization,
+}
+
+#: The :class:`ImuParams` field each per-IMU effect fills.
+_PER_IMU_FIELD = {
+    "time_offset": "time_offset",
+    "gyro_bias": "gyro_bias",
+    "acc_bias": "acc_bias",
+    "gyro_scale": "gyro_matrix",
+    "acc_scale": "acc_matrix",
+    "mounting_rotation": "rotvec",
+    "lever_arm": "lever_arm",
+}
+
+
+def _per_imu_value(src: dict[str, Any], eff: str, what: str, rng: np.random.Generator) -> np.ndarray:
+    """One IMU's value of a per-IMU effect: the fixed value in ``src``, else a draw from ``rng``."""
+    v = _main(src, eff)
+    if v is not None:
+        if eff == "time_offset":
+            return np.asarray(float(v))
+        return _matrix(v, what) if eff.endswith("_scale") else _vec3(v, what)
+    if eff.endswith("_scale"):
+        s = float(src.get("uniform", 0.0))
+        c = float(src.get("cross_axis_uniform", 0.0))
+        m = np.diag(1.0 + rng.uniform(-s, s, 3))
+        if c:
+            m = fx.cross_axis_matrix(np.diag(m), rng.uniform(-c, c, 6))
+        return m
+    if "uniform" in src:
+        h = src["uniform"]
+        if eff == "time_offset":
+            return np.asarray(rng.uniform(-float(h), float(h)))
+        return rng.uniform(-1.0, 1.0, 3) * _vec3(h, what)
+    raise ValueError(f"{what} needs {_MAIN_KEY[eff]!r} or 'uniform'")
+
+
 def _apply_effect_params(
     p: ImuParams, eff: str, params: dict[str, Any], names: tuple[str, ...], K: int, rng: np.random.Generator
 ) -> ImuParams:
@@ -222,64 +294,16 @@ def _apply_effect_params(
     if unknown:
         raise ValueError(f"effect {eff!r}: per_imu names unknown IMUs {sorted(unknown)}")
     what = f"effect {eff!r}"
-    if eff == "sample_rate":
-        hz = float(_main(params, eff))
-        if not hz > 0:
-            raise ValueError(f"{what}: hz must be > 0")
-        return p
-    if eff == "gravity":
-        return replace(p, gravity=_vec3(_main(params, eff), what))
-    if eff == "noise":
-        kind = "std" if ("gyro_std" in params or "acc_std" in params) else "density"
-        g = _vec3(params.get(f"gyro_{kind}", 0.0), what)
-        a = _vec3(params.get(f"acc_{kind}", 0.0), what)
-        if np.any(g < 0) or np.any(a < 0):
-            raise ValueError(f"{what}: noise must be >= 0")
-        return replace(p, noise_kind=kind, gyro_noise=g, acc_noise=a)
-    if eff == "quantization":
-        return replace(
-            p,
-            gyro_lsb=float(params.get("gyro_lsb", 0.0)),
-            acc_lsb=float(params.get("acc_lsb", 0.0)),
-            gyro_range=float(params.get("gyro_range", math.inf)),
-            acc_range=float(params.get("acc_range", math.inf)),
-        )
-
-    # per-IMU effects
-    def one(src: dict[str, Any]) -> np.ndarray:
-        v = _main(src, eff)
-        if v is not None:
-            if eff == "time_offset":
-                return np.asarray(float(v))
-            return _matrix(v, what) if eff.endswith("_scale") else _vec3(v, what)
-        if eff.endswith("_scale"):
-            s = float(src.get("uniform", 0.0))
-            c = float(src.get("cross_axis_uniform", 0.0))
-            m = np.diag(1.0 + rng.uniform(-s, s, 3))
-            if c:
-                m = fx.cross_axis_matrix(np.diag(m), rng.uniform(-c, c, 6))
-            return m
-        if "uniform" in src:
-            h = src["uniform"]
-            if eff == "time_offset":
-                return np.asarray(rng.uniform(-float(h), float(h)))
-            return rng.uniform(-1.0, 1.0, 3) * _vec3(h, what)
-        raise ValueError(f"{what} needs {_MAIN_KEY[eff]!r} or 'uniform'")
-
+    shared = _SHARED_EFFECTS.get(eff)
+    if shared is not None:
+        return shared(p, eff, params, what)
+    # per-IMU effects: drawn IMU by IMU, in the order of ``names``
     vals = []
     for name in names:
         src = per_imu.get(name)
-        vals.append(one(src) if src is not None else one(params))
+        vals.append(_per_imu_value(src if src is not None else params, eff, what, rng))
     arr = np.array(vals) if vals else None
-    field_name = {
-        "time_offset": "time_offset",
-        "gyro_bias": "gyro_bias",
-        "acc_bias": "acc_bias",
-        "gyro_scale": "gyro_matrix",
-        "acc_scale": "acc_matrix",
-        "mounting_rotation": "rotvec",
-        "lever_arm": "lever_arm",
-    }[eff]
+    field_name = _PER_IMU_FIELD[eff]
     if arr is None:
         return p
     return replace(p, **{field_name: arr})

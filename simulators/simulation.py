@@ -29,6 +29,7 @@ import numpy as np
 from bodyschema.findings import Diff, Finding
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
+from simulators.damage import apply_damage, parse_damage
 from simulators.excitation import Excitation, excitation_rms, make_excitation
 from simulators.imu_model import ImuModel, ImuStream, resolve_imu_model
 from simulators.robot import Robot
@@ -55,7 +56,7 @@ class Simulation:
     """A robot (catalog name, MJCF/URDF path or :class:`Robot`) producing recordings chunk by chunk.
 
     ``rate`` is the sample rate unless the IMU model sets ``sample_rate``. :meth:`advance` continues
-    time from the previous chunk; :meth:`inject` applies damage now. ``readahead`` (s) simulates at
+    time from the previous chunk; :meth:`apply_damage` applies damage now. ``readahead`` (s) simulates at
     least that much per physics call and serves small chunks from the buffer, which saves the
     per-call cost when chunks are small; the returned data are the same either way.
     """
@@ -120,11 +121,9 @@ class Simulation:
         self.damage_times.append(self.time)
         self._truth = None
 
-    def inject(self, kind: str, **kwargs: Any) -> Diff:
+    def apply_damage(self, kind: str, **kwargs: Any) -> Diff:
         """Apply damage now (see :mod:`simulators.damage`); return its ground-truth diff."""
-        from simulators.damage import inject
-
-        return inject(self, kind, **kwargs)
+        return apply_damage(self, kind, **kwargs)
 
     # ------------------------------------------------------------------ running
     def _ctrl(self, start: int, n: int) -> np.ndarray:
@@ -312,8 +311,6 @@ def simulate(
     and ``truth_imu_detached`` (JSON list of the IMUs that follow no joint). ``truth_*`` describe
     the body at the end of the run.
     """
-    from simulators.damage import parse_damage
-
     if not seconds > 0:
         raise ValueError("seconds must be > 0")
     opts = resolve_sensing(sensing)
@@ -339,7 +336,7 @@ def simulate(
         n = math.ceil(at * sim.rate - 1e-9) - sim._served
         if n > 0:
             chunks.append(sim.advance(n))
-        sim.inject(kind, **kw)
+        sim.apply_damage(kind, **kw)
     if total - sim._served > 0:
         chunks.append(sim.advance(total - sim._served))
     rec = _concat(chunks, sim)

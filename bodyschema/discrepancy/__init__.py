@@ -9,7 +9,8 @@ error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertain
   through :mod:`bodyschema.imu_effects`);
 * :mod:`~bodyschema.discrepancy.fit` — data preparation and least-squares fits on sample subsets;
 * :mod:`~bodyschema.discrepancy.residuals` — residual structure and noise;
-* :mod:`~bodyschema.discrepancy.selection` — the greedy held-out selection (:func:`analyze`);
+* :mod:`~bodyschema.discrepancy.selection` — the greedy held-out selection (:func:`analyze`, its
+  settings :class:`AnalyzerOptions`);
 * :mod:`~bodyschema.discrepancy.report` — the result as data (docs/design.md §2 discrepancy JSON);
 * :mod:`~bodyschema.discrepancy.network_gravity` — the robot gravity case: the paper's sensor networks
   without gravity (Eq. 11) against with it (Eq. 24), the cause named for the difference and the
@@ -20,12 +21,19 @@ from bodyschema.discrepancy.effects import EFFECT_NAMES, EFFECTS, FITTED_EFFECTS
 from bodyschema.discrepancy.fit import Problem, fit_params, prepare
 from bodyschema.discrepancy.report import Cause, DiscrepancyReport
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
-from bodyschema.discrepancy.selection import DiscrepancyAnalyzer, analyze, analyze_recording, reference_of
+from bodyschema.discrepancy.selection import (
+    AnalyzerOptions,
+    DiscrepancyAnalyzer,
+    analyze,
+    analyze_recording,
+    reference_of,
+)
 
 __all__ = [
     "EFFECTS",
     "EFFECT_NAMES",
     "FITTED_EFFECTS",
+    "AnalyzerOptions",
     "Cause",
     "DiscrepancyAnalyzer",
     "DiscrepancyReport",

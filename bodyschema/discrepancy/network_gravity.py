@@ -305,7 +305,7 @@ def gravity_case(
 
     ``rec`` needs ``q`` and gravity; ``qd``/``qdd`` are derived when absent. ``imus`` (default: up to
     ``max_imus`` of them) are analysed for the cause; ``references`` (IMU name -> reference motion with
-    gravity, e.g. ``service.sim2real_report.robot_references``) adds the analysis on the exact
+    gravity, e.g. ``sim2real.report.robot_references``) adds the analysis on the exact
     kinematics; ``cutoff``, ``n_blocks``, ``alpha``, ``min_gain`` go
     to :func:`~bodyschema.discrepancy.selection.analyze`; other keywords to the training.
     """

@@ -36,13 +36,13 @@ Example
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import ttest_1samp
-from threadpoolctl import threadpool_limits
 
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, pack, predict, unpack
 from bodyschema.discrepancy.fit import (
@@ -57,10 +57,12 @@ from bodyschema.discrepancy.fit import (
 )
 from bodyschema.discrepancy.report import Cause, DiscrepancyReport
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
+from bodyschema.progress import progress
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import ReferenceMotion, reference_motion
+from bodyschema.threads import blas_threads
 
-__all__ = ["DiscrepancyAnalyzer", "analyze", "analyze_recording", "reference_of"]
+__all__ = ["AnalyzerOptions", "DiscrepancyAnalyzer", "analyze", "analyze_recording", "reference_of"]
 
 log = logging.getLogger(__name__)
 
@@ -146,74 +148,92 @@ def _step_params(params: Params, names: list[str], delta: np.ndarray, ref: Refer
     return out
 
 
+@dataclass(frozen=True)
+class AnalyzerOptions:
+    """The settings of the held-out effect selection (see the module docstring for the procedure).
+
+    Shared by :func:`analyze`, :func:`analyze_recording` and :class:`DiscrepancyAnalyzer`; each also
+    takes any field as a keyword, which overrides the options given.
+    """
+
+    #: The candidate effects, from :data:`~bodyschema.discrepancy.effects.FITTED_EFFECTS`.
+    effects: Sequence[str] = FITTED_EFFECTS
+    #: Contiguous time blocks the usable samples are cut into (one fold per block).
+    n_blocks: int = 8
+    #: Significance level of the one-sided paired t-test an effect must pass.
+    alpha: float = 0.01
+    #: Least mean held-out gain an effect must bring, as a fraction of the ideal model's residual energy.
+    min_gain: float = 0.0005
+    #: Low-pass cutoff of the reference motion and the readings, Hz (None: no low-pass).
+    cutoff: float | None = 10.0
+    #: Rate the readings are decimated to for the analysis, Hz (None: the recording's own).
+    analysis_rate: float | None = 100.0
+    #: Seconds dropped at both ends and around every invalid stretch (filter transients).
+    margin: float = 0.25
+    #: (gyro, accelerometer) white-noise std below which ``noise`` is not named, rad/s and m/s².
+    noise_floor: tuple[float, float] = (1e-4, 1e-3)
+    #: Floors of the (gyro, accelerometer) scales the residuals are divided by (their RMS under the
+    #: ideal model), rad/s and m/s².
+    scale_floor: tuple[float, float] = (0.002, 0.02)
+    #: Ranked candidates tried in confirmation per round before the selection stops.
+    max_tries: int = 2
+    #: Show a progress bar over the effects (:func:`bodyschema.progress.progress`); changes no result.
+    progress: bool = False
+
+
+def _options(options: AnalyzerOptions | None, overrides: Mapping[str, object]) -> AnalyzerOptions:
+    """``options`` (default: the defaults) with the keywords ``overrides`` replacing its fields."""
+    unknown = sorted(set(overrides) - {f.name for f in fields(AnalyzerOptions)})
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s) {unknown}; the settings are AnalyzerOptions fields")
+    return replace(options or AnalyzerOptions(), **overrides)
+
+
 def analyze(
     ref: ReferenceMotion,
     gyro: np.ndarray,
     acc: np.ndarray,
     valid: np.ndarray | None = None,
     *,
-    effects: Sequence[str] = FITTED_EFFECTS,
-    n_blocks: int = 8,
-    alpha: float = 0.01,
-    min_gain: float = 0.0005,
-    cutoff: float | None = 10.0,
-    analysis_rate: float | None = 100.0,
-    margin: float = 0.25,
-    noise_floor: tuple[float, float] = (1e-4, 1e-3),
-    scale_floor: tuple[float, float] = (0.002, 0.02),
-    max_tries: int = 2,
-    progress: bool = False,
+    options: AnalyzerOptions | None = None,
+    **overrides: Any,
 ) -> DiscrepancyReport:
     """Name the effects that explain why the measured ``gyro``/``acc`` differ from the ideal prediction.
 
     ``ref`` is the reference motion low-passed at ``cutoff`` (:func:`reference_of` builds it from a
     recording); ``gyro``/``acc`` (T, 3) the measured readings on ``ref.t``; ``valid`` (T,) the
-    samples with a trustworthy reference. See the module docstring for the procedure and
-    :class:`DiscrepancyAnalyzer` for the hyper-parameters.
+    samples with a trustworthy reference. The settings are ``options`` with any
+    :class:`AnalyzerOptions` field given as a keyword (``n_blocks=6``) replacing its value. See the
+    module docstring for the procedure.
     """
-    bad = [e for e in effects if e not in FITTED_EFFECTS]
+    opts = _options(options, overrides)
+    bad = [e for e in opts.effects if e not in FITTED_EFFECTS]
     if bad:
         raise ValueError(f"unknown or unfittable effects {bad}; choose from {list(FITTED_EFFECTS)}")
     # The matrices here are tall and thin (samples x a few dozen parameters): BLAS threads only
     # contend, several-fold slower on a busy machine than one thread.
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _analyze(
-            ref,
-            gyro,
-            acc,
-            valid,
-            effects,
-            n_blocks,
-            alpha,
-            min_gain,
-            cutoff,
-            analysis_rate,
-            margin,
-            noise_floor,
-            scale_floor,
-            max_tries,
-            progress,
-        )
+    with blas_threads(1):
+        return _analyze(ref, gyro, acc, valid, opts)
 
 
 def _analyze(
-    ref: ReferenceMotion,
-    gyro: np.ndarray,
-    acc: np.ndarray,
-    valid: np.ndarray | None,
-    effects: Sequence[str],
-    n_blocks: int,
-    alpha: float,
-    min_gain: float,
-    cutoff: float | None,
-    analysis_rate: float | None,
-    margin: float,
-    noise_floor: tuple[float, float],
-    scale_floor: tuple[float, float],
-    max_tries: int,
-    progress: bool,
+    ref: ReferenceMotion, gyro: np.ndarray, acc: np.ndarray, valid: np.ndarray | None, opts: AnalyzerOptions
 ) -> DiscrepancyReport:
-    prob = prepare(ref, gyro, acc, valid, cutoff, analysis_rate, margin, scale_floor)
+    """Prepare, select on the folds, refit on all samples, measure the noise, report."""
+    prob = prepare(ref, gyro, acc, valid, opts.cutoff, opts.analysis_rate, opts.margin, opts.scale_floor)
+    folds = _make_folds(prob, opts.n_blocks)
+    held_before = float(np.mean([f.held for f in folds]))
+    selected, causes, screening = _select(prob, folds, opts, held_before)
+    params, causes = _final_fit(prob, folds, selected, causes, opts.n_blocks)
+    # Noise, from the full-rate measured readings above the motion band.
+    causes += _noise_cause(ref, gyro, acc, valid, prob, opts.margin, opts.noise_floor)
+    if any(c.effect == "noise" for c in causes):
+        params["noise"] = causes[-1].params
+    return _report(prob, folds, causes, params, screening, held_before, opts)
+
+
+def _make_folds(prob: Problem, n_blocks: int) -> list[_Fold]:
+    """Fold *k* trains on every block but *k* and is scored on block *k*, starting from the ideal model."""
     blocks = block_folds(prob.index, n_blocks)
     folds = [
         _Fold(np.concatenate([b for j, b in enumerate(blocks) if j != k]), blocks[k]) for k in range(n_blocks)
@@ -221,101 +241,150 @@ def _analyze(
     r0 = normalized_residual(prob, {})
     for f in folds:
         f.held = score(r0, f.test)
-    held_before = float(np.mean([f.held for f in folds]))
+    return folds
+
+
+def _select(
+    prob: Problem, folds: list[_Fold], opts: AnalyzerOptions, held_before: float
+) -> tuple[list[str], list[Cause], list[dict[str, float]]]:
+    """Forward selection: screen the candidates, confirm the best ranked; stop when none passes.
+
+    The folds are updated in place to the fits of the accepted model. Returns the accepted effects in
+    order, their causes (parameters still empty) and each round's screening gains.
+    """
     selected: list[str] = []
     causes: list[Cause] = []
     screening: list[dict[str, float]] = []
-    bar = _progress(progress, len(effects))
+    bar = progress(total=len(opts.effects), desc="effects", unit="effect", enabled=opts.progress)
     while True:
-        cands = [e for e in effects if e not in selected]
+        cands = [e for e in opts.effects if e not in selected]
         if not cands:
             break
-        cols = [n for n in EFFECTS if n in selected or n in cands]
-        gains = {c: np.zeros(n_blocks) for c in cands}
-        steps: dict[str, list[Params]] = {c: [] for c in cands}
-        # Signature columns at the mean of the fold fits (they are features, not fitted to the
-        # held-out data; the gain that decides is measured in the confirmation step below).
-        mean_p = _mean_params([f.params for f in folds], selected)
-        J, _ = jacobian(prob, mean_p, cols)
-        for k, f in enumerate(folds):
-            base = normalized_residual(prob, f.params)
-            A = J[f.train].reshape(-1, J.shape[2])
-            JtJ, Jtr = A.T @ A, A.T @ base[f.train].ravel()
-            for c in cands:
-                names = [n for n in cols if n in selected or n == c]
-                delta = _gauss_newton(JtJ, Jtr, names, cols)
-                p_new = _step_params(f.params, names, delta, prob.ref)
-                gains[c][k] = f.held - score(normalized_residual(prob, p_new), f.test)
-                steps[c].append(p_new)
+        gains, steps = _screen(prob, folds, selected, cands)
         ranked = sorted(cands, key=lambda c: -float(np.mean(gains[c])))
         screening.append({c: round(float(np.mean(gains[c])), 6) for c in ranked})
-        accepted = False
-        for c in ranked[:max_tries]:
-            if np.mean(gains[c]) < 0.25 * min_gain:
+        cause = None
+        for c in ranked[: opts.max_tries]:
+            if np.mean(gains[c]) < 0.25 * opts.min_gain:
                 break
-            names = [n for n in EFFECTS if n in selected or n == c]
-            new_params, new_held = [], []
-            for k, f in enumerate(folds):
-                init = steps[c][k]
-                if c == "time_offset":
-                    init = _init_time_offset(prob, f.params, f.train)
-                elif c == "mounting_rotation":
-                    init = _init_mounting(prob, init, f.train)
-                p = fit_params(prob, names, init, f.train)
-                new_params.append(p)
-                new_held.append(score(normalized_residual(prob, p), f.test))
-            old_held = np.array([f.held for f in folds])
-            d = old_held - np.array(new_held)
-            p_val = _paired_p(np.log(old_held) - np.log(np.maximum(new_held, 1e-300)))
-            log.info("candidate %s: held-out gain %.4f, p=%.2g", c, float(np.mean(d)), p_val)
-            if float(np.mean(d)) >= min_gain and p_val < alpha:
-                remaining = float(np.mean([f.held for f in folds]))
-                for f, p, h in zip(folds, new_params, new_held, strict=True):
-                    f.params, f.held = p, h
+            cause = _confirm(prob, folds, selected, c, steps[c], gains[c], opts, held_before)
+            if cause is not None:
                 selected.append(c)
-                causes.append(
-                    Cause(
-                        effect=c,
-                        params={},
-                        uncertainty={},
-                        gain=float(np.mean(d)) / held_before,
-                        p_value=p_val,
-                        signature=EFFECTS[c].signature,
-                        explained=float(np.mean(gains[c])) / max(remaining, 1e-300),
-                        block_gains=[float(x) / held_before for x in d],
-                    )
-                )
+                causes.append(cause)
                 bar.update(1)
-                accepted = True
                 break
-        if not accepted:
+        if cause is None:
             break
     bar.close()
-    # Final fit on every usable sample, started from the mean of the fold fits.
+    return selected, causes, screening
+
+
+def _screen(
+    prob: Problem, folds: list[_Fold], selected: list[str], cands: list[str]
+) -> tuple[dict[str, np.ndarray], dict[str, list[Params]]]:
+    """Held-out gain per fold of one Gauss-Newton step adding each candidate, and those steps."""
+    cols = [n for n in EFFECTS if n in selected or n in cands]
+    gains = {c: np.zeros(len(folds)) for c in cands}
+    steps: dict[str, list[Params]] = {c: [] for c in cands}
+    # Signature columns at the mean of the fold fits (they are features, not fitted to the
+    # held-out data; the gain that decides is measured in the confirmation step).
+    mean_p = _mean_params([f.params for f in folds], selected)
+    J, _ = jacobian(prob, mean_p, cols)
+    for k, f in enumerate(folds):
+        base = normalized_residual(prob, f.params)
+        A = J[f.train].reshape(-1, J.shape[2])
+        JtJ, Jtr = A.T @ A, A.T @ base[f.train].ravel()
+        for c in cands:
+            names = [n for n in cols if n in selected or n == c]
+            delta = _gauss_newton(JtJ, Jtr, names, cols)
+            p_new = _step_params(f.params, names, delta, prob.ref)
+            gains[c][k] = f.held - score(normalized_residual(prob, p_new), f.test)
+            steps[c].append(p_new)
+    return gains, steps
+
+
+def _confirm(
+    prob: Problem,
+    folds: list[_Fold],
+    selected: list[str],
+    c: str,
+    steps: list[Params],
+    gains: np.ndarray,
+    opts: AnalyzerOptions,
+    held_before: float,
+) -> Cause | None:
+    """Refit every fold with ``c`` added and test the held-out drops; on acceptance update the folds
+    and return ``c``'s cause (parameters filled in by the final fit), else None."""
+    names = [n for n in EFFECTS if n in selected or n == c]
+    new_params, new_held = [], []
+    for k, f in enumerate(folds):
+        init = steps[k]
+        if c == "time_offset":
+            init = _init_time_offset(prob, f.params, f.train)
+        elif c == "mounting_rotation":
+            init = _init_mounting(prob, init, f.train)
+        p = fit_params(prob, names, init, f.train)
+        new_params.append(p)
+        new_held.append(score(normalized_residual(prob, p), f.test))
+    old_held = np.array([f.held for f in folds])
+    d = old_held - np.array(new_held)
+    p_val = _paired_p(np.log(old_held) - np.log(np.maximum(new_held, 1e-300)))
+    log.info("candidate %s: held-out gain %.4f, p=%.2g", c, float(np.mean(d)), p_val)
+    if not (float(np.mean(d)) >= opts.min_gain and p_val < opts.alpha):
+        return None
+    remaining = float(np.mean([f.held for f in folds]))
+    for f, p, h in zip(folds, new_params, new_held, strict=True):
+        f.params, f.held = p, h
+    return Cause(
+        effect=c,
+        params={},
+        uncertainty={},
+        gain=float(np.mean(d)) / held_before,
+        p_value=p_val,
+        signature=EFFECTS[c].signature,
+        explained=float(np.mean(gains)) / max(remaining, 1e-300),
+        block_gains=[float(x) / held_before for x in d],
+    )
+
+
+def _final_fit(
+    prob: Problem, folds: list[_Fold], selected: list[str], causes: list[Cause], n_blocks: int
+) -> tuple[Params, list[Cause]]:
+    """Fit the accepted model on every usable sample, started from the mean of the fold fits; the
+    spread of the fold fits gives each parameter's standard error (delete-one-block jackknife)."""
     names = [n for n in EFFECTS if n in selected]
-    params: Params = {}
-    if names:
-        xs = np.stack([pack(f.params, names) for f in folds])
-        params = fit_params(prob, names, unpack(xs.mean(axis=0), names), prob.index)
-        se = np.sqrt((n_blocks - 1) / n_blocks * np.sum((xs - xs.mean(axis=0)) ** 2, axis=0))
-        unc = unpack(se, names)
-        causes = [
-            Cause(
-                c.effect,
-                params[c.effect],
-                unc[c.effect],
-                c.gain,
-                c.p_value,
-                c.signature,
-                c.explained,
-                c.block_gains,
-            )
-            for c in causes
-        ]
-    # Noise, from the full-rate measured readings above the motion band.
-    causes += _noise_cause(ref, gyro, acc, valid, prob, margin, noise_floor)
-    if any(c.effect == "noise" for c in causes):
-        params["noise"] = causes[-1].params
+    if not names:
+        return {}, causes
+    xs = np.stack([pack(f.params, names) for f in folds])
+    params = fit_params(prob, names, unpack(xs.mean(axis=0), names), prob.index)
+    se = np.sqrt((n_blocks - 1) / n_blocks * np.sum((xs - xs.mean(axis=0)) ** 2, axis=0))
+    unc = unpack(se, names)
+    causes = [
+        Cause(
+            c.effect,
+            params[c.effect],
+            unc[c.effect],
+            c.gain,
+            c.p_value,
+            c.signature,
+            c.explained,
+            c.block_gains,
+        )
+        for c in causes
+    ]
+    return params, causes
+
+
+def _report(
+    prob: Problem,
+    folds: list[_Fold],
+    causes: list[Cause],
+    params: Params,
+    screening: list[dict[str, float]],
+    held_before: float,
+    opts: AnalyzerOptions,
+) -> DiscrepancyReport:
+    """The report: residuals and their structure before and after, held-out scores, settings."""
     fitted = {k: v for k, v in params.items() if k != "noise"}
     held_after = float(np.mean([f.held for f in folds]))
     res_b, pred_b = residual(prob, {})
@@ -326,7 +395,7 @@ def _analyze(
         causes=causes,
         residual_after=_rms(prob, fitted, prob.index),
         held_out={
-            "blocks": n_blocks,
+            "blocks": opts.n_blocks,
             "score_before": held_before,
             "score_after": held_after,
             "gain": 1.0 - held_after / held_before,
@@ -337,15 +406,15 @@ def _analyze(
         structure_after=residual_structure(prob.ref, res_a, pred_a, prob.index, prob.rate),
         screening=screening,
         settings={
-            "n_blocks": n_blocks,
-            "alpha": alpha,
-            "min_gain": min_gain,
-            "cutoff_hz": cutoff,
+            "n_blocks": opts.n_blocks,
+            "alpha": opts.alpha,
+            "min_gain": opts.min_gain,
+            "cutoff_hz": opts.cutoff,
             "analysis_rate_hz": prob.rate,
-            "margin_s": margin,
+            "margin_s": opts.margin,
             "channel_scale": [float(x) for x in prob.scale],
             "samples_used": int(prob.index.size),
-            "effects": list(effects),
+            "effects": list(opts.effects),
         },
         problem=prob,
     )
@@ -424,22 +493,6 @@ def _noise_cause(
     ]
 
 
-class _NoBar:
-    def update(self, n: int) -> None:  # pragma: no cover - trivial
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _progress(enabled: bool, total: int):
-    if not enabled:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="effects", unit="effect", leave=False)
-
-
 def reference_of(rec: Recording, cutoff: float | None = 10.0) -> ReferenceMotion:
     """The low-passed reference motion of a recording with ``ref_quat``/``ref_pos`` (motion capture)."""
     if rec.ref_quat is None:
@@ -449,18 +502,20 @@ def reference_of(rec: Recording, cutoff: float | None = 10.0) -> ReferenceMotion
 
 
 def analyze_recording(
-    rec: Recording, imu: int | str = 0, cutoff: float | None = 10.0, **kwargs: object
+    rec: Recording, imu: int | str = 0, *, options: AnalyzerOptions | None = None, **overrides: Any
 ) -> DiscrepancyReport:
     """:func:`analyze` for one IMU of a recording with a reference motion.
 
+    The settings are as for :func:`analyze` (``cutoff`` also low-passes the reference motion).
     ``extra['ref_valid']`` (samples with a trustworthy reference) is honoured when present.
     """
+    opts = _options(options, overrides)
     k = rec.imu_names.index(imu) if isinstance(imu, str) else int(imu)
     if not 0 <= k < rec.n_imus:
         raise ValueError(f"imu {imu!r} not in {rec.imu_names}")
     valid = rec.extra.get("ref_valid")
-    ref = reference_of(rec, cutoff)
-    rep = analyze(ref, rec.gyro[:, k], rec.acc[:, k], valid, cutoff=cutoff, **kwargs)  # type: ignore[arg-type]
+    ref = reference_of(rec, opts.cutoff)
+    rep = analyze(ref, rec.gyro[:, k], rec.acc[:, k], valid, options=opts)
     meta = {"imu": rec.imu_names[k], "samples": rec.n_samples, "duration_s": rec.duration}
     for key in ("attribution", "source"):
         if key in rec.extra and rec.extra[key].shape == ():
@@ -472,58 +527,31 @@ def analyze_recording(
 class DiscrepancyAnalyzer:
     """Estimator form of :func:`analyze` (scikit-learn style: settings in ``__init__``, ``fit`` -> self).
 
+    Settings: ``options`` (:class:`AnalyzerOptions`) with any of its fields given as a keyword
+    replacing its value; kept as ``options``, and each field reads as an attribute too
+    (``DiscrepancyAnalyzer(n_blocks=6).n_blocks``).
+
     Learned: ``report_`` (:class:`~bodyschema.discrepancy.report.DiscrepancyReport`), ``params_``
     (the fitted effects), ``causes_`` (their names in order).
     """
 
-    def __init__(
-        self,
-        effects: Sequence[str] = FITTED_EFFECTS,
-        n_blocks: int = 8,
-        alpha: float = 0.01,
-        min_gain: float = 0.0005,
-        cutoff: float | None = 10.0,
-        analysis_rate: float | None = 100.0,
-        margin: float = 0.25,
-        noise_floor: tuple[float, float] = (1e-4, 1e-3),
-        scale_floor: tuple[float, float] = (0.002, 0.02),
-        max_tries: int = 2,
-    ) -> None:
-        self.effects = effects
-        self.n_blocks = n_blocks
-        self.alpha = alpha
-        self.min_gain = min_gain
-        self.cutoff = cutoff
-        self.analysis_rate = analysis_rate
-        self.margin = margin
-        self.noise_floor = noise_floor
-        self.scale_floor = scale_floor
-        self.max_tries = max_tries
+    def __init__(self, options: AnalyzerOptions | None = None, **overrides: Any) -> None:
+        self.options = _options(options, overrides)
 
-    def _kwargs(self) -> dict[str, object]:
-        return {
-            k: getattr(self, k)
-            for k in (
-                "effects",
-                "n_blocks",
-                "alpha",
-                "min_gain",
-                "analysis_rate",
-                "margin",
-                "noise_floor",
-                "scale_floor",
-                "max_tries",
-            )
-        }
+    def __getattr__(self, name: str) -> Any:
+        # only called for names not found otherwise: the settings read through to the options
+        if name != "options" and name in {f.name for f in fields(AnalyzerOptions)}:
+            return getattr(self.options, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def fit(self, rec: Recording, imu: int | str = 0) -> DiscrepancyAnalyzer:
         """Analyse one IMU of a recording with a reference motion."""
-        self.report_ = analyze_recording(rec, imu, cutoff=self.cutoff, **self._kwargs())
+        self.report_ = analyze_recording(rec, imu, options=self.options)
         self.params_ = self.report_.params
         self.causes_ = self.report_.names
         return self
 
     def predict(self, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
         """``(gyro, acc)`` (T, 3) the fitted model says the IMU reads for ``rec``'s reference motion."""
-        ref = reference_of(rec, self.cutoff)
+        ref = reference_of(rec, self.options.cutoff)
         return predict(ref, {k: v for k, v in self.params_.items() if k != "noise"})

@@ -1,15 +1,17 @@
 """The REST API (FastAPI; OpenAPI document at ``/docs``) and the dashboard at ``/``.
 
-:func:`create_app` builds one app around a store (and, in the daemon, the worker, the metrics and a
-damage injector for simulated robots). One router per resource: robots, status, topology, alerts,
-simulate, health. Bad input never reaches a 500: unknown robots and alerts are 404, malformed bodies 422,
-bodies over ``max_request_bytes`` 413, damage on a real robot 409.
+:func:`create_app` builds one app around a store (and, in the daemon, the ingest pipeline that pushed
+frames go through, the worker, the metrics and the farm's damage control for simulated robots; the
+last two as the protocols of :mod:`service.control`). One router per resource: robots, status,
+topology, alerts, simulate, health. Bad input never reaches a 500: unknown robots and alerts are 404,
+malformed bodies 422, bodies over ``max_request_bytes`` 413, damage on a real robot 409, frames the
+pipeline could not store in time 503.
 
 Example
 -------
 >>> from fastapi.testclient import TestClient
->>> from service.store import Store
->>> client = TestClient(create_app(Store("sqlite://")))
+>>> from service.store import open_store
+>>> client = TestClient(create_app(open_store("sqlite://")))
 >>> client.get("/api/v1/robots").json(), client.get("/api/v1/robots/nope").status_code
 ([], 404)
 """
@@ -27,11 +29,11 @@ from fastapi.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, health, robots, simulate, status, topology
-from service.api.deps import DamageInjector
+from service.control import DamageControl, MonitorControl
+from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
 from service.settings import Settings, get_settings
 from service.store import Store, UnknownAlert, UnknownRobot
-from service.worker import Worker
 
 __all__ = ["DASHBOARD_DIR", "BodySizeLimit", "create_app"]
 
@@ -108,12 +110,15 @@ def create_app(
     store: Store,
     *,
     settings: Settings | None = None,
-    worker: Worker | None = None,
+    pipeline: Pipeline | None = None,
+    worker: MonitorControl | None = None,
     metrics: Metrics | None = None,
-    injector: DamageInjector | None = None,
+    damage: DamageControl | None = None,
     extra_state: dict[str, Any] | None = None,
 ) -> FastAPI:
-    """The API + dashboard app over ``store``; everything else is optional."""
+    """The API + dashboard app over ``store``; everything else is optional. Pushed frames go through
+    ``pipeline`` (default: one without sources, never started, which writes on the request's thread
+    through the same commit step)."""
     settings = settings or get_settings()
     app = FastAPI(
         title="bodyhealth",
@@ -122,9 +127,10 @@ def create_app(
     )
     app.state.store = store
     app.state.settings = settings
+    app.state.pipeline = pipeline if pipeline is not None else Pipeline(store, [], settings=settings)
     app.state.worker = worker
-    app.state.metrics = metrics or (worker.metrics if worker is not None else Metrics())
-    app.state.injector = injector
+    app.state.metrics = metrics or getattr(worker, "metrics", None) or Metrics()
+    app.state.damage = damage
     for k, v in (extra_state or {}).items():
         setattr(app.state, k, v)
 

@@ -1,4 +1,5 @@
-"""FastAPI dependencies: the only way a route reaches the store, the worker or the damage injector.
+"""FastAPI dependencies: the only way a route reaches the store, the ingest pipeline, the worker or the
+farm. The worker and the farm are reached through the protocols of :mod:`service.control`.
 
 Everything lives on ``app.state`` (set by :func:`service.api.create_app`), so one process may host
 several apps (tests) and nothing is a module-level global.
@@ -6,29 +7,23 @@ several apps (tests) and nothing is a module-level global.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 from fastapi import HTTPException, Request
 
+from service.control import DamageControl, MonitorControl
+from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
 from service.settings import Settings
 from service.store import RobotInfo, Store
-from service.worker import Worker
 
 __all__ = [
-    "DamageInjector",
-    "get_injector",
+    "get_damage",
     "get_metrics",
+    "get_pipeline",
     "get_robot",
     "get_settings_dep",
     "get_store",
     "get_worker",
 ]
-
-#: ``(robot, kind, params) -> diff JSON``; raises ``KeyError`` for a robot it does not simulate and
-#: ``ValueError`` for arguments it cannot apply.
-DamageInjector = Callable[[str, str, dict[str, Any]], dict[str, Any]]
 
 
 def get_store(request: Request) -> Store:
@@ -39,7 +34,11 @@ def get_settings_dep(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_worker(request: Request) -> Worker | None:
+def get_pipeline(request: Request) -> Pipeline:
+    return request.app.state.pipeline
+
+
+def get_worker(request: Request) -> MonitorControl | None:
     return request.app.state.worker
 
 
@@ -47,8 +46,8 @@ def get_metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
 
-def get_injector(request: Request) -> DamageInjector | None:
-    return request.app.state.injector
+def get_damage(request: Request) -> DamageControl | None:
+    return request.app.state.damage
 
 
 def get_robot(robot: str, request: Request) -> RobotInfo:

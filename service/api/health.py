@@ -8,10 +8,11 @@ from fastapi import APIRouter, Depends, Response
 from fastapi.responses import JSONResponse
 
 from service.api.deps import get_metrics, get_settings_dep, get_store, get_worker
+from service.control import MonitorControl
 from service.metrics import CONTENT_TYPE_LATEST, Metrics
 from service.settings import Settings
 from service.store import Store
-from service.worker import HEARTBEAT_COMPONENT, Worker
+from service.worker import HEARTBEAT_COMPONENT
 
 __all__ = ["router"]
 
@@ -27,7 +28,7 @@ def livez() -> dict[str, str]:
 def readyz(
     store: Store = Depends(get_store),
     settings: Settings = Depends(get_settings_dep),
-    worker: Worker | None = Depends(get_worker),
+    worker: MonitorControl | None = Depends(get_worker),
 ) -> JSONResponse:
     checks: dict[str, object] = {"database": store.ping()}
     beat = store.last_heartbeat(HEARTBEAT_COMPONENT) if checks["database"] else None

@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException
 
-from service.api.deps import get_robot, get_store
+from service.api.deps import get_pipeline, get_robot, get_store
 from service.api.schemas import FramesIn, RobotOut, StatusOut
-from service.ingest.base import FrameBatch, FrameError
+from service.frames import FrameBatch, FrameError
+from service.ingest.pipeline import IngestUnavailable, Pipeline
 from service.status import robot_status
 from service.store import RobotInfo, Store
 
@@ -40,7 +41,9 @@ def robot_detail(info: RobotInfo = Depends(get_robot), store: Store = Depends(ge
 
 
 @router.post("/{robot}/frames", status_code=201, summary="push frames of one robot (registers it when new)")
-def push_frames(robot: str, body: FramesIn, store: Store = Depends(get_store)) -> dict[str, int]:
+def push_frames(robot: str, body: FramesIn, pipeline: Pipeline = Depends(get_pipeline)) -> dict[str, int]:
+    """Frames go through the ingest pipeline like a device's (validated, queued behind what was read,
+    written by its writer, counted under the ``api`` source); the answer waits for the commit."""
     try:
         batch = FrameBatch(
             robot,
@@ -51,6 +54,8 @@ def push_frames(robot: str, body: FramesIn, store: Store = Depends(get_store)) -
             np.asarray(body.acc, float),
             np.asarray(body.gyro, float),
         )
-        return {"stored": store.write(batch)}
+        return {"stored": pipeline.submit(batch)}
     except (FrameError, ValueError) as err:
         raise HTTPException(status_code=422, detail=str(err)) from None
+    except IngestUnavailable as err:
+        raise HTTPException(status_code=503, detail=f"frames not stored: {err}") from None

@@ -241,7 +241,7 @@ class RobotOut(BaseModel):
 
 
 class DamageIn(BaseModel):
-    """A damage to inject into a simulated robot. Part arguments are optional: the simulator picks
+    """A damage to apply to a simulated robot. Part arguments are optional: the simulator picks
     a part when they are left out."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

@@ -6,8 +6,9 @@ import logging
 
 from fastapi import APIRouter, Depends, HTTPException
 
-from service.api.deps import DamageInjector, get_injector, get_robot
+from service.api.deps import get_damage, get_robot
 from service.api.schemas import DamageIn, DamageOut
+from service.control import DamageControl
 from service.store import RobotInfo
 
 __all__ = ["router"]
@@ -21,27 +22,27 @@ router = APIRouter(prefix="/api/v1/robots/{robot}/simulate", tags=["simulate"])
     "/damage",
     response_model=DamageOut,
     status_code=201,
-    summary="inject a damage into a simulated robot (409 for a real one)",
+    summary="damage a simulated robot (409 for a real one)",
 )
 def damage(
     body: DamageIn,
     info: RobotInfo = Depends(get_robot),
-    injector: DamageInjector | None = Depends(get_injector),
+    farm: DamageControl | None = Depends(get_damage),
 ) -> DamageOut:
-    if not info.simulated or injector is None:
+    if not info.simulated or farm is None or not farm.simulates(info.name):
         raise HTTPException(
             status_code=409,
             detail=f"robot {info.name!r} is not simulated in this process; "
-            "damage can only be injected into simulated robots",
+            "damage can only be applied to simulated robots",
         )
     params = body.model_dump(exclude={"kind"}, exclude_none=True)
     try:
-        truth = injector(info.name, body.kind, params)
+        truth = farm.apply_damage(info.name, body.kind, params)
     except KeyError as err:
         raise HTTPException(
             status_code=409, detail=f"robot {info.name!r} is not simulated here: {err}"
         ) from None
     except (ValueError, TypeError) as err:
         raise HTTPException(status_code=422, detail=str(err)) from None
-    log.warning("damage injected", extra={"robot": info.name, "kind": body.kind, "truth": truth})
+    log.warning("damage applied", extra={"robot": info.name, "kind": body.kind, "truth": truth})
     return DamageOut(robot=info.name, kind=body.kind, truth=truth)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from typing import Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query
@@ -10,8 +9,8 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from bodyschema.diff import diff_bodies
 from service.api.deps import get_robot, get_store, get_worker
 from service.api.schemas import TopologyOut, TopologyPair
+from service.control import MonitorControl
 from service.store import RobotInfo, Store
-from service.worker import Worker
 
 __all__ = ["router"]
 
@@ -58,7 +57,7 @@ def history(
 @router.post("/topology/retrain", status_code=202, summary="learn with a method in the next worker cycle")
 def retrain(
     info: RobotInfo = Depends(get_robot),
-    worker: Worker | None = Depends(get_worker),
+    worker: MonitorControl | None = Depends(get_worker),
     method: Method = Query("network"),
 ) -> dict[str, str]:
     if worker is None:
@@ -75,21 +74,15 @@ def retrain(
 def approve_baseline(
     info: RobotInfo = Depends(get_robot),
     store: Store = Depends(get_store),
-    worker: Worker | None = Depends(get_worker),
+    worker: MonitorControl | None = Depends(get_worker),
 ) -> TopologyOut:
     try:
+        # The worker also forgets what it tracked against the old baseline; without one the store
+        # alone approves (and resolves the open alerts, in the same transaction).
         if worker is not None:
-            return TopologyOut.of(worker.approve_baseline(info.name))
-        cur = store.latest_topology(info.name, method="fast") or store.latest_topology(info.name)
-        if cur is None:
-            raise LookupError(f"no topology learned for {info.name!r} yet")
-        store.set_baseline(info.name, cur.topology, "operator")
-        now = time.time()
-        for a in store.alerts(info.name):  # differences to the old baseline are over
-            if a.state != "resolved":
-                store.update_alert(a.id, state="resolved", updated_at=now)
+            base = worker.approve_baseline(info.name)
+        else:
+            base = store.approve_baseline(info.name, source="operator")
     except LookupError as err:
         raise HTTPException(status_code=409, detail=str(err)) from None
-    base = store.baseline(info.name)
-    assert base is not None
     return TopologyOut.of(base)

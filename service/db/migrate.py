@@ -1,7 +1,9 @@
 """Run the Alembic migrations from code: the only way the store's schema is created or changed.
 
-:func:`upgrade` is what :class:`service.store.Store` calls on start. It finds the migration scripts
-through the installed ``migrations`` package, so it works from any working directory.
+:func:`upgrade` is what :meth:`service.store.Store.upgrade` runs (and with it ``bodyhealth db upgrade``
+and ``bodyhealth serve`` at start); opening a store only compares :func:`current_revision` with
+:func:`head_revision`. The migration scripts are found through the installed ``migrations`` package, so
+this works from any working directory.
 
 Example
 -------
@@ -15,6 +17,7 @@ True
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from pathlib import Path
@@ -26,7 +29,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Engine
 from sqlalchemy.exc import DBAPIError
 
-__all__ = ["alembic_config", "current_revision", "downgrade", "head_revision", "upgrade"]
+__all__ = ["alembic_config", "current_revision", "downgrade", "head_revision", "known_revisions", "upgrade"]
 
 log = logging.getLogger(__name__)
 
@@ -48,11 +51,23 @@ def alembic_config(url: str | None = None) -> Config:
     return cfg
 
 
+@functools.cache
+def _scripts() -> ScriptDirectory:
+    # Read once per process: every store checks its schema against it, and the scripts do not change
+    # while the code that ships them runs.
+    return ScriptDirectory.from_config(alembic_config())
+
+
 def head_revision() -> str:
     """The newest revision the shipped scripts know."""
-    head = ScriptDirectory.from_config(alembic_config()).get_current_head()
+    head = _scripts().get_current_head()
     assert head is not None
     return head
+
+
+def known_revisions() -> frozenset[str]:
+    """Every revision the shipped scripts know (a database at another one was migrated by newer code)."""
+    return frozenset(rev.revision for rev in _scripts().walk_revisions())
 
 
 def current_revision(engine: Engine) -> str | None:

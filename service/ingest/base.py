@@ -1,4 +1,4 @@
-"""The one abstract source every transport implements, and the frame batch it produces.
+"""The one abstract source every transport implements (it produces :class:`~service.frames.FrameBatch`).
 
 Modelled on python-can's ``BusABC``: :meth:`Source.read` is a template that calls the transport's
 :meth:`Source._read_raw`, validates what comes back, and keeps the counters; a transport implements
@@ -13,6 +13,7 @@ in: the estimators align the two streams themselves.
 Example
 -------
 >>> import numpy as np
+>>> from service.frames import FrameBatch
 >>> class Const(Source):
 ...     def _read_raw(self, timeout):
 ...         return [FrameBatch("r1", np.array([0.0]), ("j1",), np.zeros((1, 1)), ("imu0",),
@@ -27,117 +28,14 @@ from __future__ import annotations
 import logging
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
+from service.frames import FrameBatch, FrameError
 
-__all__ = ["Counters", "FrameBatch", "FrameError", "Source", "check_batch_stamps"]
+__all__ = ["Counters", "Source"]
 
 log = logging.getLogger(__name__)
-
-
-class FrameError(ValueError):
-    """A frame batch that breaks the contract (shapes, NaN/Inf, time going backwards)."""
-
-
-def check_batch_stamps(t: np.ndarray, name: str = "t") -> None:
-    """Raise :class:`FrameError` naming the first stamp of ``t`` that goes backwards or repeats.
-
-    Within one batch both are refused: the device's clock lost track, and no ordering of the samples
-    can be guessed safely. (Across batches the store allows overlaps: a later write wins.)
-
-    >>> check_batch_stamps(np.array([0.0, 0.01, 0.01]), "t_q")
-    Traceback (most recent call last):
-    ...
-    service.ingest.base.FrameError: t_q has a duplicate stamp at index 2 (0.01 s)
-    """
-    if t.ndim != 1:
-        raise FrameError(f"{name} must have shape (T,), got {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise FrameError(f"{name} contains NaN or Inf")
-    if t.shape[0] > 1:
-        d = np.diff(t)
-        bad = np.flatnonzero(d <= 0)
-        if bad.size:
-            i = int(bad[0])
-            if d[i] < 0:
-                raise FrameError(
-                    f"{name} goes backwards at index {i + 1} ({t[i]:.6g} s -> {t[i + 1]:.6g} s); "
-                    f"{name} must be strictly increasing within a batch"
-                )
-            raise FrameError(f"{name} has a duplicate stamp at index {i + 1} ({t[i]:.6g} s)")
-
-
-@dataclass(frozen=True)
-class FrameBatch:
-    """``T`` consecutive samples of one robot (T may be 1).
-
-    ``t`` (T,) device time in s (never arrival time); ``q`` (T,N) rad; ``acc`` (T,K,3) m/s² specific
-    force and ``gyro`` (T,K,3) rad/s in each sensor frame. An IMU that fell silent is simply absent from
-    ``imu_names``; a robot without encoders has N = 0.
-
-    Multi-rate (``t_q`` given): ``t_q`` (T_q,) stamps the encoder stream on the encoders' own clock,
-    ``q`` and the optional ``qd`` (rad/s) are (T_q,N) on it, and ``t`` stamps the IMU stream only.
-    Single-clock batches may carry ``qd`` (T,N) on ``t``.
-    """
-
-    robot: str
-    t: np.ndarray
-    joint_names: tuple[str, ...]
-    q: np.ndarray
-    imu_names: tuple[str, ...]
-    acc: np.ndarray
-    gyro: np.ndarray
-    t_q: np.ndarray | None = None
-    qd: np.ndarray | None = None
-
-    @property
-    def n_samples(self) -> int:
-        """IMU samples (all samples in a single-clock batch): what the counters count."""
-        return int(self.t.shape[0])
-
-    @property
-    def is_multirate(self) -> bool:
-        """True when the encoders carry stamps of their own (``t_q``)."""
-        return self.t_q is not None
-
-    @property
-    def encoder_t(self) -> np.ndarray:
-        """The encoder stream's stamps: ``t_q`` when multi-rate, else ``t``."""
-        return self.t if self.t_q is None else self.t_q
-
-    @property
-    def n_imu_samples(self) -> int:
-        return self.n_samples * len(self.imu_names)
-
-    def validate(self) -> None:
-        """Raise :class:`FrameError` naming what is wrong."""
-        if not self.robot or not isinstance(self.robot, str):
-            raise FrameError("robot name must be a non-empty string")
-        T, N, K = self.t.shape[0] if self.t.ndim == 1 else -1, len(self.joint_names), len(self.imu_names)
-        if T < 1:
-            raise FrameError(f"t must have shape (T,) with T >= 1, got {self.t.shape}")
-        Tq, on = T, "t"
-        if self.t_q is not None:
-            if not isinstance(self.t_q, np.ndarray) or self.t_q.ndim != 1 or self.t_q.shape[0] < 1:
-                raise FrameError(f"t_q must have shape (T_q,) with T_q >= 1, got {np.shape(self.t_q)}")
-            Tq, on = self.t_q.shape[0], "t_q"
-        if self.q.shape != (Tq, N):
-            raise FrameError(f"q must have shape {(Tq, N)} (on {on}), got {self.q.shape}")
-        if self.qd is not None and np.shape(self.qd) != (Tq, N):
-            raise FrameError(f"qd must have shape {(Tq, N)} (on {on}), got {np.shape(self.qd)}")
-        for name in ("acc", "gyro"):
-            v = getattr(self, name)
-            if v.shape != (T, K, 3):
-                raise FrameError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
-        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
-            v = getattr(self, name)
-            if v is not None and not np.all(np.isfinite(v)):
-                raise FrameError(f"{name} contains NaN or Inf")
-        check_batch_stamps(self.t, "t")
-        if self.t_q is not None:
-            check_batch_stamps(self.t_q, "t_q")
 
 
 @dataclass
@@ -195,6 +93,16 @@ class Source(ABC):
     @abstractmethod
     def _read_raw(self, timeout: float) -> Iterable[FrameBatch]:
         """Transport-specific read and decode; may return an empty iterable on timeout."""
+
+    def simulated_robots(self) -> dict[str, str]:
+        """Robots this source simulates, name -> catalog model (a real device: none). The pipeline
+        registers them in the store when it starts, so the API knows which robots may be damaged on
+        purpose; the source itself never writes the store."""
+        return {}
+
+    def resume_after(self, last_frame_t: Mapping[str, float]) -> None:  # noqa: B027 - optional hook
+        """Told by the pipeline when it starts: the device time of the last stored frame of every robot
+        the store holds. A source that can seek (a replay) starts after it; a live device ignores it."""
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release the transport (port, bus, file)."""

@@ -55,7 +55,8 @@ from can.exceptions import error_check
 from can.interfaces.slcan import slcanBus
 from can.util import CAN_FD_DLC
 
-from service.ingest.base import FrameBatch, Source
+from service.frames import FrameBatch
+from service.ingest.base import Source
 from service.ingest.can_mapping import SignalMap, load_dbc
 from service.ingest.can_regroup import MultirateAssembler, SampleAssembler
 from service.ingest.device import Backoff, DeviceConfig

@@ -62,7 +62,7 @@ from collections.abc import Sequence
 import numpy as np
 from cantools.database.can import Message
 
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 from service.ingest.can_mapping import ACC, GYRO, STAMP, Q, SignalMap
 from service.ingest.device import DeviceClock, StreamClock, StreamJoiner
 
@@ -124,8 +124,29 @@ class _Group:
         self.factor: list[np.ndarray] = []
 
 
+def _destinations(
+    targets: Sequence[tuple[str, int, int, int, float]], N: int, K: int
+) -> tuple[list[int], list[float]]:
+    """Column in a sample row (joints, then accelerometers, gyroscopes, stamp) and scale factor of each
+    signal of a frame: its counter first, which goes nowhere (-1)."""
+    dest = [-1]  # the counter goes nowhere
+    factor = [1.0]
+    for _, kind, i, axis, f in targets:
+        if kind == Q:
+            dest.append(i)
+        elif kind == ACC:
+            dest.append(N + 3 * i + axis)
+        elif kind == GYRO:
+            dest.append(N + 3 * K + 3 * i + axis)
+        else:
+            assert kind == STAMP
+            dest.append(N + 6 * K)
+        factor.append(f)
+    return dest, factor
+
+
 class SampleAssembler:
-    """Frames in (``add``/``add_many``), :class:`~service.ingest.base.FrameBatch` out (``take``).
+    """Frames in (``add``/``add_many``), :class:`~service.frames.FrameBatch` out (``take``).
 
     Not thread-safe: one thread feeds and takes (the CAN source's reader thread)."""
 
@@ -155,6 +176,20 @@ class SampleAssembler:
         self._fids = np.array(fids, dtype=np.int64)
         self._nf = len(fids)
         self._msg_len = np.array([signal_map.by_id[f].message.length for f in fids], dtype=np.int64)
+        self._build_groups(signal_map, fids, N, K)
+        pos = {f: p for p, f in enumerate(fids)}
+        self._joint_pos = np.array(sorted(pos[f] for f in signal_map.joint_frames), dtype=np.int64)
+        self._imu_pos = [np.array(sorted(pos[f] for f in fr), dtype=np.int64) for fr in signal_map.imu_frames]
+        self._stamp_pos = np.array(sorted(pos[f] for f in signal_map.stamp_frames), dtype=np.int64)
+        self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._ready: list[tuple[int, np.ndarray, tuple[bool, ...]]] = []
+        self._last_released: int | None = None
+        self._newest: int | None = None
+        self._all_imus = (True,) * K
+
+    def _build_groups(self, signal_map: SignalMap, fids: list[int], N: int, K: int) -> None:
+        """Sort the frame ids into groups that decode alike (one compiled layout and payload size, or
+        cantools per frame id) and record where each frame's signals go in a sample row."""
         self._group_of = np.zeros(self._nf, dtype=np.int64)
         self._row_in_group = np.zeros(self._nf, dtype=np.int64)
         self._groups: list[_Group] = []
@@ -168,34 +203,13 @@ class SampleAssembler:
                 keys[key] = len(self._groups)
                 self._groups.append(_Group(specs, route.message, names))
             g = self._groups[keys[key]]
-            dest = [-1]  # the counter goes nowhere
-            factor = [1.0]
-            for _, kind, i, axis, f in route.targets:
-                if kind == Q:
-                    dest.append(i)
-                elif kind == ACC:
-                    dest.append(N + 3 * i + axis)
-                elif kind == GYRO:
-                    dest.append(N + 3 * K + 3 * i + axis)
-                else:
-                    assert kind == STAMP
-                    dest.append(N + 6 * K)
-                factor.append(f)
+            dest, factor = _destinations(route.targets, N, K)
             self._group_of[p] = keys[key]
             self._row_in_group[p] = len(g.dest)
             g.dest.append(np.array(dest, dtype=np.int64))
             g.factor.append(np.array(factor))
         self._dest = [np.stack(g.dest) for g in self._groups]
         self._factor = [np.stack(g.factor) for g in self._groups]
-        pos = {f: p for p, f in enumerate(fids)}
-        self._joint_pos = np.array(sorted(pos[f] for f in signal_map.joint_frames), dtype=np.int64)
-        self._imu_pos = [np.array(sorted(pos[f] for f in fr), dtype=np.int64) for fr in signal_map.imu_frames]
-        self._stamp_pos = np.array(sorted(pos[f] for f in signal_map.stamp_frames), dtype=np.int64)
-        self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._ready: list[tuple[int, np.ndarray, tuple[bool, ...]]] = []
-        self._last_released: int | None = None
-        self._newest: int | None = None
-        self._all_imus = (True,) * K
 
     @property
     def ready(self) -> int:

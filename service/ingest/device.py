@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 
 __all__ = [
     "STREAMS",

@@ -2,8 +2,11 @@
 
 The farm is stepped in ``step_seconds`` of simulated (device) time, paced to ``speed`` × the wall clock
 (``math.inf``: as fast as the simulation runs). Every step yields one batch per robot. The source
-exposes ``.farm`` and a thread-safe :meth:`FarmSource.inject` so the API can damage a robot while the
-reader thread is stepping it. On attach it marks every farm robot simulated in the store.
+exposes ``.farm`` and a thread-safe :meth:`FarmSource.apply_damage` so the API can damage a robot while
+the reader thread is stepping it (through :class:`FarmDamage`, the service's
+:class:`~service.control.DamageControl`). It declares its robots simulated
+(:meth:`FarmSource.simulated_robots`); the pipeline registers them in the store, like every frame it
+carries.
 
 Example (any object with the farm's ``advance``/``robot_names``/``catalog_name`` works)
 -------
@@ -28,13 +31,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from service.ingest.base import FrameBatch, Source
+from service.frames import FrameBatch
+from service.ingest.base import Source
 from service.ingest.replay import recording_batch
 
-__all__ = ["FarmSource", "farm_robot_names"]
+__all__ = ["FarmDamage", "FarmSource", "farm_robot_names"]
 
 #: Wall seconds within which a step counts as due.
 _SLACK = 1e-6
@@ -88,16 +92,15 @@ class FarmSource(Source):
     def robot_names(self) -> list[str]:
         return list(self.farm.robot_names)
 
-    def attach_store(self, store: Any) -> None:
-        """Register every robot of the farm as simulated, with its catalog model."""
-        for name in self.robot_names:
-            store.mark_simulated(name, self.farm.catalog_name(name))
+    def simulated_robots(self) -> dict[str, str]:
+        """Every robot of the farm, with its catalog model."""
+        return {name: self.farm.catalog_name(name) for name in self.robot_names}
 
-    def inject(self, robot: str, kind: str, **params: Any) -> Any:
-        """Damage ``robot`` (e.g. ``inject("ur5e-1", "imu_moved", imu="imu3")``); returns the farm's
-        ground-truth diff. Safe to call while the reader thread is stepping the farm."""
+    def apply_damage(self, robot: str, kind: str, **params: Any) -> Any:
+        """Damage ``robot`` (e.g. ``apply_damage("ur5e-1", "imu_moved", imu="imu3")``); returns the
+        farm's ground-truth diff. Safe to call while the reader thread is stepping the farm."""
         with self.lock:
-            return self.farm.inject(robot, kind, **params)
+            return self.farm.apply_damage(robot, kind, **params)
 
     def _behind(self) -> float:
         """Simulated seconds the farm is behind its wall-clock target (negative: ahead)."""
@@ -126,3 +129,28 @@ class FarmSource(Source):
             if math.isfinite(self.speed) and not self._step_due():
                 break
         return out
+
+
+class FarmDamage:
+    """The :class:`~service.control.DamageControl` over the farm sources of one service process: a
+    damage request goes to the farm that simulates the robot.
+
+    >>> FarmDamage([]).simulates("ur5e-1")
+    False
+    """
+
+    def __init__(self, farms: Sequence[FarmSource]) -> None:
+        self.farms = list(farms)
+
+    def _farm_of(self, robot: str) -> FarmSource:
+        for src in self.farms:
+            if robot in src.robot_names:
+                return src
+        raise KeyError(robot)
+
+    def simulates(self, robot: str) -> bool:
+        return any(robot in src.robot_names for src in self.farms)
+
+    def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
+        truth = self._farm_of(robot).apply_damage(robot, kind, **params)
+        return truth.to_json() if hasattr(truth, "to_json") else dict(truth or {})

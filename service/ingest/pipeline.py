@@ -12,9 +12,16 @@ queue into the store and joins every thread.
 Counters are per source (``source.counters``, in samples): ``received`` and ``malformed`` are kept by
 the source's ``read()``, ``stored`` and ``dropped`` by the pipeline.
 
-A source may define ``attach_store(store)`` (called once on start: the farm marks its robots simulated,
-a replay resumes after the last stored frame) and an ``exhausted`` attribute (a finite source that has
-delivered everything; its reader then ends).
+The store is the pipeline's alone: a source never touches it. When the pipeline starts, it registers
+the robots a source declares simulated (:meth:`Source.simulated_robots`, the farm) and tells every
+source the last stored frame of each robot (:meth:`Source.resume_after`: a replay resumes there). A
+source may have an ``exhausted`` attribute (a finite source that has delivered everything; its reader
+then ends).
+
+Frames pushed over the REST API take the same path: :meth:`Pipeline.submit` validates the batch,
+queues it behind everything already read and waits for the writer's commit (counted under the
+``api`` source). A pipeline that was never started writes the batch on the caller's thread through
+the same commit step.
 
 Run as a program it ingests sources into a database until they are exhausted or it is stopped::
 
@@ -24,15 +31,16 @@ Run as a program it ingests sources into a database until they are exhausted or 
 Example
 -------
 >>> import numpy as np
->>> from service.ingest.base import FrameBatch, Source
->>> from service.store import Store
+>>> from service.ingest.base import Source
+>>> from service.frames import FrameBatch
+>>> from service.store import open_store
 >>> class Three(Source):
 ...     exhausted = False
 ...     def _read_raw(self, timeout):
 ...         self.exhausted = True
 ...         return [FrameBatch("r", np.array([float(i)]), (), np.zeros((1, 0)), ("imu0",),
 ...                            np.zeros((1, 1, 3)), np.zeros((1, 1, 3))) for i in range(3)]
->>> store = Store("sqlite://")
+>>> store = open_store("sqlite://")
 >>> src = Three("three")
 >>> with Pipeline(store, [src]) as pipe:
 ...     pipe.wait_exhausted(timeout=10)
@@ -52,15 +60,17 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sqlalchemy.exc import SQLAlchemyError
 
-from service.ingest.base import Counters, FrameBatch, FrameError, Source
+from service.frames import FrameBatch, FrameError
+from service.ingest.base import Counters, Source
 from service.settings import Settings, get_settings
-from service.store import Store
+from service.store import Store, open_store
 
-__all__ = ["CommitCallback", "CommitLog", "Pipeline", "main"]
+__all__ = ["CommitCallback", "CommitLog", "IngestUnavailable", "Pipeline", "PushSource", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +78,27 @@ log = logging.getLogger(__name__)
 CommitCallback = Callable[[list[FrameBatch]], None]
 
 _Item = tuple[Source, FrameBatch]
+
+
+class IngestUnavailable(RuntimeError):
+    """A submitted batch was not stored: the queue stayed full or the database stayed unavailable."""
+
+
+class PushSource(Source):
+    """Batches handed to :meth:`Pipeline.submit` (the REST API) rather than read from a transport. It
+    has no reader thread: it exists for its name and counters."""
+
+    def _read_raw(self, timeout: float) -> list[FrameBatch]:
+        return []
+
+
+@dataclass
+class _Waiter:
+    """How a submitted batch ended: ``stored``, ``malformed`` (with the store's reason) or ``dropped``."""
+
+    done: threading.Event = field(default_factory=threading.Event)
+    outcome: str = ""
+    reason: str = ""
 
 
 class Pipeline:
@@ -117,16 +148,16 @@ class Pipeline:
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
         self._pending = 0  # batches handed to the queue and not yet written (or dropped)
+        #: Counters of the batches pushed through :meth:`submit`.
+        self.push_source = PushSource("api")
+        self._waiters: dict[int, _Waiter] = {}  # id(batch) -> its submitter, while in flight
 
     # ------------------------------------------------------------------------------ control
     def start(self) -> Pipeline:
         """Attach sources to the store and start the threads."""
         if self._writer is not None:
             raise RuntimeError("pipeline already started")
-        for src in self.sources:
-            attach = getattr(src, "attach_store", None)
-            if callable(attach):
-                attach(self.store)
+        self._prepare_sources()
         self._writer = threading.Thread(target=self._write_loop, name="ingest-writer", daemon=True)
         self._writer.start()
         for src in self.sources:
@@ -134,6 +165,58 @@ class Pipeline:
             self._readers.append(th)
             th.start()
         return self
+
+    def _prepare_sources(self) -> None:
+        """Register the robots the sources simulate; tell every source where the store ends."""
+        for src in self.sources:
+            for name, model in src.simulated_robots().items():
+                self.store.mark_simulated(name, model)
+        last = {r.name: r.last_frame_t for r in self.store.robots() if r.last_frame_t is not None}
+        for src in self.sources:
+            src.resume_after(last)
+
+    def submit(self, batch: FrameBatch, timeout: float | None = None) -> int:
+        """Store ``batch`` the way every source's batches are stored; returns the samples stored.
+
+        Raises :class:`FrameError` for a batch that breaks the contract (nothing of it is stored) and
+        :class:`IngestUnavailable` when it could not be stored in time (queue full, database down).
+        Waits at most ``timeout`` seconds (default: the queue's put timeout plus the write retries).
+        """
+        src, n = self.push_source, batch.n_samples
+        src.counters.add("received", n)
+        try:
+            batch.validate()
+        except FrameError:
+            src.counters.add("malformed", n)
+            raise
+        waiter = _Waiter()
+        with self._lock:
+            self._waiters[id(batch)] = waiter
+        try:
+            if self.running:
+                self._put(src, batch)
+                limit = self.put_timeout + self.write_retry_seconds + 5.0 if timeout is None else timeout
+                if not waiter.done.wait(limit):
+                    raise IngestUnavailable(f"batch not stored within {limit:.1f} s")
+            else:
+                self._commit([(src, batch)])
+        finally:
+            with self._lock:
+                self._waiters.pop(id(batch), None)
+        if waiter.outcome == "malformed":
+            raise FrameError(waiter.reason or "rejected by the store")
+        if waiter.outcome != "stored":
+            raise IngestUnavailable(waiter.reason or "batch dropped")
+        return n
+
+    def _settle(self, items: list[_Item], outcome: str, reason: str = "") -> None:
+        """Tell the submitters of ``items`` (if any) how their batches ended."""
+        with self._lock:
+            waiters = [self._waiters.get(id(b)) for _, b in items]
+        for w in waiters:
+            if w is not None and not w.done.is_set():
+                w.outcome, w.reason = outcome, reason
+                w.done.set()
 
     def stop(self, timeout: float = 30.0) -> None:
         """Stop reading, write everything already queued, join the threads (idempotent)."""
@@ -164,8 +247,12 @@ class Pipeline:
         return True
 
     def counters(self) -> dict[str, dict[str, int]]:
-        """Counters of each source by name."""
-        return {src.name: src.counters.as_dict() for src in self.sources}
+        """Counters of each source by name (``api``: the batches pushed through :meth:`submit`, once
+        there were any)."""
+        out = {src.name: src.counters.as_dict() for src in self.sources}
+        if self.push_source.counters.received:
+            out[self.push_source.name] = self.push_source.counters.as_dict()
+        return out
 
     def totals(self) -> dict[str, int]:
         """Counters summed over sources, plus the pipeline's own stats and the queue depth."""
@@ -211,6 +298,7 @@ class Pipeline:
         except queue.Full:
             self._done(1)
             src.counters.add("dropped", b.n_samples)
+            self._settle([(src, b)], "dropped", f"ingest queue full for {self.put_timeout:.2f} s")
             log.warning(
                 "source %s: queue full for %.2f s, dropped %d samples",
                 src.name,
@@ -248,6 +336,7 @@ class Pipeline:
                 log.exception("ingest writer: unexpected error; %d batches dropped", len(items))
                 for src, b in items:
                     src.counters.add("dropped", b.n_samples)
+                self._settle(items, "dropped", "ingest writer error")
             finally:
                 self._done(len(items))
             if self.prune_interval > 0 and time.monotonic() - last_prune >= self.prune_interval:
@@ -276,10 +365,12 @@ class Pipeline:
                     ok = None
                 if ok is None:
                     src.counters.add("malformed", b.n_samples)
+                    self._settle([(src, b)], "malformed")
                 else:
                     stored.extend(ok)
         for src, b in stored:
             src.counters.add("stored", b.n_samples)
+        self._settle(stored, "stored")
         if stored and self.on_commit is not None:
             try:
                 self.on_commit([b for _, b in stored])
@@ -299,6 +390,7 @@ class Pipeline:
             except FrameError as err:
                 if len(items) == 1:
                     log.warning("ingest writer: rejected batch from %s: %s", items[0][0].name, err)
+                    self._settle(items, "malformed", str(err))
                 return None
             except SQLAlchemyError as err:
                 self.stats.add("write_errors")
@@ -311,6 +403,7 @@ class Pipeline:
                     )
                     for src, b in items:
                         src.counters.add("dropped", b.n_samples)
+                    self._settle(items, "dropped", f"database unavailable: {err.__class__.__name__}")
                     return []
                 log.warning(
                     "ingest writer: write failed (%s); retrying in %.2f s", err.__class__.__name__, delay
@@ -358,7 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
     settings = get_settings()
-    store = Store(args.database_url or settings.database_url, settings=settings)
+    store = open_store(args.database_url or settings.database_url, settings=settings)  # a program, like serve
     sources = [open_source(spec, settings) for spec in args.specs]
     commit_log = CommitLog(args.commit_log) if args.commit_log else None
     stop = threading.Event()

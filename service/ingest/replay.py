@@ -3,8 +3,8 @@
 The recording's own time stamps are the device time of the frames. ``speed=1`` paces batches to the
 wall clock, ``speed=10`` ten times faster, ``speed=math.inf`` as fast as the pipeline takes them.
 ``loop=True`` starts over at the end with time shifted on (device time keeps increasing). When the
-pipeline attaches a store, the replay resumes after the last frame the store already has of this robot,
-so a restarted ingest neither duplicates nor skips frames.
+pipeline starts, it tells the replay the last frame the store already has of this robot
+(:meth:`ReplaySource.resume_after`), so a restarted ingest neither duplicates nor skips frames.
 
 A multi-rate recording (encoders on stamps of their own, docs/recording-format.md) replays as
 multi-rate batches: each chunk cuts both streams at the same device times, each by its own stamps, and
@@ -27,14 +27,14 @@ import itertools
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from bodyschema.recording import Recording
-from service.ingest.base import FrameBatch, Source
+from service.frames import FrameBatch
+from service.ingest.base import Source
 from simulators.recording_io import load_recording
 
 __all__ = ["ReplaySource", "recording_batch"]
@@ -148,13 +148,10 @@ class ReplaySource(Source):
         self._origin: tuple[float, float] | None = None  # (wall, device) at the first batch
         self.exhausted = False
 
-    def attach_store(self, store: Any) -> None:
-        """Resume after the last frame ``store`` holds of this robot (when ``resume``)."""
-        if not self.resume:
-            return
-        info = store.robot(self.robot)
-        if info is not None and info.last_frame_t is not None:
-            self.skip_until(info.last_frame_t)
+    def resume_after(self, last_frame_t: Mapping[str, float]) -> None:
+        """Resume after the last stored frame of this robot (when ``resume``)."""
+        if self.resume and self.robot in last_frame_t:
+            self.skip_until(last_frame_t[self.robot])
 
     def skip_until(self, t: float) -> None:
         """Deliver only frames with device time after ``t``."""

@@ -45,7 +45,8 @@ from urllib.parse import parse_qs
 import numpy as np
 import serial
 
-from service.ingest.base import FrameBatch, Source
+from service.frames import FrameBatch
+from service.ingest.base import Source
 from service.ingest.device import (
     STREAMS,
     Backoff,

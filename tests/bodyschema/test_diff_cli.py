@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
+from cli.main import main
 from simulators.recording_io import save_recording
 from simulators.simulation import simulate
 

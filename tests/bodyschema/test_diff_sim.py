@@ -53,7 +53,7 @@ def test_each_damage_is_one_finding_on_the_right_part(robot: str, kind: str, arg
     base = estimate_topology(drop_impacts(sim.advance(seconds=WINDOW)))
     assert base.same_structure(sim.truth()) and base.unique
     assert judge(base, sim.advance(seconds=WINDOW)) == []
-    truth = sim.inject(kind, **args).findings[0]
+    truth = sim.apply_damage(kind, **args).findings[0]
     sim.advance(seconds=2.0)
     assert judge(base, sim.advance(seconds=WINDOW)) == [(kind, truth.part)]
 
@@ -77,7 +77,7 @@ def test_encoder_offset_against_the_baseline_fingerprint(robot: str, joint: str)
         rec = sim.advance(seconds=WINDOW)
         fps = fingerprints(rec, base, current=estimate_topology(drop_impacts(rec)))
         assert joint in fps
-        sim.inject("encoder_fault", joint=joint, mode="offset", value=0.3)
+        sim.apply_damage("encoder_fault", joint=joint, mode="offset", value=0.3)
         sim.advance(seconds=2.0)
         rec = sim.advance(seconds=WINDOW)
         cur = estimate_topology(drop_impacts(rec))

@@ -10,7 +10,9 @@ from bodyschema import imu_effects as fx
 from bodyschema.discrepancy import (
     EFFECTS,
     FITTED_EFFECTS,
+    AnalyzerOptions,
     DiscrepancyAnalyzer,
+    analyze,
     fit_params,
     predict,
     prepare,
@@ -18,7 +20,7 @@ from bodyschema.discrepancy import (
 )
 from bodyschema.discrepancy.effects import pack, unpack
 from bodyschema.discrepancy.fit import residual
-from bodyschema.discrepancy.inject import draw, inject
+from bodyschema.discrepancy.hidden import draw, hide_effect
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import reference_motion, smooth_random_motion
 
@@ -72,7 +74,7 @@ def _expected(effect: str, p: dict, t: np.ndarray, quat: np.ndarray, g0: np.ndar
 
 
 def test_each_effect_predicts_and_injects_its_physical_definition(motion, rng) -> None:
-    # predict (the fitted model) and inject (the hidden-effect tests) both against the definition
+    # predict (the fitted model) and hide_effect (the hidden-effect tests) both against the definition
     ref = reference_motion(motion["t"], motion["quat"], motion["pos"])
     g0, a0 = predict(ref, {})
     inner = slice(10, -10)
@@ -80,7 +82,7 @@ def test_each_effect_predicts_and_injects_its_physical_definition(motion, rng) -
         p = draw(e, rng)
         g_exp, a_exp = _expected(e, p, ref.t, motion["quat"], g0, a0)
         assert np.abs(g_exp - g0).max() + np.abs(a_exp - a0).max() > 1e-3, e  # the effect shows
-        g_inj, a_inj = inject(e, p, ref.t, g0, a0, motion["quat"], rng)
+        g_inj, a_inj = hide_effect(e, p, ref.t, g0, a0, motion["quat"], rng)
         g, a = predict(ref, {e: p})
         for got_g, got_a in ((g, a), (g_inj, a_inj)):
             np.testing.assert_allclose(got_g[inner], g_exp[inner], atol=1e-9, err_msg=e)
@@ -140,3 +142,18 @@ def test_estimator_api(motion) -> None:
     gyro, _ = est.predict(rec)
     assert np.allclose(gyro[50:-50], g[50:-50], atol=5e-3)
     assert est.report_.to_json()["causes"][0]["effect"] == "gyro_bias"
+
+
+def test_options_and_keywords_are_one_setting(motion) -> None:
+    """analyze and the estimator share AnalyzerOptions; a keyword replaces its field."""
+    ref = reference_motion(motion["t"], motion["quat"], motion["pos"])
+    g = motion["gyro"] + [0.0, 0.0, 0.05]
+    opts = AnalyzerOptions(n_blocks=6, effects=("gyro_bias", "acc_bias"))
+    by_options = analyze(ref, g, motion["acc"], options=opts)
+    by_keywords = analyze(ref, g, motion["acc"], n_blocks=6, effects=("gyro_bias", "acc_bias"))
+    assert by_options.to_json() == by_keywords.to_json()
+    assert by_options.settings["n_blocks"] == 6 and by_options.names == ["gyro_bias"]
+    est = DiscrepancyAnalyzer(opts, n_blocks=5)
+    assert est.options == AnalyzerOptions(n_blocks=5, effects=("gyro_bias", "acc_bias")) and est.n_blocks == 5
+    with pytest.raises(TypeError, match="AnalyzerOptions"):
+        analyze(ref, g, motion["acc"], n_block=6)

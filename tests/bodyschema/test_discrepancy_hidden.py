@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodyschema.discrepancy import EFFECT_NAMES, analyze
-from bodyschema.discrepancy.inject import draw, inject
+from bodyschema.discrepancy.hidden import draw, hide_effect
 from bodyschema.rigid_motion import reference_motion, smooth_random_motion
 
 
@@ -19,13 +19,13 @@ def _motion(rng: np.random.Generator) -> dict[str, np.ndarray]:
 
 def _hide(effect: str, true: dict, m: dict, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
     """(t, quat, pos, gyro, acc) at 100 Hz with ``effect`` injected at the generation rate."""
-    gyro, acc = inject(effect, true, m["t"], m["gyro"], m["acc"], m["quat"], rng)
+    gyro, acc = hide_effect(effect, true, m["t"], m["gyro"], m["acc"], m["quat"], rng)
     if effect == "noise":  # noise is white at the recorded rate: add it after decimation
         gyro, acc = m["gyro"], m["acc"]
     s = slice(0, None, 8)
     t, gyro, acc = m["t"][s], gyro[s], acc[s]
     if effect == "noise":
-        gyro, acc = inject(effect, true, t, gyro, acc, m["quat"][s], rng)
+        gyro, acc = hide_effect(effect, true, t, gyro, acc, m["quat"][s], rng)
     return t, m["quat"][s], m["pos"][s], gyro, acc
 
 
@@ -103,8 +103,8 @@ def test_two_hidden_effects_are_both_named(rng: np.random.Generator) -> None:
     gyro, acc = m["gyro"], m["acc"]
     truths = {e: draw(e, rng) for e in ("time_offset", "lever_arm")}
     # the lever arm sits on the body, the time offset delays what the sensor reports
-    gyro, acc = inject("lever_arm", truths["lever_arm"], m["t"], gyro, acc, m["quat"], rng)
-    gyro, acc = inject("time_offset", truths["time_offset"], m["t"], gyro, acc, m["quat"], rng)
+    gyro, acc = hide_effect("lever_arm", truths["lever_arm"], m["t"], gyro, acc, m["quat"], rng)
+    gyro, acc = hide_effect("time_offset", truths["time_offset"], m["t"], gyro, acc, m["quat"], rng)
     s = slice(0, None, 8)
     ref = reference_motion(m["t"][s], m["quat"][s], m["pos"][s], m["gravity"], cutoff=10.0)
     gyro, acc = gyro[s], acc[s]

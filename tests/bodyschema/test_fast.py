@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bodyschema.estimate import estimate_topology
-from bodyschema.fast import FastEstimator, fast_fit, noise_level
+from bodyschema.fast import FastEstimator, FastOptions, fast_fit, noise_level
 from simulators.kinematic_tree import random_robot_recording
 
 
@@ -139,3 +139,21 @@ def test_bad_input_is_refused_clearly(rng, mutate, message):
     q, qd, g = mutate(rec.q, rec.qd, rec.gyro)
     with pytest.raises(ValueError, match=message):
         fast_fit(q, qd, g)
+
+
+def test_options_and_keywords_are_one_setting(rng):
+    """Every entry point takes one FastOptions; a keyword replaces its field, and the forms agree."""
+    rec = random_robot_recording(rng, n_joints=4, seconds=10.0)
+    opts = FastOptions(fit_ratio=10.0, rel_tol=1e-3)
+    by_options = fast_fit(rec.q, rec.qd, rec.gyro, options=opts)
+    by_keywords = fast_fit(rec.q, rec.qd, rec.gyro, fit_ratio=10.0, rel_tol=1e-3)
+    overridden = fast_fit(rec.q, rec.qd, rec.gyro, options=replace(opts, fit_ratio=25.0), fit_ratio=10.0)
+    estimator = FastEstimator(opts).fit(rec.q, rec.qd, rec.gyro)
+    for fit in (by_keywords, overridden, estimator.result_):
+        assert fit.edges == by_options.edges
+        np.testing.assert_array_equal(fit.imu_confidence, by_options.imu_confidence)
+    assert FastEstimator(fit_ratio=3.0).fit_ratio == 3.0 and FastEstimator().options == FastOptions()
+    with pytest.raises(TypeError, match="need the stamps"):
+        fast_fit(rec.q, rec.qd, rec.gyro, band=5.0)
+    with pytest.raises(TypeError, match="FastOptions"):
+        FastEstimator(fit_raito=3.0)

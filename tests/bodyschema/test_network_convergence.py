@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from bodyschema.estimate import estimate_topology
-from bodyschema.networks import set_torch_threads, train_sensor_networks
+from bodyschema.networks import train_sensor_networks
+from bodyschema.threads import set_torch_threads
 from simulators.random_robot import random_robot
 from simulators.sensing import apply_sensing
 from simulators.simulation import Simulation
@@ -29,7 +30,7 @@ def _one_torch_thread() -> Iterator[None]:
     before = torch.get_num_threads()
     set_torch_threads(1)
     yield
-    torch.set_num_threads(before)
+    set_torch_threads(before)
 
 
 def _robot_preset_recording(seed: int, n_joints: int, seconds: float):

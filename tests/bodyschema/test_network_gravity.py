@@ -8,7 +8,7 @@ import pytest
 from bodyschema.discrepancy import analyze
 from bodyschema.discrepancy.network_gravity import gravity_case, topology_accuracy
 from bodyschema.rigid_motion import ReferenceMotion, reference_motion, smooth_random_motion
-from service.sim2real_report import robot_references
+from sim2real.report import robot_references
 from simulators.simulation import simulate
 
 

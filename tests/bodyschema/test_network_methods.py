@@ -7,7 +7,7 @@ IMUs below the first link lose their own parent joint and are placed on an ances
 
 The robots and seeds are fixed draws, checked with their neighbours (other recording seeds, other
 network seeds) so that none of these tests sits on a knife edge; the numbers are in the docstrings.
-Every training is one CPU thread (:func:`bodyschema.networks.set_torch_threads`, as the service and
+Every training is one CPU thread (:func:`bodyschema.threads.set_torch_threads`, as the service and
 the benchmark run it); the whole file takes about a minute of CPU.
 """
 
@@ -21,8 +21,8 @@ import pytest
 from bodyschema.dependency import NetworkDependency, dependency_from_jacobian, network_jacobian
 from bodyschema.estimate import estimate_topology, topology_from_dependency
 from bodyschema.fast import insufficient_excitation
-from bodyschema.networks import set_torch_threads
 from bodyschema.recording import Recording
+from bodyschema.threads import set_torch_threads
 from bodyschema.topology import Topology
 from simulators.kinematic_tree import random_robot_recording
 from simulators.simulation import simulate
@@ -39,7 +39,7 @@ def _one_torch_thread() -> Iterator[None]:
     before = torch.get_num_threads()
     set_torch_threads()
     yield
-    torch.set_num_threads(before)
+    set_torch_threads(before)
 
 
 def _catalog(robot: str, seconds: float, seed: int = 0) -> Recording:

@@ -12,9 +12,9 @@ from bodyschema.networks import (
     SensorNetworks,
     robot_scale,
     rpy_to_matrix,
-    set_torch_threads,
     train_sensor_networks,
 )
+from bodyschema.threads import set_torch_threads
 from simulators.kinematic_tree import random_robot_recording
 
 
@@ -64,7 +64,7 @@ def test_threads_default_to_one(monkeypatch):
         assert set_torch_threads() == 1
         assert torch.get_num_threads() == 1
     finally:
-        torch.set_num_threads(before)
+        set_torch_threads(before)
 
 
 def test_training_lowers_the_loss(rng):

@@ -21,7 +21,7 @@ def serve_command(port: int, database_url: str, *args: str) -> list[str]:
     return [
         sys.executable,
         "-m",
-        "service",
+        "cli",
         "serve",
         "--port",
         str(port),
@@ -36,7 +36,7 @@ def emulator_command(kind: str, recording: Path, robot: str, config_out: Path) -
     return [
         sys.executable,
         "-m",
-        "service.emulators",
+        "emulators",
         kind,
         "--recording",
         str(recording),

@@ -20,9 +20,9 @@ import pytest
 
 from bodyschema.topology import Topology
 from service.api import create_app
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from tests.e2e.processes import free_port, serve_command
 
 CHROMIUM = "/usr/bin/chromium"
@@ -71,13 +71,17 @@ CUR = Topology(
 )
 
 
-class StoreInjector:
+class RecordingFarm:
     """Records the damage the page asked for, as the farm would, and answers its ground truth."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[str, str, dict]] = []
 
-    def __call__(self, robot: str, kind: str, params: dict) -> dict:
+    def simulates(self, robot: str) -> bool:
+        return robot == "arm"
+
+    def apply_damage(self, robot: str, kind: str, params: dict) -> dict:
+        params = dict(params)
         self.calls.append((robot, kind, params))
         return {
             "changed": True,
@@ -86,10 +90,10 @@ class StoreInjector:
 
 
 @pytest.fixture
-def served(e2e_db_url: str) -> Iterator[tuple[str, Store, StoreInjector]]:
+def served(e2e_db_url: str) -> Iterator[tuple[str, Store, RecordingFarm]]:
     import uvicorn
 
-    store = Store(e2e_db_url)
+    store = open_store(e2e_db_url)
     n = 50
     for robot in ("arm", "leg"):
         store.write(
@@ -116,9 +120,9 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store, StoreInjector]]:
         time.time(),
     )
     store.heartbeat("worker", time.time())
-    inj = StoreInjector()
+    inj = RecordingFarm()
     port = free_port()
-    app = create_app(store, settings=Settings(database_url="sqlite://"), injector=inj)
+    app = create_app(store, settings=Settings(database_url="sqlite://"), damage=inj)
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
     th = threading.Thread(target=server.run, daemon=True)
     th.start()
@@ -131,7 +135,7 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store, StoreInjector]]:
     store.close()
 
 
-def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, StoreInjector]) -> None:
+def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, RecordingFarm]) -> None:
     url, store, inj = served
     page = browser.new_page(viewport={"width": 1300, "height": 900})
     errors: list[str] = []

@@ -20,9 +20,9 @@ import pytest
 from bodyschema.estimate import topology_from_dependency
 from bodyschema.topology import Topology
 from service.api import create_app
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from tests.e2e.processes import free_port
 from tests.e2e.test_dashboard import SCREENSHOT, browser
 from tests.e2e.test_dashboard import pytestmark as dashboard_marks
@@ -65,7 +65,7 @@ def _frames(store: Store, robot: str, imus: list[str]) -> None:
 def served(e2e_db_url: str) -> Iterator[tuple[str, Store]]:
     import uvicorn
 
-    store = Store(e2e_db_url)
+    store = open_store(e2e_db_url)
     now = time.time()
     _frames(store, "sparse-arm", ["imu0", "imu2"])
     store.save_topology("sparse-arm", SPARSE_TRUE, now - 10, 0.49)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.store import Store
+from service.store import open_store
 from simulators.recording_io import save_recording
 from tests.bodyschema.test_health import synth
 from tests.e2e.processes import free_port, serve_command
@@ -46,7 +46,7 @@ def check_db(db_url: str, rec_t: np.ndarray, rec_gyro: np.ndarray) -> int:
     if db_url.startswith("sqlite:///"):
         with sqlite3.connect(db_url.removeprefix("sqlite:///")) as conn:
             assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         n = store.sample_count(ROBOT) if store.robot(ROBOT) else 0
         if n:
             got = store.read_between(ROBOT, -np.inf, np.inf)

@@ -23,7 +23,7 @@ from bodyschema.estimate import estimate_topology
 from service.ingest.pipeline import Pipeline
 from service.ingest.spec import open_source
 from service.settings import Settings
-from service.store import Store
+from service.store import open_store
 from service.worker import Worker
 from simulators import simulate
 from simulators.recording_io import load_recording, save_recording
@@ -56,7 +56,7 @@ def test_learned_tree_over_the_wire_equals_direct(
         window_seconds=rec.duration + 1.0,
         retention_seconds=3600.0,
     )
-    store = Store(settings=settings)
+    store = open_store(settings=settings)
     source = None
     try:
         assert proc.stdout is not None
@@ -169,7 +169,7 @@ def test_multirate_robot_over_the_wire(kind: str, tmp_path: Path, e2e_db_url: st
         text=True,
     )
     settings = Settings(database_url=e2e_db_url, window_seconds=rec.duration + 2.0, retention_seconds=3600.0)
-    store = Store(settings=settings)
+    store = open_store(settings=settings)
     source = None
     try:
         assert proc.stdout is not None

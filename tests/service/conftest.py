@@ -3,7 +3,7 @@
 * ``db_url`` — parametrized: an SQLite file in the test's tmp dir, and a PostgreSQL database (marked
   ``postgres``). The PostgreSQL database is created once per test session (``bodyhealth_test_<random>``),
   emptied after every test that used it, and dropped at the end.
-* ``store`` — a :class:`service.store.Store` on ``db_url`` (migrated to head), closed afterwards.
+* ``store`` — a :class:`service.store.Store` on ``db_url`` (upgraded to head), closed afterwards.
 * ``postgres_server`` — an admin URL of a PostgreSQL server: the one on 127.0.0.1:5432 when it answers
   (or ``BODYHEALTH_TEST_POSTGRES_URL``), else a throwaway cluster started from Debian's binaries in a
   temp dir on a free port; skips, saying why, when neither works.
@@ -211,10 +211,10 @@ def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
 
 @pytest.fixture
 def store(db_url: str) -> Iterator[object]:
-    """A migrated :class:`service.store.Store` on ``db_url``."""
-    from service.store import Store
+    """A :class:`service.store.Store` on ``db_url``, upgraded to the newest schema."""
+    from service.store import open_store
 
-    s = Store(db_url)
+    s = open_store(db_url)
     try:
         yield s
     finally:

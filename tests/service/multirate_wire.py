@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from bodyschema.recording import Recording
-from service.emulators.devices import STAMP_TICK_S
+from emulators.devices import STAMP_TICK_S
 
 __all__ = ["assert_whole_streams_but_the_unpaired_end"]
 

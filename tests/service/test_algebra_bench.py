@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from service.bench import algebra as bench
+from bench import algebra as bench
 
 
 def test_summary_counts_yes_no_columns_and_takes_medians() -> None:

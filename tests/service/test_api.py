@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +14,12 @@ from fastapi.testclient import TestClient
 
 from bodyschema.topology import Topology
 from service.api import create_app
-from service.ingest.base import Counters, FrameBatch
+from service.control import DamageControl
+from service.frames import FrameBatch
+from service.ingest.base import Counters
 from service.metrics import Metrics
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from service.worker import Worker
 
 TOPO = Topology(
@@ -39,13 +41,18 @@ def batch(robot: str = "arm", n: int = 20, t0: float = 0.0) -> FrameBatch:
     )
 
 
-class Injector:
-    """Stands in for the simulated farm's damage call: records what the API passed through."""
+class RecordingFarm:
+    """A :class:`~service.control.DamageControl` that simulates robot ``sim`` and records what the API
+    passed through (the real farm behind the same protocol is tested in test_pipeline_sources.py)."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[str, str, dict[str, Any]]] = []
 
-    def __call__(self, robot: str, kind: str, params: dict[str, Any]) -> dict[str, Any]:
+    def simulates(self, robot: str) -> bool:
+        return robot == "sim"
+
+    def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
+        params = dict(params)
         if params.get("imu") == "nope":
             raise ValueError("no IMU named 'nope' on this robot")
         self.calls.append((robot, kind, params))
@@ -57,22 +64,22 @@ SETTINGS = Settings(database_url="sqlite://", max_request_bytes=20_000, worker_i
 
 @pytest.fixture
 def sstore(tmp_path: Path) -> Iterator[Store]:
-    s = Store(f"sqlite:///{tmp_path / 'api.db'}")
+    s = open_store(f"sqlite:///{tmp_path / 'api.db'}")
     yield s
     s.close()
 
 
 @pytest.fixture
-def injector() -> Injector:
-    return Injector()
+def farm() -> RecordingFarm:
+    return RecordingFarm()
 
 
 @pytest.fixture
-def client(sstore: Store, injector: Injector) -> Iterator[TestClient]:
+def client(sstore: Store, farm: RecordingFarm) -> Iterator[TestClient]:
     sstore.write(batch("arm"))
     sstore.write(batch("sim"))
     sstore.mark_simulated("sim", "ur5e")
-    with TestClient(create_app(sstore, settings=SETTINGS, injector=injector)) as c:
+    with TestClient(create_app(sstore, settings=SETTINGS, damage=farm)) as c:
         yield c
 
 
@@ -173,13 +180,14 @@ def test_alert_filters_and_ack(client: TestClient, sstore: Store) -> None:
     assert client.post("/api/v1/alerts/abc/ack").status_code == 422
 
 
-def test_damage_injection(client: TestClient, injector: Injector) -> None:
+def test_damage_on_a_simulated_robot(client: TestClient, farm: RecordingFarm) -> None:
+    assert isinstance(farm, DamageControl)
     resp = client.post(
         "/api/v1/robots/sim/simulate/damage", json={"kind": "imu_moved", "imu": "imu1", "to": "j1"}
     )
     assert resp.status_code == 201, resp.text
     assert resp.json()["truth"]["findings"][0]["kind"] == "imu_moved"
-    assert injector.calls == [("sim", "imu_moved", {"imu": "imu1", "to": "j1"})]
+    assert farm.calls == [("sim", "imu_moved", {"imu": "imu1", "to": "j1"})]
     # a real robot: 409; unknown robot: 404; unknown kind, NaN, extra field, bad part: 422
     assert client.post("/api/v1/robots/arm/simulate/damage", json={"kind": "imu_dead"}).status_code == 409
     assert client.post("/api/v1/robots/nope/simulate/damage", json={"kind": "imu_dead"}).status_code == 404
@@ -213,10 +221,10 @@ def test_damage_injection(client: TestClient, injector: Injector) -> None:
         ).status_code
         == 422
     )
-    assert len(injector.calls) == 1
+    assert len(farm.calls) == 1
 
 
-def test_damage_without_injector_is_409(sstore: Store) -> None:
+def test_damage_without_a_farm_is_409(sstore: Store) -> None:
     sstore.write(batch("sim"))
     sstore.mark_simulated("sim", "ur5e")
     c = TestClient(create_app(sstore, settings=SETTINGS))
@@ -334,3 +342,26 @@ def test_metrics(sstore: Store) -> None:
 def test_dashboard_served(client: TestClient) -> None:
     r = client.get("/")
     assert r.status_code == 200 and "bodyhealth" in r.text
+
+
+def test_pushed_frames_go_through_the_running_pipeline(sstore: Store) -> None:
+    """POST /frames is one more source of the pipeline: queued behind what the devices sent, written by
+    its writer, counted under ``api``, seen by the commit log; what the store refuses is a 422 with the
+    store's reason, and counted malformed."""
+    from service.ingest.pipeline import Pipeline
+
+    committed: list[FrameBatch] = []
+    with Pipeline(sstore, [], settings=SETTINGS, on_commit=committed.extend) as pipe:
+        c = TestClient(create_app(sstore, settings=SETTINGS, pipeline=pipe))
+        for k in range(3):
+            body = _frames_body(10)
+            body["t"] = [20 + k + i * 0.01 for i in range(10)]
+            resp = c.post("/api/v1/robots/pushed/frames", json=body)
+            assert resp.status_code == 201 and resp.json() == {"stored": 10}
+        dup = _frames_body(4)
+        dup["joint_names"] = ["j1", "j1"]
+        resp = c.post("/api/v1/robots/pushed/frames", json=dup)
+        assert resp.status_code == 422 and "unique" in resp.json()["detail"]
+        assert pipe.counters()["api"] == {"received": 34, "stored": 30, "dropped": 0, "malformed": 4}
+    assert [b.robot for b in committed] == ["pushed"] * 3
+    assert sstore.sample_count("pushed") == 30

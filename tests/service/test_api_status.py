@@ -18,7 +18,7 @@ from bodyschema.estimate import topology_from_dependency
 from bodyschema.topology import Topology
 from service.api import create_app
 from service.api.schemas import StatusOut
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 from service.settings import Settings
 from service.status import judge
 from service.store import Store

@@ -1,4 +1,4 @@
-"""BROAD HDF5 import (service.broad) and ``bodyhealth import broad``."""
+"""BROAD HDF5 import (sim2real.broad) and ``bodyhealth import broad``."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodyschema.recording import RecordingError
-from service.broad import BROAD_ATTRIBUTION, broad_data_dir, gap_runs, load_broad, session_of
-from service.cli import main
+from cli.main import main
+from sim2real.broad import BROAD_ATTRIBUTION, broad_data_dir, gap_runs, load_broad, session_of
 from simulators.recording_io import load_recording
 from tests.broad_data import BROAD_ENV, broad_dir, broad_marks, broad_trial, needs_broad
 

@@ -13,8 +13,8 @@ import can
 import numpy as np
 import pytest
 
-from service.emulators.devices import STAMP_TICK_S, SlcanEmulator, stream_counters
-from service.ingest.base import FrameBatch
+from emulators.devices import STAMP_TICK_S, SlcanEmulator, stream_counters
+from service.frames import FrameBatch
 from service.ingest.can import CanSource, open_bus
 from service.ingest.can_layout import encode_samples, encode_stream, load_project_database
 from service.ingest.can_mapping import SignalMap

@@ -1,7 +1,7 @@
 """The command line as other programs use it: every ``--help`` works, every ``--json`` is pure JSON on
 stdout, and ``diff`` answers undetermined (never "no change") when several bodies fit the data.
 
-The commands run as real subprocesses (``python -m service``), so anything a solver writes to the
+The commands run as real subprocesses (``python -m cli``), so anything a solver writes to the
 process's standard output from C would end up in the parsed text.
 """
 
@@ -17,15 +17,15 @@ from pathlib import Path
 import pytest
 
 from bodyschema.recording import Recording
-from service.cli import build_parser
-from service.commands.diff import EXIT_UNDETERMINED
+from cli.commands.diff import EXIT_UNDETERMINED
+from cli.main import build_parser
 from simulators import simulate
 from simulators.recording_io import save_recording
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "service", *args], cwd=cwd, capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "cli", *args], cwd=cwd, capture_output=True, text=True, timeout=300
     )
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bodyschema.topology import Topology
-from service.cli import main
+from cli.main import main
 from simulators.kinematic_tree import random_robot_recording
 from simulators.recording_io import save_recording
 

@@ -1,6 +1,6 @@
 """The figures quoted in README.md and docs/*.md are the ones their bench files hold.
 
-``service.bench.docs`` renders every marked figure block from its bench file; these tests fail when a
+``bench.docs`` renders every marked figure block from its bench file; these tests fail when a
 block differs from what the bench file says now, when a doc citing a bench file carries no block from
 it, when a bench figure sits outside the blocks, and they show on copies that the check does catch an
 edited bench file or doc (so it cannot pass vacuously). A few figures that went stale by hand before are
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from service.bench import BENCHMARKS, docs
+from bench import BENCHMARKS, docs
 
 REPO = Path(__file__).resolve().parents[2]
 BENCH = REPO / "docs" / "bench"

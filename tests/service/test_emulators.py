@@ -11,7 +11,7 @@ import pytest
 import serial
 
 from bodyschema.recording import Recording
-from service.emulators.devices import SlcanEmulator
+from emulators.devices import SlcanEmulator
 from service.ingest.can import CanSource, open_bus
 from service.ingest.device import DeviceConfig
 from service.ingest.serial_frame import ACC_LSB, GYRO_LSB, Q_LSB
@@ -90,7 +90,7 @@ def test_command_line_prints_a_usable_source_spec(tmp_path, rng):
         [
             sys.executable,
             "-m",
-            "service.emulators",
+            "emulators",
             "serial",
             "--recording",
             str(tmp_path / "r.npz"),

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.bench import gravity as bench
+from bench import gravity as bench
 
 KEPT = Path(__file__).resolve().parents[2] / "docs" / "bench" / "gravity.json"
 

@@ -1,4 +1,5 @@
-"""Alembic migrations: upgrade an empty database to head, match the models, downgrade to empty."""
+"""Alembic migrations: upgrade an empty database to head, match the models, downgrade to empty; the
+store never migrates by itself, and ``bodyhealth db`` takes the step by hand."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from sqlalchemy import inspect
 
 from service.db import Base, current_revision, downgrade, head_revision, make_engine, upgrade
 
+REPO = Path(__file__).resolve().parents[2]
 TABLES = {"robots", "joints", "imus", "chunks", "topologies", "baselines", "alerts", "heartbeats"}
 
 
@@ -82,10 +84,10 @@ def test_alembic_command_line_works_from_any_directory(tmp_path: Path) -> None:
 
 
 def test_store_creates_schema_only_through_migrations(tmp_path: Path) -> None:
-    from service.store import Store
+    from service.store import open_store
 
     url = f"sqlite:///{tmp_path / 'deep' / 'nested' / 's.db'}"
-    with Store(url) as store:
+    with open_store(url) as store:
         assert current_revision(store.engine) == head_revision()
         with store.engine.connect() as conn:
             assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
@@ -99,7 +101,7 @@ def test_upgrade_keeps_single_clock_chunks_of_an_old_database(empty_url: str) ->
     import numpy as np
     from sqlalchemy import text
 
-    from service.ingest.base import FrameBatch
+    from service.frames import FrameBatch
     from service.store import Store
 
     rng = np.random.default_rng(3)
@@ -156,3 +158,91 @@ def test_upgrade_keeps_single_clock_chunks_of_an_old_database(empty_url: str) ->
             assert conn.execute(text("SELECT n FROM chunks")).scalars().all() == [20]
     finally:
         engine.dispose()
+
+
+def test_store_used_before_upgrade_names_the_command(empty_url: str) -> None:
+    """Opening does not migrate; the first use says what to run instead of failing on a missing table."""
+    from service.store import SchemaMismatch, Store
+
+    with Store(empty_url) as store:
+        with pytest.raises(SchemaMismatch, match="bodyhealth db upgrade"):
+            store.robots()
+        with pytest.raises(SchemaMismatch, match="no bodyhealth schema"):
+            store.write(_batch())
+        assert store.ping()  # a reachable database answers whatever its schema
+        assert _tables(store.engine) == set()  # nothing was created behind the caller's back
+        assert store.upgrade() == head_revision()
+        assert store.write(_batch()) == 3 and [r.name for r in store.robots()] == ["arm"]
+    with Store(empty_url) as again:  # at head: a plain open is all it takes
+        assert again.sample_count("arm") == 3
+
+
+def test_store_on_an_older_revision_names_both_revisions(tmp_path: Path) -> None:
+    from service.store import SchemaMismatch, Store
+
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    engine = make_engine(url)
+    try:
+        upgrade(engine, "0002")
+    finally:
+        engine.dispose()
+    with Store(url) as store:
+        with pytest.raises(SchemaMismatch, match=f"revision 0002, this bodyhealth needs {head_revision()}"):
+            store.sample_count()
+        store.upgrade()
+        assert store.sample_count() == 0
+
+
+def test_in_memory_store_upgrades_on_its_own_engine() -> None:
+    from service.store import Store
+
+    with Store("sqlite://") as store:
+        assert store.upgrade() == head_revision() == current_revision(store.engine)
+        assert store.write(_batch()) == 3
+
+
+def _bodyhealth(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run(
+        [sys.executable, "-m", "cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_bodyhealth_db_upgrade_and_current(tmp_path: Path) -> None:
+    """``bodyhealth db current`` reports an empty database, ``db upgrade`` brings it to head."""
+    from service.store import Store
+
+    db = tmp_path / "var" / "cli.db"
+    url = f"sqlite:///{db}"
+    cur = _bodyhealth("db", "current", "--database-url", url, cwd=tmp_path)
+    assert cur.returncode == 0, cur.stderr
+    assert cur.stdout.splitlines() == ["current: none", f"head: {head_revision()}"]
+    assert not db.exists()  # looking did not create it
+
+    up = _bodyhealth("db", "upgrade", "--database-url", url, cwd=tmp_path)
+    assert up.returncode == 0, up.stderr
+    assert f"at revision {head_revision()} (head)" in up.stdout
+    engine = make_engine(url)
+    try:
+        assert current_revision(engine) == head_revision() and _tables(engine) == TABLES
+    finally:
+        engine.dispose()
+    cur = _bodyhealth("db", "current", "--database-url", url, cwd=tmp_path)
+    assert cur.returncode == 0, cur.stderr
+    assert cur.stdout.splitlines() == [f"current: {head_revision()}", f"head: {head_revision()}"]
+    with Store(url) as store:
+        assert store.robots() == []
+
+    again = _bodyhealth("db", "upgrade", "--database-url", url, cwd=tmp_path)  # idempotent
+    assert again.returncode == 0, again.stderr
+    bare = _bodyhealth("db", cwd=tmp_path)
+    assert bare.returncode == 2 and "upgrade" in bare.stderr
+
+
+def _batch() -> object:
+    import numpy as np
+
+    from service.frames import FrameBatch
+
+    ones = np.ones((3, 1, 3))
+    return FrameBatch("arm", np.arange(3) * 0.01, ("j1",), np.zeros((3, 1)), ("imu0",), ones, ones)

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from bodyschema.recording import Recording
-from service.ingest.base import FrameBatch, Source
+from service.frames import FrameBatch
+from service.ingest.base import Source
 from service.ingest.pipeline import Pipeline
 from service.ingest.replay import ReplaySource
-from service.store import Store
+from service.store import Store, open_store
 
 
 def recording(
@@ -88,6 +89,7 @@ def test_backpressure_blocks_then_drops_and_counts(db_url: str, rng: np.random.G
     ref = recording(rng, seconds=4.0)
     src = ReplaySource(ref, robot="r", speed=math.inf, chunk_seconds=0.01)  # 400 one-sample batches
     with SlowStore(db_url) as store:
+        store.upgrade()
         pipe = Pipeline(store, [src], queue_max_batches=2, put_timeout=0.005, coalesce_max_samples=2)
         with pipe:
             assert pipe.wait_exhausted(timeout=120)
@@ -106,6 +108,7 @@ def test_blocking_put_loses_nothing_when_the_store_catches_up(db_url: str, rng: 
     ref = recording(rng, seconds=0.6)
     src = ReplaySource(ref, robot="r", speed=math.inf, chunk_seconds=0.01)
     with SlowStore(db_url) as store:
+        store.upgrade()
         with Pipeline(store, [src], queue_max_batches=2, put_timeout=5.0, coalesce_max_samples=4) as pipe:
             assert pipe.wait_exhausted(timeout=120)
         assert src.counters.dropped == 0 and store.sample_count("r") == 60
@@ -141,7 +144,7 @@ def test_bad_batches_and_failing_reads_do_not_stop_ingest(store: Store, rng: np.
 def test_stop_drains_everything_received(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=30.0)
     src = ReplaySource(ref, robot="r", speed=20.0, chunk_seconds=0.1)  # 1.5 s of wall time in all
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         pipe = Pipeline(store, [src]).start()
         time.sleep(0.5)
         assert pipe.running
@@ -157,7 +160,7 @@ def test_stop_drains_everything_received(db_url: str, rng: np.random.Generator) 
 def test_pacing_follows_speed(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=1.0)
     src = ReplaySource(ref, robot="r", speed=4.0, chunk_seconds=0.1)
-    with Store(db_url) as store, Pipeline(store, [src]) as pipe:
+    with open_store(db_url) as store, Pipeline(store, [src]) as pipe:
         t0 = time.monotonic()
         assert pipe.wait_exhausted(timeout=30)
         wall = time.monotonic() - t0

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bodyschema.recording import Recording
-from service.store import Store
+from service.store import Store, open_store
 from simulators.recording_io import save_recording
 
 REPO = Path(__file__).resolve().parents[2]
@@ -65,6 +65,7 @@ def test_sigkill_mid_ingest_loses_no_committed_frame(
     )
     rec_path, log = tmp_path / "arm.npz", tmp_path / "commits.jsonl"
     save_recording(ref, rec_path)
+    open_store(db_url).close()  # the schema step (`bodyhealth db upgrade`) comes before any ingest
 
     kills = 0
     for _attempt in range(12):

@@ -14,7 +14,7 @@ from service.ingest.pipeline import Pipeline
 from service.ingest.replay import ReplaySource
 from service.ingest.spec import SpecError, farm_catalog, open_source, parse_speed_suffix
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from simulators.recording_io import save_recording
 
 
@@ -37,7 +37,7 @@ class StandInFarm:
         return self._robots[name]
 
     def advance(self, seconds: float) -> dict[str, Recording]:
-        assert self._busy.acquire(blocking=False), "advance and inject ran at the same time"
+        assert self._busy.acquire(blocking=False), "advance and apply_damage ran at the same time"
         try:
             k = round(seconds * self.rate)
             t = (self.n + 1 + np.arange(k)) / self.rate
@@ -56,8 +56,8 @@ class StandInFarm:
         finally:
             self._busy.release()
 
-    def inject(self, robot: str, kind: str, **params: object) -> dict:
-        assert self._busy.acquire(blocking=False), "advance and inject ran at the same time"
+    def apply_damage(self, robot: str, kind: str, **params: object) -> dict:
+        assert self._busy.acquire(blocking=False), "advance and apply_damage ran at the same time"
         try:
             self.injected.append((robot, kind, params))
             return {"changed": True, "findings": [{"kind": kind, **params}]}
@@ -108,7 +108,7 @@ def test_farm_into_store_marks_simulated_and_injects_while_running(store: Store)
     src = FarmSource(farm, speed=math.inf, step_seconds=0.05, max_steps_per_read=2)
     with Pipeline(store, [src]):
         for i in range(20):
-            src.inject("ur5e-1", "imu_moved", imu=f"imu{i}")
+            src.apply_damage("ur5e-1", "imu_moved", imu=f"imu{i}")
     assert len(farm.injected) == 20
     infos = {r.name: r for r in store.robots()}
     assert set(infos) == {"ur5e-1", "paper-3-1"}
@@ -190,7 +190,7 @@ def test_serial_and_can_specs_are_delegated() -> None:
 def test_real_farm_spec(db_url: str) -> None:
     src = open_source("farm:paper-3,ur5e@max?seed=1&step=0.05", Settings())
     assert isinstance(src, FarmSource) and sorted(src.robot_names) == ["paper-3-1", "ur5e-1"]
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         with Pipeline(store, [src]) as pipe:
             for _ in range(200):
                 if all(store.robot(n) and (store.robot(n).last_frame_t or 0) >= 0.5 for n in src.robot_names):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from service.bench import realism
+from bench import realism
 
 
 def test_small_realism_grid_is_exact_everywhere_and_written(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 
 from bodyschema.recording import Recording
 from service.ingest.replay import ReplaySource
-from service.store import Store
+from service.store import open_store
 from simulators.recording_io import save_recording
 
 
@@ -90,13 +90,13 @@ def test_resumes_after_the_stores_last_frame(tmp_path, rng: np.random.Generator)
     rec = make_rec(rng, n=100)
     path = tmp_path / "arm-7.npz"
     save_recording(rec, path)
-    with Store(f"sqlite:///{tmp_path / 's.db'}") as store:
+    with open_store(f"sqlite:///{tmp_path / 's.db'}") as store:
         first = ReplaySource(path, speed=math.inf, chunk_seconds=0.07)
         assert first.robot == "arm-7"
         store.write_many(first.read()[:3])  # 21 samples, then the process "died"
         assert store.robot("arm-7").last_frame_t == rec.t[20]
         resumed = ReplaySource(path, speed=math.inf, chunk_seconds=0.1)
-        resumed.attach_store(store)
+        resumed.resume_after({"arm-7": store.robot("arm-7").last_frame_t})
         rest = drain(resumed)
         assert rest[0].t[0] == rec.t[21] and rest[0].n_samples == 9  # the cut chunk, then whole ones
         store.write_many(rest)
@@ -104,7 +104,7 @@ def test_resumes_after_the_stores_last_frame(tmp_path, rng: np.random.Generator)
         assert store.sample_count("arm-7") == 100
         np.testing.assert_array_equal(got.acc, rec.acc)
         fresh = ReplaySource(path, speed=math.inf, resume=False)
-        fresh.attach_store(store)
+        fresh.resume_after({"arm-7": store.robot("arm-7").last_frame_t})
         assert sum(b.n_samples for b in drain(fresh)) == 100
 
 

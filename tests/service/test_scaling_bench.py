@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from service.bench import scaling as bench
+from bench import scaling as bench
 
 
 def test_small_scaling_run(tmp_path) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bodyschema.recording import Recording
-from service.emulators.devices import SerialEmulator
+from emulators.devices import SerialEmulator
 from service.ingest.device import DeviceConfig, DeviceConfigError
 from service.ingest.serial import SerialSource, open_from_spec
 from service.ingest.serial_frame import ACC_LSB, Q_LSB, FrameEncoder

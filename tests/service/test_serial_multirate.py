@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from bodyschema.recording import Recording
-from service.emulators.devices import STAMP_TICK_S, SerialEmulator, stream_counters
-from service.ingest.base import FrameBatch
+from emulators.devices import STAMP_TICK_S, SerialEmulator, stream_counters
+from service.frames import FrameBatch
 from service.ingest.device import DeviceConfig, DeviceConfigError, StreamSpec
 from service.ingest.serial import SerialSource
 from service.ingest.serial_frame import ACC_LSB, GYRO_LSB, Q_LSB, FrameEncoder, StreamFrameEncoder

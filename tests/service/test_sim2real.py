@@ -1,4 +1,4 @@
-"""``bodyhealth sim2real`` and the report/model output (service.sim2real_report) on simulated motion."""
+"""``bodyhealth sim2real`` and the report/model output (sim2real.report) on simulated motion."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from bodyschema.discrepancy import EFFECTS, predict
-from bodyschema.discrepancy.inject import draw, inject
+from bodyschema.discrepancy.hidden import draw, hide_effect
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import reference_motion, smooth_random_motion
-from service.cli import main
-from service.sim2real_report import simulate_readings, to_imu_model, transfer
+from cli.main import main
+from sim2real.report import simulate_readings, to_imu_model, transfer
 from simulators.imu_model import load_imu_model, save_imu_model
 from simulators.recording_io import save_recording
 
@@ -25,7 +25,7 @@ def _recording(rng: np.random.Generator, hidden: dict | None = None, seconds: fl
     m = smooth_random_motion(seconds, 800.0, rng, oversample=1)
     gyro, acc = m["gyro"], m["acc"]
     for eff, p in (hidden or {}).items():
-        gyro, acc = inject(eff, p, m["t"], gyro, acc, m["quat"], rng)
+        gyro, acc = hide_effect(eff, p, m["t"], gyro, acc, m["quat"], rng)
     m = {k: (v[::8] if v.ndim and v.shape[0] == m["t"].shape[0] else v) for k, v in m.items()}
     gyro, acc = gyro[::8], acc[::8]
     return Recording(
@@ -152,7 +152,7 @@ def test_ideal_robot_recording_through_its_model_has_no_residual_and_no_cause(
         # differences of qd instead of the recorded qdd leave 0.02-0.5 m/s²
         assert doc["residual_before"]["acc_rms"] < 1e-3, imu
         assert doc["residual_before"]["gyro_rms"] < 1e-9, imu
-    from service.sim2real_report import robot_references
+    from sim2real.report import robot_references
 
     k = rec.imu_names.index("imu11")
     ref = robot_references(dataclasses.replace(rec, qdd=None), "ur5e")["imu11"]

@@ -20,10 +20,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodyschema.discrepancy import DiscrepancyReport, analyze, analyze_recording, reference_of
-from bodyschema.discrepancy.inject import inject
+from bodyschema.discrepancy.hidden import hide_effect
 from bodyschema.recording import Recording
-from service.broad import load_broad
-from service.sim2real_report import simulate_readings
+from sim2real.broad import load_broad
+from sim2real.report import simulate_readings
 from tests.broad_data import broad_marks, broad_trial
 
 #: Slow rotations with rests between them: small residuals, so biases, scales and a gravity tilt show.
@@ -148,7 +148,7 @@ def hidden(request: pytest.FixtureRequest) -> tuple[str, Case, DiscrepancyReport
     gyro, acc = rec.gyro[:, 0], rec.acc[:, 0]
     rng = np.random.default_rng(20261124)  # only the noise case draws
     for effect, params in effects:
-        gyro, acc = inject(effect, params, rec.t, gyro, acc, rec.ref_quat, rng)
+        gyro, acc = hide_effect(effect, params, rec.t, gyro, acc, rec.ref_quat, rng)
     return trial, effects, analyze_recording(replace(rec, gyro=gyro[:, None], acc=acc[:, None]))
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from bodyschema.topology import Topology
-from service.ingest.base import FrameBatch, FrameError
-from service.store import Store, UnknownAlert, UnknownRobot, build_chunks
+from service.frames import FrameBatch, FrameError
+from service.store import Store, UnknownAlert, UnknownRobot, build_chunks, open_store
 
 RATE = 100.0
 
@@ -62,7 +62,7 @@ def test_round_trip_is_bit_exact(store: Store, rng: np.random.Generator) -> None
 def test_windows_are_exact_at_chunk_boundaries(db_url: str, rng: np.random.Generator, chunk: int) -> None:
     batches = stream(rng, 2.0, batch=10)
     ref = concat(batches)
-    with Store(db_url, chunk_max_samples=chunk) as store:
+    with open_store(db_url, chunk_max_samples=chunk) as store:
         for i in range(0, len(batches), 3):  # several transactions, each with several batches
             store.write_many(batches[i : i + 3])
         assert store.sample_count("r1") == 200
@@ -174,7 +174,7 @@ def test_split_sources_merge_into_full_frames(store: Store, rng: np.random.Gener
 
 
 def test_retention_prunes_by_device_time(db_url: str, rng: np.random.Generator) -> None:
-    with Store(db_url, retention_seconds=0.995, chunk_max_samples=10) as store:
+    with open_store(db_url, retention_seconds=0.995, chunk_max_samples=10) as store:
         store.write_many(stream(rng, 3.0))
         store.write_many([make_batch(rng, "other", 100.0)])
         dropped = store.prune()
@@ -239,7 +239,7 @@ def test_unknown_robot_and_bad_arguments(store: Store, rng: np.random.Generator)
 
 def test_two_store_objects_share_one_database(db_url: str, rng: np.random.Generator) -> None:
     """Like two processes: both register the same robot and parts without clashing."""
-    with Store(db_url) as a, Store(db_url) as b:
+    with open_store(db_url) as a, open_store(db_url) as b:
         a.write(make_batch(rng, t0=0.0))
         b.write(make_batch(rng, t0=0.1, imus=("imu0", "imu1", "imu2", "imu3")))
         a.write(make_batch(rng, t0=0.2, imus=("imu3",)))
@@ -342,12 +342,12 @@ def test_heartbeat_and_ping(store: Store) -> None:
 
 
 def test_ping_false_when_database_unreachable(tmp_path) -> None:
-    store = Store(f"sqlite:///{tmp_path / 'x.db'}")
+    store = open_store(f"sqlite:///{tmp_path / 'x.db'}")
     assert store.ping() is True  # the same path answers while it is a database
     store.close()
     (tmp_path / "x.db").unlink()
     (tmp_path / "x.db").mkdir()  # the path is now a folder: no database can open there
-    broken = Store(f"sqlite:///{tmp_path / 'x.db'}", migrate_schema=False)
+    broken = Store(f"sqlite:///{tmp_path / 'x.db'}")  # ping needs no schema
     assert broken.ping() is False
 
 
@@ -357,7 +357,7 @@ def test_random_batching_and_windows_match_a_plain_slice(rng: np.random.Generato
         n = int(rng.integers(1, 400))
         cuts = np.unique(np.concatenate([[0, n], rng.integers(0, n, size=int(rng.integers(0, 30)))]))
         whole = make_batch(rng, n=n)
-        with Store("sqlite://", chunk_max_samples=int(rng.integers(1, 60))) as store:
+        with open_store("sqlite://", chunk_max_samples=int(rng.integers(1, 60))) as store:
             parts = [
                 FrameBatch(
                     "r1",

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from service.bench import store as bench
+from bench import store as bench
 
 
 def test_bench_store_writes_results(tmp_path) -> None:

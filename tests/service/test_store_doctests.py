@@ -12,6 +12,8 @@ MODULES = [
     "service.db.engine",
     "service.db.migrate",
     "service.store",
+    "service.store.schema",
+    "service.store.chunks",
     "service.ingest.pipeline",
     "service.ingest.replay",
     "service.ingest.farm",

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from service.ingest.base import FrameBatch, FrameError
-from service.store import Store, build_chunks
+from service.frames import FrameBatch, FrameError
+from service.store import build_chunks, open_store
 
 IMU_RATE, ENC_RATE, SKEW = 100.0, 250.0, 0.008
 JOINTS, IMUS = ("j1", "j2"), ("imu0", "imu1", "imu2")
@@ -89,7 +89,7 @@ def test_multirate_round_trip_and_windows_are_exact(
 ) -> None:
     whole = multirate_batch(rng, seconds=3.0, qd=True)
     parts = split(whole, np.arange(0.1, 3.0, 0.1) + rng.uniform(-0.01, 0.01, 29))
-    with Store(db_url, chunk_max_samples=chunk) as store:
+    with open_store(db_url, chunk_max_samples=chunk) as store:
         for i in range(0, len(parts), 4):
             assert store.write_many(parts[i : i + 4]) == sum(p.n_samples for p in parts[i : i + 4])
         assert store.sample_count("r1") == 300
@@ -115,7 +115,7 @@ def test_multirate_random_batching_matches_a_plain_slice(rng: np.random.Generato
     for _case in range(8):
         whole = multirate_batch(rng, seconds=float(rng.uniform(0.3, 2.0)), qd=bool(rng.integers(2)))
         cuts = np.sort(rng.uniform(0, whole.t[-1], size=int(rng.integers(0, 20))))
-        with Store("sqlite://", chunk_max_samples=int(rng.integers(1, 60))) as store:
+        with open_store("sqlite://", chunk_max_samples=int(rng.integers(1, 60))) as store:
             parts = split(whole, cuts)
             k = 0
             while k < len(parts):
@@ -169,7 +169,7 @@ def test_long_multirate_batches_split_into_chunks_by_both_streams(rng: np.random
 
 def test_single_clock_history_joins_a_multirate_window(db_url: str, rng: np.random.Generator) -> None:
     """Data stored before a robot's encoders got their own stamps stays readable, alone and together."""
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         t = np.arange(50) / 100.0
         old = FrameBatch(
             "r1",
@@ -200,7 +200,7 @@ def test_multirate_retention_prunes_each_stream_by_its_own_stamps(
     db_url: str, rng: np.random.Generator
 ) -> None:
     whole = multirate_batch(rng, seconds=3.0, jitter=0.0)
-    with Store(db_url, retention_seconds=1.0, chunk_max_samples=25) as store:
+    with open_store(db_url, retention_seconds=1.0, chunk_max_samples=25) as store:
         store.write_many(split(whole, np.arange(0.1, 3.0, 0.1)))
         dropped = store.prune()
         last = max(whole.t[-1], whole.t_q[-1])
@@ -226,7 +226,7 @@ def _variant(b: FrameBatch, **kw: object) -> FrameBatch:
 
 
 def test_bad_multirate_batches_refused_with_clear_messages(db_url: str, rng: np.random.Generator) -> None:
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         good = multirate_batch(rng, seconds=0.5, qd=True)
         store.write(good)
         nxt = multirate_batch(rng, seconds=0.5, t0=0.5, qd=True)

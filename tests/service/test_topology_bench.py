@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from service.bench import topology as bench
+from bench import topology as bench
 
 
 def _run(features: np.ndarray, dependency: np.ndarray, undetermined: list[int]) -> SimpleNamespace:

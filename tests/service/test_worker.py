@@ -16,9 +16,9 @@ import pytest
 
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
-from service.ingest.base import FrameBatch
+from service.frames import FrameBatch
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from service.worker import Worker
 from tests.bodyschema.test_health import LAYOUT, synth
 
@@ -79,7 +79,7 @@ def settings() -> Settings:
 
 @pytest.fixture
 def sqlite_store(tmp_path: Path) -> Iterator[Store]:
-    s = Store(f"sqlite:///{tmp_path / 'w.db'}")
+    s = open_store(f"sqlite:///{tmp_path / 'w.db'}")
     yield s
     s.close()
 
@@ -295,7 +295,7 @@ def test_encoder_offset_raises_after_the_fingerprint_is_learned(
     assert sqlite_store.baseline("arm") is not None and "arm" not in w.fingerprints_
     feed(sqlite_store, rec.window(12.0, 24.0))
     assert w.run_cycle()["arm"].diff.findings == ()
-    assert set(w.fingerprints_["arm"]) == {"j1", "j2", "j3"}
+    assert set(w.fingerprints_["arm"].joints) == {"j1", "j2", "j3"}
     late = rec.window(24.0, 36.0)
     q = late.q.copy()
     q[:, 1] += 0.3

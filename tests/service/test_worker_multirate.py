@@ -8,7 +8,7 @@ import pytest
 
 from service.ingest.replay import recording_batch
 from service.settings import Settings
-from service.store import Store
+from service.store import Store, open_store
 from service.worker import Worker
 from simulators.farm import Farm
 
@@ -23,7 +23,7 @@ def _step(farm: Farm, store: Store, seconds: float) -> None:
 def test_moved_imu_on_robot_sensing_raises_imu_moved_first(db_url: str) -> None:
     farm = Farm({"r": "paper-3"}, seed=0, sensing="robot")
     settings = Settings(database_url=db_url, window_seconds=10.0, baseline_repeat_k=3, alert_hysteresis_m=2)
-    with Store(db_url) as store:
+    with open_store(db_url) as store:
         w = Worker(store, settings)
         _step(farm, store, 10.0)
         window = store.read_window("r", 10.0)
@@ -37,7 +37,7 @@ def test_moved_imu_on_robot_sensing_raises_imu_moved_first(db_url: str) -> None:
             res = w.run_cycle()["r"]
             assert res.diff is not None and res.diff.findings == ()
         assert store.alerts("r") == []
-        (truth,) = farm.inject("r", "imu_moved", imu="imu35").findings
+        (truth,) = farm.apply_damage("r", "imu_moved", imu="imu35").findings
         raised = []
         for _ in range(5):
             _step(farm, store, 4.0)

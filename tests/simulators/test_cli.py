@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from service.cli import main
+from cli.main import main
 from simulators.catalog import CATALOG
 from simulators.recording_io import load_recording
 from simulators.robot import Robot

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import ast
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import simulators.damage
 from bodyschema.findings import Diff
 from simulators.damage import parse_damage
 from simulators.simulation import Simulation, simulate
@@ -31,7 +34,7 @@ def test_imu_moved_gyro_follows_its_new_link(seed: int) -> None:
     k = sim.robot.imu_names.index("imu3")
     ref_old = _imus_on(sim, "j1")[1]
     assert np.allclose(_norms(before.gyro[:, k]), _norms(before.gyro[:, ref_old]), atol=1e-9)
-    diff = sim.inject("imu_moved", imu="imu3", to="j4")
+    diff = sim.apply_damage("imu_moved", imu="imu3", to="j4")
     assert diff.findings[0].from_ == "j1" and diff.findings[0].to == "j4"
     after = sim.advance(200)
     ref_new = next(i for i in _imus_on(sim, "j4") if i != k)
@@ -45,7 +48,7 @@ def test_imu_moved_gyro_follows_its_new_link(seed: int) -> None:
 def test_imu_detached_follows_no_link(seed: int) -> None:
     sim = _sim(seed)
     sim.advance(50)
-    sim.inject("imu_detached", imu="imu30")
+    sim.apply_damage("imu_detached", imu="imu30")
     rec = sim.advance(300)
     k = sim.robot.imu_names.index("imu30")
     truth = sim.truth()
@@ -63,7 +66,7 @@ def test_imu_detached_follows_no_link(seed: int) -> None:
 def test_imu_dead_stops_reporting(mode: str, seed: int) -> None:
     sim = Simulation("ur5e", seed=seed, imu_model="mpu6050")
     first = sim.advance(50)
-    sim.inject("imu_dead", imu="imu5", mode=mode)
+    sim.apply_damage("imu_dead", imu="imu5", mode=mode)
     rec = sim.advance(100)
     k = 5
     expect_g = first.gyro[-1, k] if mode == "frozen" else np.zeros(3)
@@ -75,7 +78,7 @@ def test_imu_dead_stops_reporting(mode: str, seed: int) -> None:
 def test_joint_locked_seizes_while_commanded(seed: int) -> None:
     sim = _sim(seed)
     sim.advance(50)
-    sim.inject("joint_locked", joint="j2")
+    sim.apply_damage("joint_locked", joint="j2")
     rec = sim.advance(300)
     j = rec.joint_names.index("j2")
     assert np.ptp(rec.q[:, j]) < 5e-3  # seized
@@ -91,7 +94,7 @@ def test_joint_locked_seizes_while_commanded(seed: int) -> None:
 def test_encoder_fault_disagrees_with_the_body(mode: str, seed: int) -> None:
     healthy = _sim(seed).advance(200)
     sim = _sim(seed)
-    sim.inject("encoder_fault", joint="j3", mode=mode, value=0.4)
+    sim.apply_damage("encoder_fault", joint="j3", mode=mode, value=0.4)
     rec = sim.advance(200)
     j = rec.joint_names.index("j3")
     assert np.allclose(rec.gyro, healthy.gyro)  # the body moves exactly as before
@@ -110,7 +113,7 @@ def test_link_lost_subtree_no_longer_follows_its_joint(seed: int) -> None:
     j1 = before.joint_names.index("j1")
     # intact: link1 turns about j1's axis at exactly j1's rate
     assert np.allclose(_norms(before.gyro[:, k]), np.abs(before.qd[:, j1]), atol=1e-9)
-    sim.inject("link_lost", joint="j1")
+    sim.apply_damage("link_lost", joint="j1")
     after = sim.advance(300)
     assert np.abs(_norms(after.gyro[:, k]) - np.abs(after.qd[:, j1])).mean() > 0.05
     assert np.ptp(after.q[:, j1]) > 0.1  # the motor and its encoder still turn
@@ -137,8 +140,8 @@ def test_combined_damage_mid_run_via_simulate(seed: int) -> None:
 
 
 def test_damage_picks_parts_reproducibly(seed: int) -> None:
-    a = _sim(seed).inject("imu_moved")
-    b = _sim(seed).inject("imu_moved")
+    a = _sim(seed).apply_damage("imu_moved")
+    b = _sim(seed).apply_damage("imu_moved")
     assert a == b and a.findings[0].from_ != a.findings[0].to
 
 
@@ -154,7 +157,7 @@ def test_damage_picks_parts_reproducibly(seed: int) -> None:
 def test_bad_damage_is_a_clear_error(text: str, message: str, seed: int) -> None:
     with pytest.raises(ValueError, match=message):
         kind, kw = parse_damage(text)
-        _sim(seed).inject(kind, **kw)
+        _sim(seed).apply_damage(kind, **kw)
 
 
 def test_damage_as_a_tuple_of_strings_or_one_pair(seed: int) -> None:
@@ -162,3 +165,12 @@ def test_damage_as_a_tuple_of_strings_or_one_pair(seed: int) -> None:
     b = simulate("paper-1", 0.2, seed, imu_model="ideal", damage=("imu_dead", {"imu": "imu1"}))
     assert len(json.loads(str(a.extra["truth_diff"]))["findings"]) == 2
     assert json.loads(str(b.extra["truth_diff"]))["findings"][0]["imu"] == "imu1"
+
+
+def test_damage_does_not_import_the_simulation() -> None:
+    """The simulation imports damage, never the other way round: no import cycle, even for types."""
+    tree = ast.parse(Path(simulators.damage.__file__).read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)} | {
+        a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
+    }
+    assert "simulators.simulation" not in imported

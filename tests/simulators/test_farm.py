@@ -43,7 +43,7 @@ def test_inject_truth_and_names(seed: int) -> None:
     assert farm.robot_names == ["ur5e-1", "paper-3-1"]
     assert farm.catalog_name("paper-3-1") == "paper-3"
     before = farm.truth("ur5e-1")
-    diff = farm.inject("ur5e-1", "imu_moved", imu="imu3")
+    diff = farm.apply_damage("ur5e-1", "imu_moved", imu="imu3")
     f = diff.findings[0]
     assert f.kind == "imu_moved" and f.from_ == before.imu_joint["imu3"] and f.to != f.from_
     assert farm.truth("ur5e-1").imu_joint["imu3"] == f.to
@@ -54,7 +54,7 @@ def test_inject_truth_and_names(seed: int) -> None:
     with pytest.raises(KeyError):
         farm.truth("nope")
     with pytest.raises(ValueError):
-        farm.inject("ur5e-1", "warp_drive")
+        farm.apply_damage("ur5e-1", "warp_drive")
 
 
 def test_stream_paces_faster_than_real_time() -> None:
@@ -83,8 +83,8 @@ def test_readahead_changes_nothing_even_around_damage(seed: int) -> None:
     for readahead in (0.0, 0.45):
         farm = Farm(robots, seed=seed, readahead=readahead)
         chunks = [farm.advance(0.1) for _ in range(3)]
-        diff = farm.inject("p", "imu_moved")  # parts picked by the damage generator
-        farm.inject("u", "joint_locked", joint="elbow")
+        diff = farm.apply_damage("p", "imu_moved")  # parts picked by the damage generator
+        farm.apply_damage("u", "joint_locked", joint="elbow")
         chunks += [farm.advance(0.1) for _ in range(4)]
         runs.append((chunks, diff, farm.simulation("p").diff.findings[0].to))
     (a, da, _), (b, db, _) = runs

@@ -127,7 +127,7 @@ def test_presets_and_json_resolve():
 
 def test_cli_writes_a_multirate_recording_that_loads(tmp_path):
     out = tmp_path / "r.npz"
-    cmd = [sys.executable, "-m", "service", "simulate", "paper-2", "--seconds", "1", "--sensing", "robot"]
+    cmd = [sys.executable, "-m", "cli", "simulate", "paper-2", "--seconds", "1", "--sensing", "robot"]
     res = subprocess.run([*cmd, "--out", str(out)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert re.search(r"at 100 Hz, encoders 2[45]\d samples at 2(49|50) Hz", res.stdout), res.stdout

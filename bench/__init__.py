@@ -1,0 +1,46 @@
+"""Benchmarks behind ``bodyhealth bench NAME``; results are written under the repository's ``docs/bench/``.
+
+Each benchmark is a module here exposing ``add_arguments(parser)`` and ``run(args) -> Path`` (the
+results file it wrote); every one takes ``--out`` (an explicit results folder) whose default,
+:data:`RESULTS_DIR`, is found from this package, not from the working directory, so a benchmark run
+from anywhere updates the figures the docs cite. :data:`BENCHMARKS` lists them in the order
+``bench all`` runs them.
+"""
+
+from __future__ import annotations
+
+import platform
+from pathlib import Path
+
+__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "machine_note"]
+
+BENCHMARKS: tuple[str, ...] = (
+    "algebra",
+    "sim",
+    "topology",
+    "scaling",
+    "store",
+    "ingest",
+    "sim2real",
+    "gravity",
+    "realism",
+    "docs",
+)
+
+#: The repository this package was installed from (editable install: ``pip install -e .``).
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+#: Where results files and plots go by default: the repository's docs/bench.
+RESULTS_DIR = REPO_ROOT / "docs" / "bench"
+
+
+def machine_note() -> str:
+    """One line naming the machine a result was measured on (benchmarks print it with every table)."""
+    import os
+
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            model = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), "")
+    except OSError:
+        model = platform.processor()
+    return f"{os.cpu_count()} cores, {model or platform.machine()}, Python {platform.python_version()}"

@@ -1,0 +1,73 @@
+"""``bodyhealth serve``: API, dashboard, ingest and worker in one process (see :mod:`service.daemon`)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="run the service: REST API + dashboard, ingest and monitoring worker",
+        description="Run the service until SIGTERM/SIGINT. Settings come from BODYHEALTH_* "
+        "environment variables; the options below override them.",
+    )
+    p.add_argument(
+        "--demo",
+        action="store_true",
+        help="simulate a farm of ur5e, paper-3 and quadruped in real time (x --speed)",
+    )
+    p.add_argument("--speed", type=float, default=1.0, help="demo farm speed, x real time (default 1)")
+    p.add_argument(
+        "--sensing",
+        choices=("robot", "ideal"),
+        help="how simulated farms sense their motion: robot (multi-rate, two clocks) or ideal "
+        "(one clock); default: settings (BODYHEALTH_SENSING, robot)",
+    )
+    p.add_argument(
+        "--source",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="ingest source, e.g. farm:ur5e@2, replay:run.npz@10, can:..., serial:... (repeatable)",
+    )
+    p.add_argument("--port", type=int, help="HTTP port (default: settings, 8000)")
+    p.add_argument("--host", help="HTTP host (default: settings, 127.0.0.1)")
+    p.add_argument("--database-url", help="SQLAlchemy URL (default: settings, sqlite:///./var/bodyhealth.db)")
+    p.add_argument("--commit-log", type=Path, help="append one JSON line per ingest commit here")
+    p.add_argument("--text-logs", action="store_true", help="human log lines instead of JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from service.daemon import Daemon, demo_spec
+    from service.log_config import configure_logging
+    from service.settings import get_settings
+
+    if not args.speed > 0:
+        raise ValueError(f"--speed must be positive, got {args.speed}")
+    update = {
+        k: v
+        for k, v in (
+            ("port", args.port),
+            ("host", args.host),
+            ("database_url", args.database_url),
+            ("sensing", getattr(args, "sensing", None)),
+        )
+        if v is not None
+    }
+    settings = get_settings().model_copy(update=update)
+    configure_logging(
+        logging.DEBUG if args.verbose > 1 else logging.INFO,
+        json_lines=settings.log_json and not args.text_logs,
+    )
+    specs = list(args.source)
+    if args.demo:
+        specs.insert(0, demo_spec(args.speed))
+    if not specs:
+        logging.getLogger(__name__).warning("no --source and no --demo: serving what the database holds")
+    return Daemon(settings, specs, commit_log=args.commit_log).serve()

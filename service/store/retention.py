@@ -1,0 +1,39 @@
+"""Retention: the store keeps a window of frames per robot, not a history.
+
+The worker only ever reads the latest ``window_seconds``; everything older than ``retention_seconds``
+of device time is dropped by :meth:`RetentionMixin.prune`, which the ingest writer calls every
+``prune_interval_seconds``. Pruning works per robot against that robot's own last frame, because robots
+run on clocks of their own, and drops whole chunks, so it is one indexed DELETE per robot rather than a
+rewrite of blobs. Registrations, topologies, baselines and alerts are never pruned.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import delete, func, select
+
+from service.db.models import Chunk, Robot
+from service.store.schema import StoreBase
+
+__all__ = ["RetentionMixin"]
+
+
+class RetentionMixin(StoreBase):
+    """Dropping frames that fell out of the retention window."""
+
+    def prune(self, now_t: float | None = None) -> int:
+        """Drop chunks that ended more than ``retention_seconds`` before ``now_t`` (device time; default
+        each robot's last frame). Whole chunks go, so up to one chunk more than the retention may stay.
+        Returns the samples dropped."""
+        dropped = 0
+        with self._write_lock, self._session() as s, s.begin():
+            for rid, last in s.execute(select(Robot.id, Robot.last_frame_t)).all():
+                ref = now_t if now_t is not None else last
+                if ref is None:
+                    continue
+                cutoff = ref - self.retention_seconds
+                cond = (Chunk.robot_id == rid) & (Chunk.t_end < cutoff)
+                n = s.scalar(select(func.coalesce(func.sum(Chunk.n), 0)).where(cond)) or 0
+                if n:
+                    s.execute(delete(Chunk).where(cond))
+                    dropped += int(n)
+        return dropped

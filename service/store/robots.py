@@ -1,0 +1,164 @@
+"""The robot registry: robots, their joints and IMUs, registered the first time a frame names them.
+
+Nobody declares a robot: the ingest writes frames and the store learns the robot and its parts from
+them, keeping parts in first-seen order (the order windows come back in). Every other concern looks a
+robot up by name here (:func:`robot_id`), so an unknown name fails the same way everywhere
+(:class:`UnknownRobot`). Simulation flags and excitation estimates are written here too: they describe
+the robot, not one window of it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+from sqlalchemy import select, update
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session
+
+from service.db.models import Imu, Joint, Robot
+from service.store.chunks import PendingChunk
+from service.store.schema import StoreBase
+
+__all__ = ["RegisteredRobot", "RobotInfo", "RobotsMixin", "UnknownRobot", "robot_id"]
+
+
+class UnknownRobot(KeyError):
+    """A robot name the store has never seen."""
+
+
+@dataclass(frozen=True)
+class RobotInfo:
+    """What the store knows about one robot. ``silent_imus`` have not been heard for
+    ``imu_silent_seconds`` of device time before ``last_frame_t``; ``first_seen`` is wall time."""
+
+    name: str
+    joints: list[str]
+    imus: list[str]
+    silent_imus: list[str]
+    first_seen: float
+    last_frame_t: float | None
+    simulated: bool
+    catalog: str | None
+    excitation: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class RegisteredRobot:
+    """A registered robot's id and the parts committed for it (the write path's cache)."""
+
+    id: int
+    joints: set[str]
+    imus: set[str]
+
+
+def robot_id(s: Session, name: str) -> int:
+    """The id of robot ``name``; raises :class:`UnknownRobot`."""
+    rid = s.scalar(select(Robot.id).where(Robot.name == name))
+    if rid is None:
+        raise UnknownRobot(name)
+    return rid
+
+
+class RobotsMixin(StoreBase):
+    """Registering robots and parts, and what the store knows about each robot."""
+
+    def robots(self) -> list[RobotInfo]:
+        """Every robot the store has seen, by name."""
+        with self._session() as s:
+            return [self._info(s, r) for r in s.scalars(select(Robot).order_by(Robot.name))]
+
+    def robot(self, name: str) -> RobotInfo | None:
+        """One robot, or None when never seen."""
+        with self._session() as s:
+            r = s.scalar(select(Robot).where(Robot.name == name))
+            return None if r is None else self._info(s, r)
+
+    def _info(self, s: Session, r: Robot) -> RobotInfo:
+        joints = list(
+            s.scalars(select(Joint.name).where(Joint.robot_id == r.id).order_by(Joint.position, Joint.id))
+        )
+        imus = s.execute(
+            select(Imu.name, Imu.last_t).where(Imu.robot_id == r.id).order_by(Imu.position, Imu.id)
+        ).all()
+        silent = []
+        if r.last_frame_t is not None:
+            silent = [n for n, lt in imus if lt < r.last_frame_t - self.imu_silent_seconds]
+        return RobotInfo(
+            name=r.name,
+            joints=joints,
+            imus=[n for n, _ in imus],
+            silent_imus=silent,
+            first_seen=r.first_seen,
+            last_frame_t=r.last_frame_t,
+            simulated=bool(r.simulated),
+            catalog=r.catalog,
+            excitation={str(k): float(v) for k, v in (r.excitation or {}).items()},
+        )
+
+    def mark_simulated(self, name: str, catalog: str) -> None:
+        """Flag a robot as simulated (registering it if new) and record its catalog model."""
+        if not name or not isinstance(name, str):
+            raise ValueError("robot name must be a non-empty string")
+        with self._write_lock:
+            try:
+                with self._session() as s, s.begin():
+                    known = self._register_robot(s, name)
+                    s.execute(
+                        update(Robot).where(Robot.id == known.id).values(simulated=True, catalog=catalog)
+                    )
+            except SQLAlchemyError:
+                self._known.pop(name, None)  # the registration may have rolled back with it
+                raise
+
+    def set_excitation(self, name: str, excitation: dict[str, float]) -> None:
+        """Record how well each joint is excited (e.g. the worker's last estimate), 0..1 per joint."""
+        clean = {str(k): float(v) for k, v in excitation.items()}
+        if any(not math.isfinite(v) for v in clean.values()):
+            raise ValueError("excitation values must be finite")
+        with self._session() as s, s.begin():
+            rid = robot_id(s, name)
+            s.execute(update(Robot).where(Robot.id == rid).values(excitation=clean))
+
+    # --------------------------------------------------------------------------- registering
+    def _register_robot(self, s: Session, name: str) -> RegisteredRobot:
+        """The robot's id and known parts, inserting it if new (safe against a concurrent process)."""
+        known = self._known.get(name)
+        if known is not None:
+            return known
+        s.execute(
+            self._insert(Robot)
+            .values(name=name, first_seen=time.time(), simulated=False, excitation={})
+            .on_conflict_do_nothing(index_elements=["name"])
+        )
+        rid = robot_id(s, name)
+        joints = set(s.scalars(select(Joint.name).where(Joint.robot_id == rid)))
+        imus = set(s.scalars(select(Imu.name).where(Imu.robot_id == rid)))
+        known = self._known[name] = RegisteredRobot(rid, joints, imus)
+        return known
+
+    def _register_parts(self, s: Session, known: RegisteredRobot, ch: PendingChunk) -> None:
+        new_j = [j for j in ch.joint_names if j not in known.joints]
+        if new_j:
+            base = len(known.joints)
+            s.execute(
+                self._insert(Joint).on_conflict_do_nothing(index_elements=["robot_id", "name"]),
+                [{"robot_id": known.id, "name": j, "position": base + k} for k, j in enumerate(new_j)],
+            )
+        new_i = [i for i in ch.imu_names if i not in known.imus]
+        if new_i:
+            base = len(known.imus)
+            s.execute(
+                self._insert(Imu).on_conflict_do_nothing(index_elements=["robot_id", "name"]),
+                [
+                    {
+                        "robot_id": known.id,
+                        "name": i,
+                        "position": base + k,
+                        "first_t": ch.t_start,
+                        "last_t": ch.t_end,
+                    }
+                    for k, i in enumerate(new_i)
+                ],
+            )

@@ -1,0 +1,146 @@
+"""Opening the store's database and keeping its schema where the code expects it.
+
+:class:`StoreBase` is the part of :class:`~service.store.Store` every concern shares: the engine, the
+session factory, the write lock and the settings the store was opened with. It also owns the schema
+step. Opening a store never migrates: changing a production schema is an operator's decision
+(``bodyhealth db upgrade``, or ``bodyhealth serve`` at start), and a tool that only reads must not
+rewrite a database it was pointed at. Instead the first use of a store checks, once, that the database
+is at the revision the shipped migrations call head, and fails with :class:`SchemaMismatch` naming the
+command that fixes it rather than with an SQL error about a missing table or column.
+:meth:`StoreBase.upgrade` runs the migrations on the store's own engine, which is the only way to migrate
+an in-memory SQLite database (another engine would open another, empty, database).
+
+Example
+-------
+>>> store = StoreBase("sqlite://")          # an empty in-memory database
+>>> try:
+...     store.check_schema()
+... except SchemaMismatch as err:
+...     print("bodyhealth db upgrade" in str(err))
+True
+>>> store.upgrade() == migrate.head_revision() == store.check_schema()
+True
+>>> store.close()
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Self
+
+from sqlalchemy import Engine, text
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.db import migrate
+from service.db.engine import make_engine, normalize_url
+from service.settings import Settings, get_settings
+
+__all__ = ["SchemaMismatch", "StoreBase"]
+
+
+class SchemaMismatch(RuntimeError):
+    """The database is not at the schema revision this code was written for."""
+
+
+class StoreBase:
+    """Engine, sessions, settings and the schema step of one store (see the module doc).
+
+    ``url`` defaults to the settings' ``database_url``; retention, IMU silence and chunk size come from
+    the settings unless given here. ``engine_kwargs`` go to :func:`service.db.engine.make_engine`.
+    """
+
+    def __init__(
+        self,
+        url: str | None = None,
+        *,
+        settings: Settings | None = None,
+        retention_seconds: float | None = None,
+        imu_silent_seconds: float | None = None,
+        chunk_max_samples: int | None = None,
+        engine_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        s = settings or get_settings()
+        self.url = normalize_url(url or s.database_url)
+        self.retention_seconds = float(retention_seconds or s.retention_seconds)
+        self.imu_silent_seconds = float(imu_silent_seconds or s.imu_silent_seconds)
+        self.chunk_max_samples = int(chunk_max_samples or s.chunk_max_samples)
+        self.engine: Engine = make_engine(self.url, **(engine_kwargs or {}))
+        self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+        self._write_lock = threading.RLock()
+        self._schema_checked = False
+        # Robots (and their parts) this store has registered, so a stream of frames does not look its
+        # robot up batch after batch; see service.store.robots.
+        self._known: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------------------- schema
+    def upgrade(self) -> str:
+        """Migrate the database to the newest revision (Alembic) on this store's engine; returns it."""
+        reached = migrate.upgrade(self.engine)
+        if reached is None or reached != migrate.head_revision():
+            raise SchemaMismatch(f"{self._shown_url()}: migrating stopped at revision {reached}")
+        self._schema_checked = True
+        return reached
+
+    def check_schema(self) -> str:
+        """The database's revision when it is head; raises :class:`SchemaMismatch` otherwise."""
+        current = migrate.current_revision(self.engine)
+        head = migrate.head_revision()
+        if current == head:
+            self._schema_checked = True
+            return head
+        where = self._shown_url()
+        if current is None:
+            raise SchemaMismatch(
+                f"{where} has no bodyhealth schema yet; create it with `bodyhealth db upgrade "
+                f"--database-url {where}` (or start `bodyhealth serve`, which upgrades)"
+            )
+        if current not in migrate.known_revisions():
+            raise SchemaMismatch(
+                f"{where} is at schema revision {current}, which this bodyhealth does not know "
+                f"(its newest is {head}): the database was migrated by a newer version"
+            )
+        raise SchemaMismatch(
+            f"{where} is at schema revision {current}, this bodyhealth needs {head}; run "
+            f"`bodyhealth db upgrade --database-url {where}`"
+        )
+
+    def _session(self) -> Session:
+        """A new ORM session; the first one checks the schema (see the module doc)."""
+        if not self._schema_checked:
+            self.check_schema()
+        return self._sessions()
+
+    # ----------------------------------------------------------------------------- plumbing
+    @property
+    def dialect(self) -> str:
+        return self.engine.dialect.name
+
+    def _insert(self, table: Any) -> Any:
+        """An INSERT that understands ON CONFLICT on both backends."""
+        return (postgresql.insert if self.dialect == "postgresql" else sqlite.insert)(table)
+
+    def _shown_url(self) -> str:
+        return self.engine.url.render_as_string(hide_password=True)
+
+    def ping(self) -> bool:
+        """True when the database answers (whatever its schema)."""
+        try:
+            with self.engine.connect() as conn:
+                return conn.execute(text("SELECT 1")).scalar() == 1
+        except SQLAlchemyError:
+            return False
+
+    def close(self) -> None:
+        """Release every pooled connection."""
+        self.engine.dispose()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Store({self._shown_url()!r})"

@@ -1,0 +1,187 @@
+"""Learned topologies and baselines: what each robot's body looked like, and what it is compared against.
+
+Every topology the worker learns is kept with its method, wall time and the device time its window
+ended (the history the API and the dashboard show). A baseline is a topology promoted by the worker
+("auto": the same body several cycles in a row) or by an operator; the newest baseline row of a robot
+is the current one and older rows are its history, so a baseline is never overwritten.
+
+Approving a baseline (:meth:`TopologiesMixin.approve_baseline`) also ends the robot's open alerts: they
+were differences to the old baseline. Both happen in one transaction, so no reader ever sees the new
+baseline next to alerts against the old one, and a failure leaves both as they were.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from sqlalchemy import insert, select
+from sqlalchemy.orm import Session
+
+from bodyschema.topology import Topology
+from service.db.models import Baseline, TopologyRow
+from service.store.alerts import resolve_open_alerts
+from service.store.robots import robot_id
+from service.store.schema import StoreBase
+
+__all__ = ["BASELINE_SOURCES", "TopologiesMixin", "TopologyRecord"]
+
+#: Who made a baseline: the worker (the same body learned repeatedly) or an operator.
+BASELINE_SOURCES: tuple[str, ...] = ("auto", "operator")
+
+
+@dataclass(frozen=True)
+class TopologyRecord:
+    """A stored topology. ``source`` is set for baselines ("auto" | "operator")."""
+
+    id: int
+    robot: str
+    wall_time: float
+    window_end_t: float | None
+    method: str
+    topology: Topology
+    source: str | None = None
+
+
+class TopologiesMixin(StoreBase):
+    """Keeping learned topologies and choosing baselines."""
+
+    def save_topology(self, robot: str, topo: Topology, wall_time: float, window_end_t: float | None) -> int:
+        """Keep a learned topology; returns its id."""
+        with self._session() as s, s.begin():
+            rid = robot_id(s, robot)
+            return int(
+                s.scalar(
+                    insert(TopologyRow)
+                    .values(
+                        robot_id=rid,
+                        wall_time=float(wall_time),
+                        window_end_t=_opt_float(window_end_t),
+                        method=topo.method or "",
+                        topology=topo.to_json(),
+                    )
+                    .returning(TopologyRow.id)
+                )
+            )
+
+    def latest_topology(self, robot: str, method: str | None = None) -> TopologyRecord | None:
+        """The newest stored topology (of ``method`` when given)."""
+        hist = self._topologies(robot, 1, method)
+        return hist[0] if hist else None
+
+    def topology_history(self, robot: str, limit: int = 50) -> list[TopologyRecord]:
+        """Stored topologies, newest first."""
+        return self._topologies(robot, limit, None)
+
+    def _topologies(self, robot: str, limit: int, method: str | None) -> list[TopologyRecord]:
+        with self._session() as s:
+            rid = robot_id(s, robot)
+            return [
+                TopologyRecord(
+                    r.id, robot, r.wall_time, r.window_end_t, r.method, Topology.from_json(r.topology)
+                )
+                for r in _topology_rows(s, rid, limit, method)
+            ]
+
+    def set_baseline(
+        self,
+        robot: str,
+        topo: Topology,
+        source: str,
+        *,
+        wall_time: float | None = None,
+        window_end_t: float | None = None,
+    ) -> None:
+        """Make ``topo`` the robot's baseline (the previous ones stay as history)."""
+        _check_source(source)
+        with self._session() as s, s.begin():
+            rid = robot_id(s, robot)
+            _insert_baseline(s, rid, topo, source, wall_time, window_end_t)
+
+    def baseline(self, robot: str) -> TopologyRecord | None:
+        """The current baseline, or None when the robot has none yet."""
+        with self._session() as s:
+            rid = robot_id(s, robot)
+            r = s.scalar(
+                select(Baseline).where(Baseline.robot_id == rid).order_by(Baseline.id.desc()).limit(1)
+            )
+            return None if r is None else _baseline_record(r, robot)
+
+    def approve_baseline(
+        self,
+        robot: str,
+        topo: Topology | None = None,
+        *,
+        source: str = "operator",
+        wall_time: float | None = None,
+    ) -> TopologyRecord:
+        """Make ``topo`` the robot's baseline and resolve its open alerts, in one transaction.
+
+        ``topo`` defaults to the newest fast topology, or the newest of any method when no fast one was
+        learned. ``wall_time`` (default: now) stamps both the baseline and the resolved alerts. Returns
+        the new baseline; raises :class:`~service.store.UnknownRobot`, or ``LookupError`` naming the
+        robot when it has no topology to approve.
+        """
+        _check_source(source)
+        now = time.time() if wall_time is None else float(wall_time)
+        with self._session() as s, s.begin():
+            rid = robot_id(s, robot)
+            if topo is None:
+                newest = _topology_rows(s, rid, 1, "fast") or _topology_rows(s, rid, 1, None)
+                if not newest:
+                    raise LookupError(f"no topology learned for {robot!r} yet")
+                topo = Topology.from_json(newest[0].topology)
+            bid = _insert_baseline(s, rid, topo, source, now, None)
+            resolve_open_alerts(s, rid, now)
+            row = s.get(Baseline, bid)
+            assert row is not None
+            return _baseline_record(row, robot)
+
+
+def _topology_rows(s: Session, rid: int, limit: int, method: str | None) -> list[TopologyRow]:
+    """A robot's stored topologies (of ``method`` when given), newest first."""
+    q = select(TopologyRow).where(TopologyRow.robot_id == rid)
+    if method is not None:
+        q = q.where(TopologyRow.method == method)
+    q = q.order_by(TopologyRow.wall_time.desc(), TopologyRow.id.desc()).limit(max(int(limit), 0))
+    return list(s.scalars(q))
+
+
+def _insert_baseline(
+    s: Session,
+    rid: int,
+    topo: Topology,
+    source: str,
+    wall_time: float | None,
+    window_end_t: float | None,
+) -> int:
+    """Add a baseline row in the caller's transaction; returns its id."""
+    return int(
+        s.scalar(
+            insert(Baseline)
+            .values(
+                robot_id=rid,
+                wall_time=time.time() if wall_time is None else float(wall_time),
+                window_end_t=_opt_float(window_end_t),
+                method=topo.method or "",
+                source=source,
+                topology=topo.to_json(),
+            )
+            .returning(Baseline.id)
+        )
+    )
+
+
+def _baseline_record(r: Baseline, robot: str) -> TopologyRecord:
+    return TopologyRecord(
+        r.id, robot, r.wall_time, r.window_end_t, r.method, Topology.from_json(r.topology), r.source
+    )
+
+
+def _check_source(source: str) -> None:
+    if source not in BASELINE_SOURCES:
+        raise ValueError(f"baseline source must be one of {BASELINE_SOURCES}, got {source!r}")
+
+
+def _opt_float(v: float | None) -> float | None:
+    return None if v is None else float(v)
