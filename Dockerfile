@@ -14,5 +14,9 @@ COPY bench bench
 COPY cli cli
 COPY migrations migrations
 RUN pip install --no-cache-dir .
+# Run as an unprivileged user; the SQLite default store (./var) is writable by it.
+RUN useradd --create-home --uid 10001 bodyhealth && mkdir -p /app/var && chown bodyhealth /app/var
+USER bodyhealth
 EXPOSE 8000
+# Listening on 0.0.0.0 needs BODYHEALTH_API_TOKEN (or BODYHEALTH_API_TOKEN_FILE): docker run -e ...
 CMD ["bodyhealth", "serve", "--demo", "--host", "0.0.0.0", "--port", "8000"]

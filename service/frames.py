@@ -3,7 +3,10 @@
 It lives in a leaf module of its own (numpy only) because both ends of the data flow use it: the
 ingest sources produce it, the store keeps it, and neither may import the other (the store sits
 below ingest: source -> pipeline -> store). Validation happens here, once, so whatever reaches the
-store already meets the recording contract (docs/recording-format.md).
+store already meets the recording contract (docs/recording-format.md), and the names every source
+hands in match :data:`NAME_PATTERN` (docs/security.md). Stamps are only required to be finite and
+increasing here: a device clock may stamp its first samples a little before 0 (jitter, an encoder
+clock that starts early), so "not negative" is a rule of the REST API's input only.
 
 >>> import numpy as np
 >>> b = FrameBatch("r1", np.array([0.0, 0.01]), ("j1",), np.zeros((2, 1)), ("imu0",),
@@ -14,15 +17,33 @@ store already meets the recording contract (docs/recording-format.md).
 
 from __future__ import annotations
 
+import functools
+import re
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FrameBatch", "FrameError", "check_batch_stamps"]
+__all__ = [
+    "NAME_PATTERN",
+    "NAME_RULE",
+    "FrameBatch",
+    "FrameError",
+    "check_batch_stamps",
+    "check_name",
+    "check_names",
+]
+
+#: What a robot, joint or IMU name may be: they end up in URLs, metric labels, log fields and file
+#: names, so only characters that need no escaping anywhere. The one definition the API and every
+#: ingest source check against.
+NAME_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
+_NAME = re.compile(NAME_PATTERN)
+NAME_RULE = "1-64 characters of A-Z a-z 0-9 _ . -"
 
 
 class FrameError(ValueError):
-    """A frame batch that breaks the contract (shapes, NaN/Inf, time going backwards)."""
+    """A frame batch that breaks the contract (shapes, NaN/Inf, time going backwards, names outside
+    :data:`NAME_PATTERN`)."""
 
 
 def check_batch_stamps(t: np.ndarray, name: str = "t") -> None:
@@ -51,6 +72,32 @@ def check_batch_stamps(t: np.ndarray, name: str = "t") -> None:
                     f"{name} must be strictly increasing within a batch"
                 )
             raise FrameError(f"{name} has a duplicate stamp at index {i + 1} ({t[i]:.6g} s)")
+
+
+def check_name(name: object, what: str = "name") -> None:
+    """Raise :class:`FrameError` unless ``name`` is a string matching :data:`NAME_PATTERN`.
+
+    >>> check_name("ur5e-1", "robot name")
+    >>> try:
+    ...     check_name("arm 2", "robot name")
+    ... except FrameError as err:
+    ...     print(err)
+    robot name 'arm 2' is not allowed (names: 1-64 characters of A-Z a-z 0-9 _ . -)
+    """
+    if not isinstance(name, str) or _NAME.fullmatch(name) is None:
+        shown = repr(name) if not isinstance(name, str) or len(name) <= 80 else repr(name[:80] + "...")
+        raise FrameError(f"{what} {shown} is not allowed (names: {NAME_RULE})")
+
+
+@functools.lru_cache(maxsize=4096)
+def check_names(robot: str, joint_names: tuple[str, ...], imu_names: tuple[str, ...]) -> None:
+    """:func:`check_name` for a batch's robot and parts. Cached: a stream repeats the same names batch
+    after batch (only passing results are remembered; a failing call raises)."""
+    check_name(robot, "robot name")
+    for n in joint_names:
+        check_name(n, "joint name")
+    for n in imu_names:
+        check_name(n, "IMU name")
 
 
 @dataclass(frozen=True)
@@ -99,6 +146,10 @@ class FrameBatch:
         """Raise :class:`FrameError` naming what is wrong."""
         if not self.robot or not isinstance(self.robot, str):
             raise FrameError("robot name must be a non-empty string")
+        try:
+            check_names(self.robot, tuple(self.joint_names), tuple(self.imu_names))
+        except TypeError:  # an unhashable name
+            raise FrameError("joint and IMU names must be non-empty strings") from None
         T, N, K = self.t.shape[0] if self.t.ndim == 1 else -1, len(self.joint_names), len(self.imu_names)
         if T < 1:
             raise FrameError(f"t must have shape (T,) with T >= 1, got {self.t.shape}")

@@ -3,7 +3,8 @@
 Every field can be set with an environment variable named ``BODYHEALTH_<FIELD>`` (case-insensitive),
 e.g. ``BODYHEALTH_DATABASE_URL=postgresql+psycopg://user@host/db``, or from a ``.env`` file in the
 working directory. Code asks :func:`get_settings` (cached, so the environment is read once); tests that
-change the environment call :func:`reset_settings` afterwards.
+change the environment call :func:`reset_settings` afterwards. The security settings (tokens, allowed
+hosts, the time-jump bound) are described in docs/security.md.
 
 Example
 -------
@@ -19,19 +20,45 @@ Example
 
 from __future__ import annotations
 
+import ipaddress
+import json
 from functools import lru_cache
+from pathlib import Path
+from typing import Annotated
 
-from pydantic import Field, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-__all__ = ["Settings", "get_settings", "reset_settings"]
+__all__ = ["LOCAL_HOSTS", "Settings", "get_settings", "is_loopback", "reset_settings"]
+
+#: Host names every app answers to (``Host`` header), whatever the configuration adds.
+LOCAL_HOSTS: tuple[str, ...] = ("localhost", "127.0.0.1", "::1", "[::1]", "testserver")
+
+
+def is_loopback(host: str) -> bool:
+    """True for an address only this machine can reach: ``localhost``, 127.0.0.0/8, ``::1``.
+
+    >>> [is_loopback(h) for h in ("127.0.0.1", "[::1]", "localhost", "0.0.0.0", "::", "10.0.0.5")]
+    [True, True, True, False, False, False]
+    """
+    host = host.strip().strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
 
 
 class Settings(BaseSettings):
     """All tunables of the service. Times are seconds; ``*_t`` quantities elsewhere are device time."""
 
     model_config = SettingsConfigDict(
-        env_prefix="BODYHEALTH_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
+        env_prefix="BODYHEALTH_",
+        env_file=".env",
+        env_file_encoding="utf-8",
+        extra="ignore",
+        hide_input_in_errors=True,  # an error must not echo a token back
     )
 
     # ---------------------------------------------------------------- storage
@@ -74,6 +101,87 @@ class Settings(BaseSettings):
     max_request_bytes: int = Field(1_000_000, ge=1)
     log_json: bool = True
 
+    # --------------------------------------------------------------- security
+    api_token: SecretStr | None = Field(
+        None, description="bearer token every mutating request must carry (unset: no token needed)"
+    )
+    api_token_file: Path | None = Field(
+        None, description="file holding the bearer token (content stripped); instead of api_token"
+    )
+    api_read_token: SecretStr | None = Field(
+        None, description="bearer token GET routes of /api/v1 need (either token does); needs api_token"
+    )
+    allowed_hosts: Annotated[list[str] | None, NoDecode] = Field(
+        None,
+        description="Host header values the API answers (comma-separated or a JSON list; '*' = any); "
+        "unset: localhost, 127.0.0.1, ::1, testserver and the bind host",
+    )
+    max_time_jump_seconds: float = Field(
+        1e6,
+        gt=0,
+        description="frames pushed over the API may lie at most this far (device time) ahead of the "
+        "robot's last stored frame",
+    )
+
+    @field_validator("api_token", "api_read_token", mode="before")
+    @classmethod
+    def _blank_token_is_unset(cls, v: object) -> object:
+        # An empty variable (BODYHEALTH_API_TOKEN=) reads as "no token", never as the empty token.
+        if isinstance(v, str) and not v.strip():
+            return None
+        return v.strip() if isinstance(v, str) else v
+
+    @field_validator("allowed_hosts", mode="before")
+    @classmethod
+    def _split_hosts(cls, v: object) -> object:
+        if isinstance(v, str):
+            v = v.strip()
+            if v.startswith("["):
+                return json.loads(v)
+            return [h.strip() for h in v.split(",") if h.strip()]
+        return v
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_patterns(cls, v: list[str] | None) -> list[str] | None:
+        for h in v or ():
+            if h != "*" and "*" in (h[2:] if h.startswith("*.") else h):
+                raise ValueError(f"allowed host {h!r}: a wildcard is '*' alone or '*.domain'")
+        return v
+
+    def write_token(self) -> str | None:
+        """The token mutating requests need: ``api_token``, or the stripped content of ``api_token_file``.
+
+        Raises ``ValueError`` when both are set or the file cannot be read or is empty: a
+        misconfigured token must stop the service, never leave it open."""
+        if self.api_token_file is None:
+            return self.api_token.get_secret_value() if self.api_token is not None else None
+        if self.api_token is not None:
+            raise ValueError("set api_token or api_token_file, not both")
+        try:
+            token = self.api_token_file.read_text(encoding="utf-8").strip()
+        except OSError as err:
+            raise ValueError(f"api_token_file {str(self.api_token_file)!r}: {err.strerror}") from None
+        if not token:
+            raise ValueError(f"api_token_file {str(self.api_token_file)!r} is empty")
+        return token
+
+    def read_token(self) -> str | None:
+        """The extra token GET routes accept (they accept the write token too); None when unset."""
+        return self.api_read_token.get_secret_value() if self.api_read_token is not None else None
+
+    def trusted_hosts(self) -> list[str]:
+        """The ``Host`` header values the app accepts: ``allowed_hosts`` when set, else the local names
+        plus the bind host (unless it binds every address, which names no host)."""
+        if self.allowed_hosts is not None:
+            return list(self.allowed_hosts)
+        hosts = list(LOCAL_HOSTS)
+        if self.host not in ("0.0.0.0", "::", "") and self.host not in hosts:
+            hosts.append(self.host)
+            if ":" in self.host and not self.host.startswith("["):  # IPv6: Host carries it bracketed
+                hosts.append(f"[{self.host}]")
+        return hosts
+
     @field_validator("sensing")
     @classmethod
     def _known_sensing(cls, v: str) -> str:
@@ -84,6 +192,16 @@ class Settings(BaseSettings):
 
         resolve_sensing(v)  # raises ValueError saying what is wrong
         return v
+
+    @model_validator(mode="after")
+    def _tokens_consistent(self) -> Settings:
+        token = self.write_token()  # raises for a missing or empty token file
+        if self.api_read_token is not None and token is None:
+            raise ValueError(
+                "api_read_token needs api_token (or api_token_file): without one, mutating routes "
+                "would be open while reads are closed"
+            )
+        return self
 
     @model_validator(mode="after")
     def _window_fits_retention(self) -> Settings:

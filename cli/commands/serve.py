@@ -1,12 +1,21 @@
-"""``bodyhealth serve``: API, dashboard, ingest and worker in one process (see :mod:`service.daemon`)."""
+"""``bodyhealth serve``: API, dashboard, ingest and worker in one process (see :mod:`service.daemon`).
+
+Listening on an address other machines can reach needs a token (docs/security.md): without one,
+anyone on the network could approve baselines, acknowledge alerts and push frames. On loopback the
+service stays open, as ``make run`` starts it.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
-__all__ = ["register"]
+__all__ = ["EXIT_NO_TOKEN", "register"]
+
+#: Exit code of ``serve`` refusing a non-loopback address without a token (as argparse's usage errors).
+EXIT_NO_TOKEN = 2
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +45,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="ingest source, e.g. farm:ur5e@2, replay:run.npz@10, can:..., serial:... (repeatable)",
     )
     p.add_argument("--port", type=int, help="HTTP port (default: settings, 8000)")
-    p.add_argument("--host", help="HTTP host (default: settings, 127.0.0.1)")
+    p.add_argument(
+        "--host",
+        help="HTTP host (default: settings, 127.0.0.1); any address but loopback needs "
+        "BODYHEALTH_API_TOKEN or BODYHEALTH_API_TOKEN_FILE",
+    )
     p.add_argument("--database-url", help="SQLAlchemy URL (default: settings, sqlite:///./var/bodyhealth.db)")
     p.add_argument("--commit-log", type=Path, help="append one JSON line per ingest commit here")
     p.add_argument("--text-logs", action="store_true", help="human log lines instead of JSON")
@@ -46,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from service.daemon import Daemon, demo_spec
     from service.log_config import configure_logging
-    from service.settings import get_settings
+    from service.settings import get_settings, is_loopback
 
     if not args.speed > 0:
         raise ValueError(f"--speed must be positive, got {args.speed}")
@@ -61,6 +74,15 @@ def run(args: argparse.Namespace) -> int:
         if v is not None
     }
     settings = get_settings().model_copy(update=update)
+    if not is_loopback(settings.host) and settings.write_token() is None:
+        print(
+            f"bodyhealth serve: refusing to listen on {settings.host} without an API token: anyone who "
+            "can reach it could change baselines, alerts and frames. Set BODYHEALTH_API_TOKEN=<token> "
+            "or BODYHEALTH_API_TOKEN_FILE=<file holding it> (see docs/security.md), "
+            "or listen on 127.0.0.1.",
+            file=sys.stderr,
+        )
+        return EXIT_NO_TOKEN
     configure_logging(
         logging.DEBUG if args.verbose > 1 else logging.INFO,
         json_lines=settings.log_json and not args.text_logs,
@@ -68,6 +90,13 @@ def run(args: argparse.Namespace) -> int:
     specs = list(args.source)
     if args.demo:
         specs.insert(0, demo_spec(args.speed))
+    log = logging.getLogger(__name__)
     if not specs:
-        logging.getLogger(__name__).warning("no --source and no --demo: serving what the database holds")
+        log.warning("no --source and no --demo: serving what the database holds")
+    if settings.allowed_hosts is None and settings.host in ("0.0.0.0", "::"):
+        log.warning(
+            "listening on every address, but only requests for %s are answered; "
+            "set BODYHEALTH_ALLOWED_HOSTS to the names clients use",
+            ", ".join(settings.trusted_hosts()),
+        )
     return Daemon(settings, specs, commit_log=args.commit_log).serve()

@@ -7,6 +7,10 @@ topology, alerts, simulate, health. Bad input never reaches a 500: unknown robot
 malformed bodies 422, bodies over ``max_request_bytes`` 413, damage on a real robot 409, frames the
 pipeline could not store in time 503.
 
+Security (:mod:`service.api.security`, docs/security.md): ``Host`` headers outside ``allowed_hosts`` are
+400, mutating requests with a non-JSON body 415, and with tokens configured every ``/api/v1`` route
+checks the bearer token (401). ``/livez``, ``/readyz`` and ``/metrics`` stay open; no CORS.
+
 Example
 -------
 >>> from fastapi.testclient import TestClient
@@ -22,24 +26,29 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Request, Security
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, health, robots, simulate, status, topology
+from service.api.errors import invalid_request
+from service.api.security import JsonOnly, authorize
 from service.control import DamageControl, MonitorControl
 from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
 from service.settings import Settings, get_settings
 from service.store import Store, UnknownAlert, UnknownRobot
 
-__all__ = ["DASHBOARD_DIR", "BodySizeLimit", "create_app"]
+__all__ = ["API_ROUTERS", "DASHBOARD_DIR", "BodySizeLimit", "create_app"]
 
 log = logging.getLogger(__name__)
 
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
+#: The ``/api/v1`` routers: every route on them goes through :func:`~service.api.security.authorize`.
+API_ROUTERS = (robots.router, status.router, topology.router, alerts.router, simulate.router)
 
 
 class BodySizeLimit:
@@ -131,24 +140,20 @@ def create_app(
     app.state.worker = worker
     app.state.metrics = metrics or getattr(worker, "metrics", None) or Metrics()
     app.state.damage = damage
+    app.state.api_token = settings.write_token()
+    app.state.api_read_token = settings.read_token()
     for k, v in (extra_state or {}).items():
         setattr(app.state, k, v)
 
-    for module in (robots, status, topology, alerts, simulate, health):
-        app.include_router(module.router)
+    for router in API_ROUTERS:
+        app.include_router(router, dependencies=[Security(authorize)])
+    app.include_router(health.router)  # probes and metrics stay open: they change nothing
 
     @app.exception_handler(UnknownRobot)
     async def _unknown_robot(request: Request, exc: UnknownRobot) -> JSONResponse:
         return JSONResponse({"detail": f"unknown robot {exc.args[0]!r}"}, status_code=404)
 
-    @app.exception_handler(RequestValidationError)
-    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
-        # The offending input is left out: it may hold NaN/Inf, which JSON cannot carry back.
-        errors = [
-            {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
-            for e in exc.errors()
-        ]
-        return JSONResponse({"detail": errors}, status_code=422)
+    app.add_exception_handler(RequestValidationError, invalid_request)
 
     @app.exception_handler(UnknownAlert)
     async def _unknown_alert(request: Request, exc: UnknownAlert) -> JSONResponse:
@@ -161,5 +166,8 @@ def create_app(
         def dashboard() -> FileResponse:
             return FileResponse(DASHBOARD_DIR / "index.html")
 
+    # The last added runs first: Host, then the body's type (headers only), then its size.
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_request_bytes)
+    app.add_middleware(JsonOnly)
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.trusted_hosts(), www_redirect=False)
     return app

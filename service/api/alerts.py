@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException, Query
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Path, Query
 
 from service.api.deps import get_robot, get_store
+from service.api.errors import responses
 from service.api.schemas import AlertOut
 from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1", tags=["alerts"])
+router = APIRouter(prefix="/api/v1", tags=["alerts"], responses=responses(401, 422))
+
+#: Alert ids are the database's 64-bit keys: anything outside is a 422, never an overflow further down.
+AlertId = Annotated[int, Path(ge=1, le=2**63 - 1, description="alert id (a signed 64-bit key)")]
 
 ACTIVE = Query(None, description="true: active only; false: pending and resolved only; absent: all")
 
@@ -22,7 +28,12 @@ def all_alerts(
     return [AlertOut.of(a) for a in store.alerts(active=active, limit=limit)]
 
 
-@router.get("/robots/{robot}/alerts", response_model=list[AlertOut], summary="one robot's alerts")
+@router.get(
+    "/robots/{robot}/alerts",
+    response_model=list[AlertOut],
+    summary="one robot's alerts",
+    responses=responses(404),
+)
 def robot_alerts(
     info: RobotInfo = Depends(get_robot),
     store: Store = Depends(get_store),
@@ -41,8 +52,13 @@ def _ack(store: Store, alert_id: int, robot: str | None) -> AlertOut:
     return AlertOut.of(a)
 
 
-@router.post("/alerts/{alert_id}/ack", response_model=AlertOut, summary="acknowledge an alert")
-def ack(alert_id: int, store: Store = Depends(get_store)) -> AlertOut:
+@router.post(
+    "/alerts/{alert_id}/ack",
+    response_model=AlertOut,
+    summary="acknowledge an alert",
+    responses=responses(404, 413, 415),
+)
+def ack(alert_id: AlertId, store: Store = Depends(get_store)) -> AlertOut:
     return _ack(store, alert_id, None)
 
 
@@ -50,8 +66,9 @@ def ack(alert_id: int, store: Store = Depends(get_store)) -> AlertOut:
     "/robots/{robot}/alerts/{alert_id}/ack",
     response_model=AlertOut,
     summary="acknowledge one of this robot's alerts",
+    responses=responses(404, 413, 415),
 )
 def ack_robot(
-    alert_id: int, info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)
+    alert_id: AlertId, info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)
 ) -> AlertOut:
     return _ack(store, alert_id, info.name)

@@ -7,15 +7,19 @@ several apps (tests) and nothing is a module-level global.
 
 from __future__ import annotations
 
-from fastapi import HTTPException, Request
+from typing import Annotated
+
+from fastapi import HTTPException, Path, Request
 
 from service.control import DamageControl, MonitorControl
+from service.frames import NAME_PATTERN, NAME_RULE
 from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
 from service.settings import Settings
 from service.store import RobotInfo, Store
 
 __all__ = [
+    "RobotName",
     "get_damage",
     "get_metrics",
     "get_pipeline",
@@ -24,6 +28,9 @@ __all__ = [
     "get_store",
     "get_worker",
 ]
+
+#: The ``{robot}`` path parameter: a name as every ingest source must give it (service.frames).
+RobotName = Annotated[str, Path(pattern=NAME_PATTERN, description=f"robot name: {NAME_RULE}")]
 
 
 def get_store(request: Request) -> Store:
@@ -50,7 +57,7 @@ def get_damage(request: Request) -> DamageControl | None:
     return request.app.state.damage
 
 
-def get_robot(robot: str, request: Request) -> RobotInfo:
+def get_robot(robot: RobotName, request: Request) -> RobotInfo:
     """The path's robot, or 404."""
     info = get_store(request).robot(robot)
     if info is None:

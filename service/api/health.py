@@ -24,7 +24,11 @@ def livez() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="database reachable and worker heartbeat fresh (503 otherwise)")
+@router.get(
+    "/readyz",
+    summary="database reachable and worker heartbeat fresh (503 otherwise)",
+    responses={503: {"description": "database unreachable or worker heartbeat stale (same body)"}},
+)
 def readyz(
     store: Store = Depends(get_store),
     settings: Settings = Depends(get_settings_dep),

@@ -6,15 +6,18 @@ contract, and a second model of it here would drift.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bodyschema.findings import DAMAGE_KINDS
+from service.frames import NAME_PATTERN, NAME_RULE
 from service.status import MAX_ALTERNATIVES, RobotStatus
 from service.store import AlertRecord, RobotInfo, TopologyRecord
 
 __all__ = [
+    "DAMAGE_MODES",
+    "DAMAGE_PARAMS",
     "AlertOut",
     "DamageIn",
     "DamageOut",
@@ -28,6 +31,25 @@ __all__ = [
 ]
 
 DamageKind = Literal[DAMAGE_KINDS]  # type: ignore[valid-type]
+#: A robot, joint or IMU name in a request body (the pattern every ingest source is held to).
+PartName = Annotated[str, Field(pattern=NAME_PATTERN, description=NAME_RULE)]
+
+#: The parameters each damage kind takes, as the farm's simulator applies them (simulators/damage.py);
+#: a parameter another kind takes is refused here, with the kind's own list, before the farm sees it.
+#: A kind not listed is passed through and answered by the farm.
+DAMAGE_PARAMS: dict[str, tuple[str, ...]] = {
+    "imu_moved": ("imu", "to"),
+    "imu_detached": ("imu", "tether"),
+    "imu_dead": ("imu", "mode"),
+    "joint_locked": ("joint",),
+    "encoder_fault": ("joint", "mode", "value"),
+    "link_lost": ("joint",),
+}
+#: The ``mode`` values of the kinds that take one.
+DAMAGE_MODES: dict[str, tuple[str, ...]] = {
+    "imu_dead": ("frozen", "zero"),
+    "encoder_fault": ("stuck", "offset"),
+}
 
 
 class TopologyOut(BaseModel):
@@ -247,14 +269,30 @@ class DamageIn(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     kind: DamageKind = Field(description=f"one of {', '.join(DAMAGE_KINDS)}")
-    imu: str | None = Field(None, max_length=200)
-    joint: str | None = Field(None, max_length=200)
-    to: str | None = Field(None, max_length=200, description="imu_moved: the joint the IMU moves to")
+    imu: PartName | None = None
+    joint: PartName | None = None
+    to: PartName | None = Field(None, description="imu_moved: the joint the IMU moves to")
     value: float | None = Field(None, description="encoder_fault offset, rad (with mode 'offset')")
     mode: Literal["frozen", "zero", "stuck", "offset"] | None = Field(
         None, description="imu_dead: frozen|zero; encoder_fault: stuck|offset"
     )
     tether: float | None = Field(None, gt=0, le=1.0, description="imu_detached: tether length, m")
+
+    @model_validator(mode="after")
+    def _params_fit_kind(self) -> DamageIn:
+        allowed = DAMAGE_PARAMS.get(self.kind)
+        if allowed is None:
+            return self
+        given = [k for k in ("imu", "joint", "to", "value", "mode", "tether") if getattr(self, k) is not None]
+        extra = [k for k in given if k not in allowed]
+        if extra:
+            raise ValueError(
+                f"{self.kind} takes {', '.join(allowed)}; {', '.join(extra)} "
+                f"{'is' if len(extra) == 1 else 'are'} not one of them"
+            )
+        if self.mode is not None and self.mode not in DAMAGE_MODES.get(self.kind, ()):
+            raise ValueError(f"{self.kind} mode must be one of {', '.join(DAMAGE_MODES[self.kind])}")
+        return self
 
 
 class DamageOut(BaseModel):
@@ -268,9 +306,11 @@ class FramesIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    t: list[float] = Field(min_length=1)
-    joint_names: list[str]
+    t: list[Annotated[float, Field(ge=0)]] = Field(
+        min_length=1, description="device time, s: finite, not negative, strictly increasing"
+    )
+    joint_names: list[PartName]
     q: list[list[float]]
-    imu_names: list[str]
+    imu_names: list[PartName]
     acc: list[list[list[float]]]
     gyro: list[list[list[float]]]

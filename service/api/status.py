@@ -10,6 +10,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query
 
 from service.api.deps import get_robot, get_store
+from service.api.errors import responses
 from service.api.schemas import StatusOut
 from service.api.topology import Method
 from service.status import robot_status
@@ -17,7 +18,7 @@ from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"])
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=responses(401, 404, 422))
 
 
 @router.get(

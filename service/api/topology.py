@@ -8,13 +8,14 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 
 from bodyschema.diff import diff_bodies
 from service.api.deps import get_robot, get_store, get_worker
+from service.api.errors import responses
 from service.api.schemas import TopologyOut, TopologyPair
 from service.control import MonitorControl
 from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["topology"])
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["topology"], responses=responses(401, 404, 422))
 
 Method = Literal["fast", "network", "network-paper", "mlp"]
 
@@ -54,7 +55,12 @@ def history(
     return [TopologyOut.of(r) for r in store.topology_history(info.name, limit=limit)]
 
 
-@router.post("/topology/retrain", status_code=202, summary="learn with a method in the next worker cycle")
+@router.post(
+    "/topology/retrain",
+    status_code=202,
+    summary="learn with a method in the next worker cycle",
+    responses=responses(409, 413, 415, s409="no worker runs in this process"),
+)
 def retrain(
     info: RobotInfo = Depends(get_robot),
     worker: MonitorControl | None = Depends(get_worker),
@@ -70,6 +76,7 @@ def retrain(
     "/baseline",
     response_model=TopologyOut,
     summary="approve the newest learned topology as the baseline (operator decision)",
+    responses=responses(409, 413, 415, s409="no topology learned for this robot yet"),
 )
 def approve_baseline(
     info: RobotInfo = Depends(get_robot),

@@ -9,10 +9,51 @@ const KINDS = ["imu_moved", "imu_detached", "imu_dead", "joint_locked", "encoder
   "joint_reparented", "link_lost"];
 const SVGNS = "http://www.w3.org/2000/svg";
 const cards = new Map();  // robot name -> {root, trees, meta, ...}
+const TOKEN_KEY = "bodyhealth-token";  // sessionStorage: the token lives as long as the tab
+
+// ------------------------------------------------------------------------------------ API token
+// A service with BODYHEALTH_API_TOKEN set answers 401 without it: the page then asks for the token
+// once (kept in this tab's sessionStorage) and sends it on every request.
+function apiToken() {
+  try { return window.sessionStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
+}
+
+function apiFetch(url, opts = {}) {
+  const token = apiToken();
+  const headers = new Headers(opts.headers || {});
+  if (token) headers.set("Authorization", `Bearer ${token}`);
+  return fetch(url, { ...opts, headers });
+}
+
+function askForToken(message) {
+  const box = document.getElementById("auth");
+  if (!box) return;
+  document.getElementById("auth-message").textContent = message;
+  box.hidden = false;
+}
+
+function setupTokenForm() {
+  const form = document.getElementById("auth");
+  if (!form) return;
+  form.addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    const input = document.getElementById("auth-token");
+    const token = input.value.trim();
+    if (!token) return;
+    try { window.sessionStorage.setItem(TOKEN_KEY, token); } catch (e) { /* storage off: not kept */ }
+    input.value = "";
+    form.hidden = true;
+    refresh();
+  });
+}
 
 async function getJSON(url, opts) {
-  const r = await fetch(url, opts);
+  const r = await apiFetch(url, opts);
   const body = await r.json().catch(() => ({}));
+  if (r.status === 401) {
+    askForToken(apiToken() ? "The API refused this token: enter the right one."
+      : "This service needs an API token (BODYHEALTH_API_TOKEN).");
+  }
   if (!r.ok) {
     const d = body && body.detail;
     throw new Error(typeof d === "string" ? d : JSON.stringify(d || r.statusText));
@@ -331,7 +372,7 @@ async function refresh() {
   busy = true;
   const status = document.getElementById("status");
   try {
-    const ready = await fetch("/readyz").then((r) => r.json()).catch(() => null);
+    const ready = await apiFetch("/readyz").then((r) => r.json()).catch(() => null);
     status.textContent = ready ? ready.status : "unreachable";
     status.className = "status " + (ready && ready.status === "ready" ? "ready" : "down");
     const [robots, alerts] = await Promise.all([getJSON(`${API}/robots`), getJSON(`${API}/alerts?active=true`)]);
@@ -347,5 +388,6 @@ async function refresh() {
   }
 }
 
+setupTokenForm();
 refresh();
 setInterval(refresh, POLL_MS);

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from bodyschema.recording import Recording
-from service.frames import FrameBatch
+from service.frames import FrameBatch, FrameError, check_names
 from service.ingest.base import Source
 from simulators.recording_io import load_recording
 
@@ -111,6 +111,11 @@ class ReplaySource(Source):
         if not chunk_seconds > 0:
             raise ValueError(f"chunk_seconds must be positive, got {chunk_seconds}")
         self.robot = robot or stem
+        try:  # refuse at start, not batch by batch once the pipeline runs
+            check_names(self.robot, tuple(rec.joint_names), tuple(rec.imu_names))
+        except FrameError as err:
+            hint = "" if robot is not None else " (a file name is the default robot name: give ?robot=NAME)"
+            raise ValueError(f"cannot replay {stem!r}: {err}{hint}") from err
         super().__init__(name or f"replay:{self.robot}")
         self.recording = rec
         self.speed = float(speed)

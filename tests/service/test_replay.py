@@ -116,3 +116,11 @@ def test_bad_arguments(tmp_path, rng: np.random.Generator) -> None:
     (tmp_path / "junk.npz").write_bytes(b"not an npz")
     with pytest.raises(ValueError, match="not a readable"):
         ReplaySource(tmp_path / "junk.npz")
+
+
+def test_names_outside_the_pattern_are_refused_at_start(tmp_path, rng: np.random.Generator) -> None:
+    path = tmp_path / "run 1.npz"
+    save_recording(make_rec(rng), path)
+    with pytest.raises(ValueError, match=r"robot name 'run 1' is not allowed.*\?robot=NAME"):
+        ReplaySource(path)
+    assert ReplaySource(path, robot="run-1").robot == "run-1"

@@ -1,0 +1,69 @@
+"""Error answers of the API: their bodies, the validation-error handler, and the ``responses=`` each
+route declares so the OpenAPI document lists every status a client must handle.
+
+Every error is ``{"detail": ...}``: a sentence, or for invalid input a list of ``{loc, msg, type}``
+(where in the request, what is wrong, pydantic's error type). Nothing else is echoed back: not the
+input (it may hold NaN, which JSON cannot carry, or a token) and not the code that found the problem.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
+
+__all__ = ["ErrorOut", "FieldError", "ValidationErrorOut", "invalid_request", "responses"]
+
+
+class ErrorOut(BaseModel):
+    detail: str = Field(description="what went wrong, in one sentence")
+
+
+class FieldError(BaseModel):
+    loc: list[str | int] = Field(description="where: 'path', 'query' or 'body', then the field")
+    msg: str
+    type: str = Field(description="error type, e.g. missing, string_pattern_mismatch, less_than_equal")
+
+
+class ValidationErrorOut(BaseModel):
+    detail: list[FieldError] | str = Field(
+        description="the fields that are wrong, or a sentence when the frames break the recording contract"
+    )
+
+
+#: What each status means on this API, and the body it comes with.
+_STATUS: dict[int, tuple[str, type[BaseModel]]] = {
+    401: (
+        "bearer token missing or wrong (only when tokens are configured); WWW-Authenticate: Bearer",
+        ErrorOut,
+    ),
+    404: ("unknown robot or alert", ErrorOut),
+    409: ("conflicts with the service's state", ErrorOut),
+    413: ("request body larger than max_request_bytes", ErrorOut),
+    415: ("request body not sent as application/json", ErrorOut),
+    422: ("invalid path, query or body: field locations and messages", ValidationErrorOut),
+    503: ("not available right now; retry later", ErrorOut),
+}
+
+
+def responses(*codes: int, **notes: str) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` for a route: each of ``codes`` with its meaning and body model. ``notes`` say
+    what a status means on this route (``responses(404, 409, s409="no topology learned yet")``)."""
+    out: dict[int | str, dict[str, Any]] = {}
+    for code in codes:
+        text, model = _STATUS[code]
+        out[code] = {"description": notes.get(f"s{code}", text), "model": model}
+    return out
+
+
+async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
+    """422 naming each invalid field: location, message and error type only."""
+    errors = exc.errors() if isinstance(exc, RequestValidationError) else []
+    detail = [
+        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+        for e in errors
+    ]
+    return JSONResponse({"detail": detail}, status_code=422)

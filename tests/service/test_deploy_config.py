@@ -1,0 +1,66 @@
+"""The compose stack and the image are safe by default: nothing here can be run up, so the files are
+read and every property that matters is asserted.
+
+Held: the API is published on the loopback address only; no secret is written in the repository (every
+one comes from ``.env``, which git ignores, with ``.env.example`` naming each); the service gets a token,
+which ``serve`` needs on a non-loopback address; every container restarts unless stopped and has a
+healthcheck; the image runs as an unprivileged user.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+SERVICES = COMPOSE["services"]
+_VAR = re.compile(r"\$\{([A-Z_][A-Z0-9_]*)(:?[-?][^}]*)?\}")
+
+
+def test_api_published_on_loopback_only() -> None:
+    ports = [p for svc in SERVICES.values() for p in svc.get("ports", [])]
+    assert ports == ["127.0.0.1:8000:8000"]
+
+
+def test_no_secret_in_the_repository() -> None:
+    for svc in SERVICES.values():
+        for key, value in (svc.get("environment") or {}).items():
+            if "PASSWORD" in key or "TOKEN" in key:
+                assert _VAR.fullmatch(str(value)), f"{key} must come from .env, got {value!r}"
+            if key.endswith("DATABASE_URL"):
+                password = str(value).split("//", 1)[1].split("@", 1)[0].split(":", 1)[1]
+                assert _VAR.fullmatch(password), f"{key} holds a literal password"
+
+
+def test_required_secrets_fail_fast_and_are_in_the_example() -> None:
+    text = (ROOT / "docker-compose.yml").read_text()
+    required = {m.group(1) for m in _VAR.finditer(text) if (m.group(2) or "").startswith(":?")}
+    assert required == {"BODYHEALTH_DB_PASSWORD", "BODYHEALTH_API_TOKEN"}
+    example = (ROOT / ".env.example").read_text()
+    named = {line.split("=", 1)[0] for line in example.splitlines() if line and not line.startswith("#")}
+    assert {m.group(1) for m in _VAR.finditer(text)} <= named
+    assert ".env" in (ROOT / ".gitignore").read_text().split()
+
+
+def test_service_gets_a_token_and_binds_all_addresses() -> None:
+    svc = SERVICES["service"]
+    assert "0.0.0.0" in svc["command"]
+    assert "BODYHEALTH_API_TOKEN" in svc["environment"]
+
+
+def test_restart_policy_and_healthchecks() -> None:
+    assert {name: svc.get("restart") for name, svc in SERVICES.items()} == {
+        name: "unless-stopped" for name in SERVICES
+    }
+    assert all("test" in svc.get("healthcheck", {}) for svc in SERVICES.values())
+
+
+def test_image_runs_unprivileged() -> None:
+    lines = [line.split() for line in (ROOT / "Dockerfile").read_text().splitlines() if line.strip()]
+    users = [words[1] for words in lines if words[0] == "USER"]
+    assert users and users[-1] not in ("root", "0")
+    last_run = max(i for i, words in enumerate(lines) if words[0] == "RUN")
+    assert max(i for i, words in enumerate(lines) if words[0] == "USER") > last_run
