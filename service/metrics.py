@@ -5,8 +5,10 @@ in one test process do not collide. Frame counters are not incremented here: a c
 from the ingest pipeline's :class:`~service.ingest.base.Counters` at scrape time, so the numbers on
 ``/metrics`` are exactly those the pipeline keeps. Transport-specific counters (CAN error frames,
 serial CRC failures, reconnects, ...) summed over sources, and the store writer's own (transactions,
-retries, write errors, pruned samples) come out as ``bodyhealth_ingest_events_total{event=...}``; the
-queue between readers and the store writer as a gauge.
+retries, write errors, pruned samples, and the samples dropped at a full queue (``dropped_queue_full``)
+or after the write retries ran out (``dropped_write_failed``)) come out as
+``bodyhealth_ingest_events_total{event=...}``; the queue between readers and the store writer as a
+gauge, and whether the store writer's newest write failed as ``bodyhealth_store_write_failing`` (1/0).
 
 Example
 -------
@@ -42,6 +44,8 @@ __all__ = ["CONTENT_TYPE_LATEST", "Metrics"]
 
 _FRAME_COUNTERS = ("received", "stored", "dropped", "malformed")
 _QUEUE_DEPTH = "queue_depth"
+_WRITE_FAILING = "write_failing"
+_GAUGES = (_QUEUE_DEPTH, _WRITE_FAILING)
 
 
 class _FrameCollector(Collector):
@@ -65,13 +69,18 @@ class _FrameCollector(Collector):
             labels=["event"],
         )
         for name, value in sorted(values.items()):
-            if name not in _FRAME_COUNTERS and name != _QUEUE_DEPTH:
+            if name not in _FRAME_COUNTERS and name not in _GAUGES:
                 events.add_metric([name], float(value))
         yield events
         yield GaugeMetricFamily(
             "bodyhealth_ingest_queue_depth",
             "batches waiting between the transport readers and the store writer",
             value=float(values.get(_QUEUE_DEPTH, 0)),
+        )
+        yield GaugeMetricFamily(
+            "bodyhealth_store_write_failing",
+            "1 while the store writer's newest write failed (disk full, database gone, file replaced)",
+            value=float(values.get(_WRITE_FAILING, 0)),
         )
 
 

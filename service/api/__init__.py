@@ -5,7 +5,7 @@ frames go through, the worker, the metrics and the farm's damage control for sim
 last two as the protocols of :mod:`service.control`). One router per resource: robots, status,
 topology, alerts, simulate, health. Bad input never reaches a 500: unknown robots and alerts are 404,
 malformed bodies 422, bodies over ``max_request_bytes`` 413, damage on a real robot 409, frames the
-pipeline could not store in time 503.
+pipeline could not store in time 503, and a database that fails under a route 503 with ``Retry-After``.
 
 Security (:mod:`service.api.security`, docs/security.md): ``Host`` headers outside ``allowed_hosts`` are
 400, mutating requests with a non-JSON body 415, and with tokens configured every ``/api/v1`` route
@@ -34,7 +34,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, health, robots, simulate, status, topology
-from service.api.errors import invalid_request
+from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request
 from service.api.security import JsonOnly, authorize
 from service.control import DamageControl, MonitorControl
 from service.ingest.pipeline import Pipeline
@@ -154,6 +154,8 @@ def create_app(
         return JSONResponse({"detail": f"unknown robot {exc.args[0]!r}"}, status_code=404)
 
     app.add_exception_handler(RequestValidationError, invalid_request)
+    for error in DATABASE_ERRORS:  # a database that fails under a route: 503 + Retry-After, never a 500
+        app.add_exception_handler(error, database_unavailable)
 
     @app.exception_handler(UnknownAlert)
     async def _unknown_alert(request: Request, exc: UnknownAlert) -> JSONResponse:

@@ -4,18 +4,51 @@ route declares so the OpenAPI document lists every status a client must handle.
 Every error is ``{"detail": ...}``: a sentence, or for invalid input a list of ``{loc, msg, type}``
 (where in the request, what is wrong, pydantic's error type). Nothing else is echoed back: not the
 input (it may hold NaN, which JSON cannot carry, or a token) and not the code that found the problem.
+
+A database that fails under a route (gone, restarting, disk full, its SQLite file deleted) is a 503
+with a ``Retry-After`` header (:func:`database_unavailable`, registered for :data:`DATABASE_ERRORS`):
+the client's request was fine and may succeed later, so it must not read as a bug (500). The body
+names the error class and nothing of the SQL or its parameters.
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
+from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 
-__all__ = ["ErrorOut", "FieldError", "ValidationErrorOut", "invalid_request", "responses"]
+from service.store.identity import DatabaseFileChanged
+
+__all__ = [
+    "DATABASE_ERRORS",
+    "RETRY_AFTER_SECONDS",
+    "ErrorOut",
+    "FieldError",
+    "ValidationErrorOut",
+    "database_unavailable",
+    "invalid_request",
+    "responses",
+]
+
+log = logging.getLogger(__name__)
+
+#: Errors that say the database could not do its part right now (each gets :func:`database_unavailable`).
+#: ``DBAPIError`` covers every driver error; the subclasses are listed so the intent reads here.
+DATABASE_ERRORS: tuple[type[Exception], ...] = (
+    OperationalError,
+    InterfaceError,
+    DBAPIError,
+    PoolTimeout,
+    DatabaseFileChanged,
+)
+#: ``Retry-After`` of a 503 for a database error: about the time a restarting database takes.
+RETRY_AFTER_SECONDS = 5
 
 
 class ErrorOut(BaseModel):
@@ -67,3 +100,16 @@ async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
         for e in errors
     ]
     return JSONResponse({"detail": detail}, status_code=422)
+
+
+async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 with ``Retry-After`` for a database error under a route, logged once per request at WARNING
+    (the error class and the driver's first line; the readiness probe carries the lasting state)."""
+    orig = getattr(exc, "orig", None) or exc
+    first = (str(orig).strip().splitlines() or [""])[0]
+    where = f"{request.method} {request.url.path}"
+    log.warning("%s: database error %s: %s", where, type(exc).__name__, first)
+    detail = f"database unavailable ({type(exc).__name__}); retry later"
+    return JSONResponse(
+        {"detail": detail}, status_code=503, headers={"Retry-After": str(RETRY_AFTER_SECONDS)}
+    )

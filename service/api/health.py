@@ -1,4 +1,11 @@
-"""Liveness, readiness and Prometheus metrics."""
+"""Liveness, readiness and Prometheus metrics.
+
+Readiness follows what happens to the data, not only whether the database answers a ping: the store's
+SQLite file must still be the one it opened (:meth:`Store.storage_fault`), the ingest writer's newest
+write must have succeeded (:meth:`Pipeline.write_health`: a full disk answers pings and refuses every
+commit) and the worker's heartbeat must be fresh. A 503 names each reason in ``reasons`` (and all of
+them joined in ``reason``), so an operator reads the cause off the probe.
+"""
 
 from __future__ import annotations
 
@@ -6,9 +13,11 @@ import time
 
 from fastapi import APIRouter, Depends, Response
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import SQLAlchemyError
 
-from service.api.deps import get_metrics, get_settings_dep, get_store, get_worker
+from service.api.deps import get_metrics, get_pipeline, get_settings_dep, get_store, get_worker
 from service.control import MonitorControl
+from service.ingest.pipeline import Pipeline
 from service.metrics import CONTENT_TYPE_LATEST, Metrics
 from service.settings import Settings
 from service.store import Store
@@ -26,16 +35,53 @@ def livez() -> dict[str, str]:
 
 @router.get(
     "/readyz",
-    summary="database reachable and worker heartbeat fresh (503 otherwise)",
-    responses={503: {"description": "database unreachable or worker heartbeat stale (same body)"}},
+    summary="database reachable and unchanged, writes succeeding, worker heartbeat fresh (503 otherwise)",
+    responses={
+        503: {
+            "description": "not ready: the same body, with `reason` naming why (database unreachable, "
+            "database file deleted or replaced, writes failing, worker heartbeat stale)"
+        }
+    },
 )
 def readyz(
     store: Store = Depends(get_store),
     settings: Settings = Depends(get_settings_dep),
     worker: MonitorControl | None = Depends(get_worker),
+    pipeline: Pipeline = Depends(get_pipeline),
 ) -> JSONResponse:
-    checks: dict[str, object] = {"database": store.ping()}
-    beat = store.last_heartbeat(HEARTBEAT_COMPONENT) if checks["database"] else None
+    reasons: list[str] = []
+    checks: dict[str, object] = {}
+    fault = store.storage_fault()
+    checks["storage_fault"] = fault
+    checks["database"] = store.ping()
+    if fault is not None:
+        reasons.append(fault)
+    elif not checks["database"]:
+        reasons.append("database unreachable")
+    health = pipeline.write_health()
+    checks["writes"] = health.as_dict()
+    if health.failing:
+        reasons.append(f"writes failing: {health.reason}")
+    _check_worker(store, settings, worker, checks, reasons)
+    ok = not reasons
+    body = {"status": "ready" if ok else "not ready", "reason": "; ".join(reasons), "reasons": reasons}
+    return JSONResponse({**body, "checks": checks}, status_code=200 if ok else 503)
+
+
+def _check_worker(
+    store: Store,
+    settings: Settings,
+    worker: MonitorControl | None,
+    checks: dict[str, object],
+    reasons: list[str],
+) -> None:
+    """The worker's heartbeat (and thread, when there is one) into ``checks``; why not, into ``reasons``."""
+    beat = None
+    if checks["database"]:
+        try:
+            beat = store.last_heartbeat(HEARTBEAT_COMPONENT)
+        except SQLAlchemyError:  # the database went away between the ping and here
+            beat = None
     # A cycle over many robots can take longer than the interval: allow a few intervals and 30 s.
     max_age = max(3 * settings.worker_interval_seconds, 30.0)
     age = None if beat is None else time.time() - beat
@@ -43,10 +89,8 @@ def readyz(
     checks["worker"] = age is not None and age <= max_age
     if worker is not None:
         checks["worker_thread"] = worker.running
-    ok = bool(checks["database"]) and bool(checks["worker"])
-    return JSONResponse(
-        {"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503
-    )
+    if not checks["worker"] and checks["database"]:
+        reasons.append("no worker heartbeat" if age is None else f"worker heartbeat {age:.0f} s old")
 
 
 @router.get("/metrics", summary="Prometheus metrics")

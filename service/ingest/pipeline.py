@@ -18,6 +18,13 @@ source the last stored frame of each robot (:meth:`Source.resume_after`: a repla
 source may have an ``exhausted`` attribute (a finite source that has delivered everything; its reader
 then ends).
 
+The writer keeps the wall time of its last successful commit and of its last failed write (with the
+reason), :meth:`Pipeline.write_health`: while the last attempt failed (disk full, database gone, the
+SQLite file deleted) the service is not ready (``/readyz``), and the next successful commit makes it
+ready again. The retention prune, every ``prune_interval`` seconds even when nothing arrives, also asks
+the store whether its file is still the one it opened (:meth:`Store.storage_fault`), so a fault is
+seen within one prune interval whether or not frames are flowing.
+
 Frames pushed over the REST API take the same path: :meth:`Pipeline.submit` validates the batch,
 queues it behind everything already read and waits for the writer's commit (counted under the
 ``api`` source). A pipeline that was never started writes the batch on the caller's thread through
@@ -69,8 +76,17 @@ from service.frames import FrameBatch, FrameError
 from service.ingest.base import Counters, Source
 from service.settings import Settings, get_settings
 from service.store import Store, open_store
+from service.store.identity import DatabaseFileChanged
 
-__all__ = ["CommitCallback", "CommitLog", "IngestUnavailable", "Pipeline", "PushSource", "main"]
+__all__ = [
+    "CommitCallback",
+    "CommitLog",
+    "IngestUnavailable",
+    "Pipeline",
+    "PushSource",
+    "WriteHealth",
+    "main",
+]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +106,45 @@ class PushSource(Source):
 
     def _read_raw(self, timeout: float) -> list[FrameBatch]:
         return []
+
+
+@dataclass(frozen=True)
+class WriteHealth:
+    """The writer's last successful commit and last failure (wall times, ``time.time()``), so readiness
+    can follow what actually happens to writes rather than whether a ``SELECT 1`` answers: a full disk
+    or a read-only file answers pings and refuses every commit."""
+
+    last_commit: float | None = None
+    last_failure: float | None = None
+    reason: str = ""
+
+    @property
+    def failing(self) -> bool:
+        """True while the newest write attempt failed (nothing committed since)."""
+        if self.last_failure is None:
+            return False
+        return self.last_commit is None or self.last_failure >= self.last_commit
+
+    def as_dict(self, now: float | None = None) -> dict[str, object]:
+        """Ages in seconds (None: never) and the reason, as ``/readyz`` shows them."""
+        now = time.time() if now is None else now
+
+        def age(t: float | None) -> float | None:
+            return None if t is None else round(now - t, 3)
+
+        return {
+            "failing": self.failing,
+            "last_commit_age_s": age(self.last_commit),
+            "last_failure_age_s": age(self.last_failure),
+            "reason": self.reason if self.failing else "",
+        }
+
+
+def _reason(err: BaseException) -> str:
+    """One short line naming a database error: its class and the driver's first message line."""
+    orig = getattr(err, "orig", None) or err
+    text = (str(orig).strip().splitlines() or [""])[0]
+    return f"{err.__class__.__name__}: {text}"[:300]
 
 
 @dataclass
@@ -151,6 +206,7 @@ class Pipeline:
         #: Counters of the batches pushed through :meth:`submit`.
         self.push_source = PushSource("api")
         self._waiters: dict[int, _Waiter] = {}  # id(batch) -> its submitter, while in flight
+        self._health = WriteHealth()
 
     # ------------------------------------------------------------------------------ control
     def start(self) -> Pipeline:
@@ -262,7 +318,22 @@ class Pipeline:
                 out[k] = out.get(k, 0) + v
         out.update(self.stats.extra)
         out["queue_depth"] = self._queue.qsize()
+        out["write_failing"] = int(self._health.failing)
         return out
+
+    def write_health(self) -> WriteHealth:
+        """When the writer last committed and last failed, and why (see :class:`WriteHealth`)."""
+        return self._health
+
+    def _record_commit(self) -> None:
+        if self._health.failing:
+            log.warning("ingest writer: writes succeed again (failing since: %s)", self._health.reason)
+        self._health = WriteHealth(time.time(), self._health.last_failure, self._health.reason)
+
+    def _record_failure(self, reason: str) -> None:
+        if not self._health.failing:
+            log.error("ingest writer: writes failing: %s", reason)
+        self._health = WriteHealth(self._health.last_commit, time.time(), reason)
 
     def __enter__(self) -> Pipeline:
         return self.start()
@@ -298,6 +369,7 @@ class Pipeline:
         except queue.Full:
             self._done(1)
             src.counters.add("dropped", b.n_samples)
+            self.stats.add("dropped_queue_full", b.n_samples)
             self._settle([(src, b)], "dropped", f"ingest queue full for {self.put_timeout:.2f} s")
             log.warning(
                 "source %s: queue full for %.2f s, dropped %d samples",
@@ -332,8 +404,9 @@ class Pipeline:
                 n += item[1].n_samples
             try:
                 self._commit(items)
-            except Exception:  # never let the writer die: count and go on
+            except Exception as err:  # never let the writer die: count and go on
                 log.exception("ingest writer: unexpected error; %d batches dropped", len(items))
+                self._record_failure(_reason(err))
                 for src, b in items:
                     src.counters.add("dropped", b.n_samples)
                 self._settle(items, "dropped", "ingest writer error")
@@ -349,10 +422,17 @@ class Pipeline:
             self._idle.notify_all()
 
     def _prune(self) -> None:
+        """Drop frames past retention, and look at the store's file on the way: the one periodic
+        check that runs while nothing is being written."""
+        fault = self.store.storage_fault()
+        if fault is not None:
+            self._record_failure(fault)
+            return
         try:
             self.stats.add("pruned", self.store.prune())
-        except SQLAlchemyError:
-            log.exception("retention prune failed")
+        except SQLAlchemyError as err:
+            log.warning("retention prune failed: %s", _reason(err))
+            self._record_failure(_reason(err))
 
     def _commit(self, items: list[_Item]) -> None:
         stored = self._write_retrying(items)
@@ -386,6 +466,7 @@ class Pipeline:
             try:
                 self.store.write_many([b for _, b in items])
                 self.stats.add("transactions")
+                self._record_commit()
                 return items
             except FrameError as err:
                 if len(items) == 1:
@@ -394,7 +475,9 @@ class Pipeline:
                 return None
             except SQLAlchemyError as err:
                 self.stats.add("write_errors")
-                if time.monotonic() + delay > deadline:
+                self._record_failure(_reason(err))
+                # A swapped SQLite file stays swapped: retrying only holds up the queue and the shutdown.
+                if isinstance(err, DatabaseFileChanged) or time.monotonic() + delay > deadline:
                     log.error(
                         "ingest writer: giving up on %d batches after %.1f s: %s",
                         len(items),
@@ -403,6 +486,7 @@ class Pipeline:
                     )
                     for src, b in items:
                         src.counters.add("dropped", b.n_samples)
+                        self.stats.add("dropped_write_failed", b.n_samples)
                     self._settle(items, "dropped", f"database unavailable: {err.__class__.__name__}")
                     return []
                 log.warning(

@@ -28,7 +28,7 @@ from __future__ import annotations
 import threading
 from typing import Any, Self
 
-from sqlalchemy import Engine, text
+from sqlalchemy import Engine, event, text
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
@@ -36,6 +36,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.db import migrate
 from service.db.engine import make_engine, normalize_url
 from service.settings import Settings, get_settings
+from service.store.identity import FileIdentity, sqlite_file
 
 __all__ = ["SchemaMismatch", "StoreBase"]
 
@@ -68,6 +69,10 @@ class StoreBase:
         self.chunk_max_samples = int(chunk_max_samples or s.chunk_max_samples)
         self.engine: Engine = make_engine(self.url, **(engine_kwargs or {}))
         self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+        # The SQLite file this store writes to, remembered at the first connection (see
+        # service.store.identity): a file deleted or replaced under the service is refused, not written.
+        self._file = FileIdentity(sqlite_file(self.url))
+        event.listen(self.engine, "connect", lambda *_: self._file.capture())
         self._write_lock = threading.RLock()
         self._schema_checked = False
         # Robots (and their parts) this store has registered, so a stream of frames does not look its
@@ -107,7 +112,9 @@ class StoreBase:
         )
 
     def _session(self) -> Session:
-        """A new ORM session; the first one checks the schema (see the module doc)."""
+        """A new ORM session; the first one checks the schema (see the module doc). Raises
+        :class:`~service.store.identity.DatabaseFileChanged` once the SQLite file is not the one opened."""
+        self._file.ensure()
         if not self._schema_checked:
             self.check_schema()
         return self._sessions()
@@ -124,8 +131,16 @@ class StoreBase:
     def _shown_url(self) -> str:
         return self.engine.url.render_as_string(hide_password=True)
 
+    def storage_fault(self) -> str | None:
+        """Why the store must not be written to (its SQLite file was deleted or replaced), or None.
+        Cheap (one ``stat``): the readiness probe and the ingest writer's prune ask it."""
+        return self._file.check()
+
     def ping(self) -> bool:
-        """True when the database answers (whatever its schema)."""
+        """True when the database answers (whatever its schema) and is still the file first opened; a
+        deleted file is not reopened here, which would create an empty one in its place."""
+        if self._file.check() is not None:
+            return False
         try:
             with self.engine.connect() as conn:
                 return conn.execute(text("SELECT 1")).scalar() == 1

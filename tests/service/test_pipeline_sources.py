@@ -155,8 +155,11 @@ def test_open_replay_spec(tmp_path, rng: np.random.Generator) -> None:
     assert isinstance(src, ReplaySource)
     assert (src.robot, src.speed, src.loop, src.resume) == ("arm", math.inf, True, False)
     assert [b.n_samples for b in src.read()[:3]] == [20, 10, 20]
-    plain = open_source(f"replay:{path}", Settings())
-    assert (plain.robot, plain.speed, plain.loop) == ("run 1", 1.0, False)
+    with pytest.raises(ValueError, match=r"robot name 'run 1' is not allowed.*\?robot=NAME"):
+        open_source(f"replay:{path}", Settings())  # the file name is no robot name: say how to give one
+    save_recording(rec, tmp_path / "run-1.npz")
+    plain = open_source(f"replay:{tmp_path / 'run-1.npz'}", Settings())
+    assert (plain.robot, plain.speed, plain.loop) == ("run-1", 1.0, False)
 
 
 @pytest.mark.parametrize(
