@@ -91,6 +91,7 @@ class _Shim:
 
         self.rec = rec
         self.counters, self.period = sample_counters(rec)
+        self.streams = False  # one frame per sample: the bench plays single-clock recordings
 
 
 def _can_decode(rec: Recording, layout: str) -> tuple[float, float, int]:

@@ -141,6 +141,9 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
             }
             if err:
                 row["error"] = err
+            if topo is not None and topo.training:  # network methods: epochs trained, converged or not
+                row["epochs"] = int(topo.training["epochs"])
+                row["converged"] = bool(topo.training["converged"])
             if topo is not None and topo.timing and opts is not None:
                 truth_ms = 1e3 * (opts.skew + 1e-6 * opts.drift_ppm * topo.timing["at_s"])
                 row["skew_ms"] = round(topo.timing["skew_ms"], 3)

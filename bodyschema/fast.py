@@ -1073,12 +1073,21 @@ def _shift_window(
     """
     shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
     base = data.grid - lag.at(data.grid)
+    banded_gyro: dict[int, np.ndarray] = {}  # the gyro does not move with the shift: band it once
 
     def edge_rss(center: float) -> np.ndarray:
         return np.array(
             [
                 _edge_rss(
-                    fit, err.sigma, data.gyro_g, data.q_s, data.qd_s, base - center - d, data.band, segs
+                    fit,
+                    err.sigma,
+                    data.gyro_g,
+                    data.q_s,
+                    data.qd_s,
+                    base - center - d,
+                    data.band,
+                    segs,
+                    banded_gyro,
                 )
                 for d in shifts
             ]
@@ -1114,9 +1123,11 @@ def _edge_rss(
     at: np.ndarray,
     band: Callable[..., np.ndarray],
     segments: list[np.ndarray],
+    banded_gyro: dict[int, np.ndarray],
 ) -> np.ndarray:
     """Residual sum of squares of the accepted edge models, per segment of the fit samples, with the
-    encoder signals evaluated at the instants ``at``."""
+    encoder signals evaluated at the instants ``at``. ``banded_gyro`` caches the banded reference gyro
+    columns across calls (filled here)."""
     q, qd = q_s(at), qd_s(at)
     c, s = np.cos(q), np.sin(q)
     out = np.zeros(len(segments))
@@ -1133,7 +1144,9 @@ def _edge_rss(
                 None if wh is None else wh[None], c[:, a], s[:, a], qd[:, a], c[:, b], s[:, b], qd[:, b]
             )
         Fb = band(F)
-        Yb = band(gyro[:, rg], axis=0)
+        if rg not in banded_gyro:
+            banded_gyro[rg] = band(gyro[:, rg], axis=0)
+        Yb = banded_gyro[rg]
         for i, part in enumerate(segments):
             Y = Yb[part] - Yb[part].mean(axis=0)
             out[i] += float(np.sum(Y * Y) - _explained(Fb[:, :, part], Y).sum())

@@ -38,6 +38,7 @@ True
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -118,10 +119,15 @@ def resample(
     return y, valid
 
 
+@functools.lru_cache(maxsize=32)
 def _response(n: int, rate: float, fc: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies and the raised-cosine band of an ``n``-point real FFT (cached: the fast estimator
+    filters hundreds of signals of one length; the arrays are read-only)."""
     f = np.fft.rfftfreq(n, 1.0 / rate)
     lo, hi = 0.8 * fc, 1.2 * fc
     H = np.where(f <= lo, 1.0, np.where(f >= hi, 0.0, 0.5 * (1 + np.cos(np.pi * (f - lo) / (hi - lo)))))
+    f.setflags(write=False)
+    H.setflags(write=False)
     return f, H
 
 
