@@ -13,7 +13,7 @@ from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1", tags=["alerts"], responses=responses(401, 422))
+router = APIRouter(prefix="/api/v1", tags=["alerts"], responses=responses(401, 422, 503))
 
 #: Alert ids are the database's 64-bit keys: anything outside is a 422, never an overflow further down.
 AlertId = Annotated[int, Path(ge=1, le=2**63 - 1, description="alert id (a signed 64-bit key)")]

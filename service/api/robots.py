@@ -19,7 +19,7 @@ from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1/robots", tags=["robots"], responses=responses(401))
+router = APIRouter(prefix="/api/v1/robots", tags=["robots"], responses=responses(401, 503))
 
 
 def _out(store: Store, info: RobotInfo) -> RobotOut:

@@ -17,7 +17,7 @@ __all__ = ["router"]
 
 log = logging.getLogger(__name__)
 
-router = APIRouter(prefix="/api/v1/robots/{robot}/simulate", tags=["simulate"])
+router = APIRouter(prefix="/api/v1/robots/{robot}/simulate", tags=["simulate"], responses=responses(503))
 
 _CALLABLE = re.compile(r"[A-Za-z_][\w.]*\(\)")
 

@@ -18,7 +18,7 @@ from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=responses(401, 404, 422))
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=responses(401, 404, 422, 503))
 
 
 @router.get(

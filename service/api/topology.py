@@ -15,7 +15,9 @@ from service.store import RobotInfo, Store
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["topology"], responses=responses(401, 404, 422))
+router = APIRouter(
+    prefix="/api/v1/robots/{robot}", tags=["topology"], responses=responses(401, 404, 422, 503)
+)
 
 Method = Literal["fast", "network", "network-paper", "mlp"]
 

@@ -390,19 +390,19 @@ def test_real_farm_arguments_error_is_clean(store: Store) -> None:
 
 # ---------------------------------------------------------------------------------------- OpenAPI
 EXPECTED: dict[tuple[str, str], set[str]] = {
-    ("get", "/api/v1/robots"): {"401"},
-    ("get", "/api/v1/robots/{robot}"): {"401", "404", "422"},
+    ("get", "/api/v1/robots"): {"401", "503"},
+    ("get", "/api/v1/robots/{robot}"): {"401", "404", "422", "503"},
     ("post", "/api/v1/robots/{robot}/frames"): {"401", "413", "415", "422", "503"},
-    ("get", "/api/v1/robots/{robot}/status"): {"401", "404", "422"},
-    ("get", "/api/v1/robots/{robot}/topology"): {"401", "404", "422"},
-    ("get", "/api/v1/robots/{robot}/topology/history"): {"401", "404", "422"},
-    ("post", "/api/v1/robots/{robot}/topology/retrain"): {"401", "404", "409", "413", "415", "422"},
-    ("post", "/api/v1/robots/{robot}/baseline"): {"401", "404", "409", "413", "415", "422"},
-    ("get", "/api/v1/alerts"): {"401", "422"},
-    ("get", "/api/v1/robots/{robot}/alerts"): {"401", "404", "422"},
-    ("post", "/api/v1/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422"},
-    ("post", "/api/v1/robots/{robot}/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422"},
-    ("post", "/api/v1/robots/{robot}/simulate/damage"): {"401", "404", "409", "413", "415", "422"},
+    ("get", "/api/v1/robots/{robot}/status"): {"401", "404", "422", "503"},
+    ("get", "/api/v1/robots/{robot}/topology"): {"401", "404", "422", "503"},
+    ("get", "/api/v1/robots/{robot}/topology/history"): {"401", "404", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/topology/retrain"): {"401", "404", "409", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/baseline"): {"401", "404", "409", "413", "415", "422", "503"},
+    ("get", "/api/v1/alerts"): {"401", "422", "503"},
+    ("get", "/api/v1/robots/{robot}/alerts"): {"401", "404", "422", "503"},
+    ("post", "/api/v1/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/simulate/damage"): {"401", "404", "409", "413", "415", "422", "503"},
     ("get", "/readyz"): {"503"},
 }
 
