@@ -73,6 +73,15 @@ class Settings(BaseSettings):
     )
     chunk_max_samples: int = Field(1000, ge=1, description="most samples the store puts in one chunk row")
     prune_interval_seconds: float = Field(10.0, gt=0, description="wall time between retention prunes")
+    topology_history_keep: int = Field(
+        50,
+        ge=1,
+        description="newest learned topologies kept per robot and method; older ones are kept only "
+        "where they differ from their predecessor (a change)",
+    )
+    max_robots: int = Field(
+        1000, ge=1, description="most robots the store registers; frames of a further new robot are refused"
+    )
 
     # ----------------------------------------------------------------- worker
     worker_interval_seconds: float = Field(5.0, gt=0)
@@ -81,6 +90,12 @@ class Settings(BaseSettings):
     )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")
+    retrain_min_interval_seconds: float = Field(
+        30.0,
+        ge=0,
+        description="wall time between two accepted retrain requests of one robot (more are 429); "
+        "0 = no limit",
+    )
 
     # ----------------------------------------------------------------- ingest
     queue_max_batches: int = Field(1000, ge=1, description="bounded ingest queue (backpressure)")

@@ -3,7 +3,8 @@ baseline, and turn lasting differences into alerts.
 
 One cycle, for every robot the store knows:
 
-1. read the latest ``window_seconds`` of device time (skipped when too short);
+1. read the latest ``window_seconds`` of device time (skipped when too short, and for a robot idle
+   longer than ``window_seconds`` of wall time: see :meth:`Worker._idle`);
 2. judge signal health (:func:`bodyschema.health.signal_health`, the baseline as layout);
 3. learn the topology with the fast estimator (and with the sensor networks every
    ``network_interval_cycles`` cycles or when asked), store each result with time and method;
@@ -115,6 +116,9 @@ class Worker:
         #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
         #: recorded after the change.
         self._onset: dict[tuple[str, str], float] = {}
+        #: Per robot: the ``last_frame_t`` the worker last saw, and the wall time (``clock``) it first
+        #: saw that value; see :meth:`_idle`.
+        self._activity: dict[str, tuple[float | None, float]] = {}
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
         self._stop = threading.Event()
@@ -197,6 +201,9 @@ class Worker:
             for info in robots:
                 if self._stop.is_set():
                     break
+                if self._idle(info.name, info.last_frame_t):
+                    out[info.name] = CycleResult(info.name, skipped="idle: no new frame within the window")
+                    continue
                 try:
                     out[info.name] = self._robot_cycle(info.name, info.imus)
                 except UnknownRobot:
@@ -218,6 +225,21 @@ class Worker:
             "worker cycle", extra={"cycle": self.cycles, "robots": len(out), "seconds": round(seconds, 3)}
         )
         return out
+
+    def _idle(self, robot: str, last_frame_t: float | None) -> bool:
+        """True when ``robot``'s last frame has not moved for more than ``window_seconds`` of wall time
+        and nothing was asked for it. Its window is then the one already judged: estimating it again
+        costs a full estimate per cycle and learns nothing, so the robot waits, alerts as they stand,
+        until frames arrive (its ``last_frame_t`` moves) or a retrain is requested."""
+        now = self.clock()
+        seen = self._activity.get(robot)
+        if seen is None or seen[0] != last_frame_t:
+            self._activity[robot] = (last_frame_t, now)
+            return False
+        with self._lock:
+            if self._requests.get(robot):
+                return False
+        return now - seen[1] > self.settings.window_seconds
 
     def _methods(self, robot: str) -> list[str]:
         methods = ["fast"]

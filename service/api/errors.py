@@ -78,6 +78,7 @@ _STATUS: dict[int, tuple[str, type[BaseModel]]] = {
     413: ("request body larger than max_request_bytes", ErrorOut),
     415: ("request body not sent as application/json", ErrorOut),
     422: ("invalid path, query or body: field locations and messages", ValidationErrorOut),
+    429: ("too many requests; Retry-After says in how many seconds one is accepted", ErrorOut),
     503: ("not available right now; retry later", ErrorOut),
 }
 

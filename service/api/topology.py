@@ -1,25 +1,68 @@
-"""``/api/v1/robots/{robot}/topology`` and ``/baseline``: learned bodies and the baseline."""
+"""``/api/v1/robots/{robot}/topology`` and ``/baseline``: learned bodies and the baseline.
+
+A retrain runs an estimator (the sensor networks: seconds of CPU each) in the worker's next cycle, so
+each robot accepts at most one retrain request per ``retrain_min_interval_seconds``; more are 429 with
+``Retry-After`` (:class:`RetrainLimiter`, one per app on ``app.state.retrain_limiter``).
+"""
 
 from __future__ import annotations
 
+import math
+import threading
+import time
+from collections.abc import Callable
 from typing import Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
 
 from bodyschema.diff import diff_bodies
-from service.api.deps import get_robot, get_store, get_worker
+from service.api.deps import get_robot, get_settings_dep, get_store, get_worker
 from service.api.errors import responses
 from service.api.schemas import TopologyOut, TopologyPair
 from service.control import MonitorControl
 from service.store import RobotInfo, Store
 
-__all__ = ["router"]
+__all__ = ["RetrainLimiter", "router"]
+
+_LIMITER_LOCK = threading.Lock()
 
 router = APIRouter(
     prefix="/api/v1/robots/{robot}", tags=["topology"], responses=responses(401, 404, 422, 503)
 )
 
 Method = Literal["fast", "network", "network-paper", "mlp"]
+
+
+class RetrainLimiter:
+    """At most one accepted request per ``interval`` seconds per robot (0: no limit), on ``clock``
+    (monotonic by default, so a wall-clock step neither opens nor closes the limit)."""
+
+    def __init__(self, interval: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.interval = float(interval)
+        self.clock = clock
+        self._last: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def admit(self, robot: str) -> float:
+        """Seconds until ``robot`` may ask again: 0 means this request is accepted (and counted)."""
+        with self._lock:
+            now = self.clock()
+            last = self._last.get(robot)
+            if self.interval > 0 and last is not None and now - last < self.interval:
+                return self.interval - (now - last)
+            self._last[robot] = now
+            return 0.0
+
+
+def get_retrain_limiter(request: Request) -> RetrainLimiter:
+    """The app's limiter, made from its settings on first use unless the app was given one."""
+    state = request.app.state
+    with _LIMITER_LOCK:
+        limiter = getattr(state, "retrain_limiter", None)
+        if limiter is None:
+            limiter = RetrainLimiter(get_settings_dep(request).retrain_min_interval_seconds)
+            state.retrain_limiter = limiter
+    return limiter
 
 
 @router.get(
@@ -61,15 +104,32 @@ def history(
     "/topology/retrain",
     status_code=202,
     summary="learn with a method in the next worker cycle",
-    responses=responses(409, 413, 415, s409="no worker runs in this process"),
+    responses=responses(
+        409,
+        413,
+        415,
+        429,
+        s409="no worker runs in this process",
+        s429="this robot's last retrain request was accepted less than retrain_min_interval_seconds ago; "
+        "Retry-After: seconds until the next is accepted",
+    ),
 )
 def retrain(
     info: RobotInfo = Depends(get_robot),
     worker: MonitorControl | None = Depends(get_worker),
+    limiter: RetrainLimiter = Depends(get_retrain_limiter),
     method: Method = Query("network"),
 ) -> dict[str, str]:
     if worker is None:
         raise HTTPException(status_code=409, detail="no worker runs in this process")
+    wait = limiter.admit(info.name)
+    if wait > 0:
+        raise HTTPException(
+            status_code=429,
+            detail=f"retrain of {info.name!r} was requested less than {limiter.interval:g} s ago; "
+            f"retry in {math.ceil(wait)} s",
+            headers={"Retry-After": str(math.ceil(wait))},
+        )
     worker.request(info.name, method)
     return {"robot": info.name, "method": method, "status": "queued"}
 

@@ -24,7 +24,7 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import StaticPool
 
-__all__ = ["is_sqlite", "make_engine", "normalize_url", "session_scope"]
+__all__ = ["SQLITE_JOURNAL_SIZE_LIMIT", "is_sqlite", "make_engine", "normalize_url", "session_scope"]
 
 #: How long (ms) an SQLite connection waits for another writer before giving up.
 SQLITE_BUSY_TIMEOUT_MS = 30_000
@@ -32,6 +32,9 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 SQLITE_PAGE_SIZE = 65536
 #: Page cache per SQLite connection, KiB.
 SQLITE_CACHE_KIB = 65536
+#: Bytes an SQLite WAL file is truncated back to after a checkpoint. Without a limit the file keeps the
+#: size of its largest burst (a backlog of frame chunks written at once) for the life of the database.
+SQLITE_JOURNAL_SIZE_LIMIT = 64 * 1024 * 1024
 
 
 def normalize_url(url: str) -> str:
@@ -56,6 +59,7 @@ def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
         cur.execute(f"PRAGMA page_size={SQLITE_PAGE_SIZE}")
         cur.execute(f"PRAGMA cache_size=-{SQLITE_CACHE_KIB}")
         cur.execute("PRAGMA journal_mode=WAL")
+        cur.execute(f"PRAGMA journal_size_limit={SQLITE_JOURNAL_SIZE_LIMIT}")
         cur.execute("PRAGMA synchronous=NORMAL")
         cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
         cur.execute("PRAGMA foreign_keys=ON")

@@ -75,7 +75,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from service.frames import FrameBatch, FrameError
 from service.ingest.base import Counters, Source
 from service.settings import Settings, get_settings
-from service.store import Store, open_store
+from service.store import RobotLimitReached, Store, open_store
 from service.store.identity import DatabaseFileChanged
 
 __all__ = [
@@ -226,7 +226,10 @@ class Pipeline:
         """Register the robots the sources simulate; tell every source where the store ends."""
         for src in self.sources:
             for name, model in src.simulated_robots().items():
-                self.store.mark_simulated(name, model)
+                try:
+                    self.store.mark_simulated(name, model)
+                except RobotLimitReached as err:  # its frames will be counted malformed, the rest runs
+                    log.warning("source %s: %s", src.name, err)
         last = {r.name: r.last_frame_t for r in self.store.robots() if r.last_frame_t is not None}
         for src in self.sources:
             src.resume_after(last)

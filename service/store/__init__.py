@@ -52,7 +52,7 @@ from service.store.chunks import build_chunks
 from service.store.frames import FramesMixin
 from service.store.heartbeats import HeartbeatsMixin
 from service.store.retention import RetentionMixin
-from service.store.robots import RobotInfo, UnknownRobot
+from service.store.robots import RobotInfo, RobotLimitReached, UnknownRobot
 from service.store.schema import SchemaMismatch
 from service.store.topologies import BASELINE_SOURCES, TopologiesMixin, TopologyRecord
 
@@ -61,6 +61,7 @@ __all__ = [
     "BASELINE_SOURCES",
     "AlertRecord",
     "RobotInfo",
+    "RobotLimitReached",
     "SchemaMismatch",
     "Store",
     "TopologyRecord",

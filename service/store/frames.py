@@ -22,7 +22,7 @@ from bodyschema.recording import Recording
 from service.db.models import Chunk, Imu, Joint, Robot
 from service.frames import FrameBatch
 from service.store.chunks import PendingChunk, assemble, build_chunks, check_batch
-from service.store.robots import RegisteredRobot, RobotsMixin, UnknownRobot, robot_id
+from service.store.robots import RegisteredRobot, RobotLimitReached, RobotsMixin, UnknownRobot, robot_id
 
 __all__ = ["FramesMixin"]
 
@@ -50,7 +50,7 @@ class FramesMixin(RobotsMixin):
         with self._write_lock:
             try:
                 self._write_chunks(chunks)
-            except SQLAlchemyError:
+            except (SQLAlchemyError, RobotLimitReached):
                 # The transaction rolled back: forget cached registrations it may have made.
                 self._known.clear()
                 raise

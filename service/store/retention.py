@@ -4,7 +4,8 @@ The worker only ever reads the latest ``window_seconds``; everything older than 
 of device time is dropped by :meth:`RetentionMixin.prune`, which the ingest writer calls every
 ``prune_interval_seconds``. Pruning works per robot against that robot's own last frame, because robots
 run on clocks of their own, and drops whole chunks, so it is one indexed DELETE per robot rather than a
-rewrite of blobs. Registrations, topologies, baselines and alerts are never pruned.
+rewrite of blobs. Registrations, baselines and alerts are never pruned; repeated topologies are thinned as
+they are stored (:mod:`service.store.topologies`).
 """
 
 from __future__ import annotations

@@ -13,19 +13,26 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 
 from service.db.models import Imu, Joint, Robot
+from service.frames import FrameError
 from service.store.chunks import PendingChunk
 from service.store.schema import StoreBase
 
-__all__ = ["RegisteredRobot", "RobotInfo", "RobotsMixin", "UnknownRobot", "robot_id"]
+__all__ = ["RegisteredRobot", "RobotInfo", "RobotLimitReached", "RobotsMixin", "UnknownRobot", "robot_id"]
 
 
 class UnknownRobot(KeyError):
     """A robot name the store has never seen."""
+
+
+class RobotLimitReached(FrameError):
+    """A new robot was refused: the store already holds ``max_robots``. A :class:`FrameError`, so the
+    ingest pipeline counts its frames as malformed (and the API answers 422) without stopping: retrying
+    cannot help until an operator raises the cap, and robots already registered keep ingesting."""
 
 
 @dataclass(frozen=True)
@@ -108,7 +115,7 @@ class RobotsMixin(StoreBase):
                     s.execute(
                         update(Robot).where(Robot.id == known.id).values(simulated=True, catalog=catalog)
                     )
-            except SQLAlchemyError:
+            except (SQLAlchemyError, RobotLimitReached):
                 self._known.pop(name, None)  # the registration may have rolled back with it
                 raise
 
@@ -127,16 +134,31 @@ class RobotsMixin(StoreBase):
         known = self._known.get(name)
         if known is not None:
             return known
-        s.execute(
-            self._insert(Robot)
-            .values(name=name, first_seen=time.time(), simulated=False, excitation={})
-            .on_conflict_do_nothing(index_elements=["name"])
-        )
-        rid = robot_id(s, name)
+        rid = s.scalar(select(Robot.id).where(Robot.name == name))
+        if rid is None:
+            self._check_robot_cap(s, name)
+            s.execute(
+                self._insert(Robot)
+                .values(name=name, first_seen=time.time(), simulated=False, excitation={})
+                .on_conflict_do_nothing(index_elements=["name"])
+            )
+            rid = robot_id(s, name)
         joints = set(s.scalars(select(Joint.name).where(Joint.robot_id == rid)))
         imus = set(s.scalars(select(Imu.name).where(Imu.robot_id == rid)))
         known = self._known[name] = RegisteredRobot(rid, joints, imus)
         return known
+
+    def _check_robot_cap(self, s: Session, name: str) -> None:
+        """Refuse robot ``name`` (not registered yet) once ``max_robots`` are: every robot costs a
+        worker estimate per cycle and rows forever, so an unbounded set of names (a misconfigured
+        device, a typo in a stream of frames) must not grow without limit. Processes sharing one
+        database may each admit one robot past the cap at the same moment; the count stays bounded."""
+        count = int(s.scalar(select(func.count()).select_from(Robot)) or 0)
+        if count >= self.max_robots:
+            raise RobotLimitReached(
+                f"robot {name!r} not registered: the store already holds {count} robots "
+                f"(max_robots={self.max_robots})"
+            )
 
     def _register_parts(self, s: Session, known: RegisteredRobot, ch: PendingChunk) -> None:
         new_j = [j for j in ch.joint_names if j not in known.joints]

@@ -1,9 +1,13 @@
 """Learned topologies and baselines: what each robot's body looked like, and what it is compared against.
 
-Every topology the worker learns is kept with its method, wall time and the device time its window
-ended (the history the API and the dashboard show). A baseline is a topology promoted by the worker
-("auto": the same body several cycles in a row) or by an operator; the newest baseline row of a robot
-is the current one and older rows are its history, so a baseline is never overwritten.
+Every topology the worker learns is stored with its method, wall time and the device time its window
+ended (the history the API and the dashboard show). Per robot and method the newest
+``topology_history_keep`` stay; older ones stay only where the body changed (a row whose structure
+differs from the one before it), so a robot whose body never changes keeps a bounded history.
+
+A baseline is a topology promoted by the worker ("auto": the same body several cycles in a row) or by
+an operator; the newest baseline row of a robot is the current one and older rows are its history, so a
+baseline is never overwritten, and baselines are never thinned.
 
 Approving a baseline (:meth:`TopologiesMixin.approve_baseline`) also ends the robot's open alerts: they
 were differences to the old baseline. Both happen in one transaction, so no reader ever sees the new
@@ -14,8 +18,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
-from sqlalchemy import insert, select
+from sqlalchemy import delete, insert, select
 from sqlalchemy.orm import Session
 
 from bodyschema.topology import Topology
@@ -47,10 +52,10 @@ class TopologiesMixin(StoreBase):
     """Keeping learned topologies and choosing baselines."""
 
     def save_topology(self, robot: str, topo: Topology, wall_time: float, window_end_t: float | None) -> int:
-        """Keep a learned topology; returns its id."""
+        """Keep a learned topology and thin the history behind it (one transaction); returns its id."""
         with self._session() as s, s.begin():
             rid = robot_id(s, robot)
-            return int(
+            tid = int(
                 s.scalar(
                     insert(TopologyRow)
                     .values(
@@ -63,6 +68,8 @@ class TopologiesMixin(StoreBase):
                     .returning(TopologyRow.id)
                 )
             )
+            _thin_history(s, rid, topo.method or "", self.topology_history_keep)
+            return tid
 
     def latest_topology(self, robot: str, method: str | None = None) -> TopologyRecord | None:
         """The newest stored topology (of ``method`` when given)."""
@@ -136,6 +143,35 @@ class TopologiesMixin(StoreBase):
             row = s.get(Baseline, bid)
             assert row is not None
             return _baseline_record(row, robot)
+
+
+#: The parts of a stored topology that make it a different body; confidence, timing and excitation
+#: change every cycle and do not.
+_STRUCTURE_KEYS: tuple[str, ...] = ("joints", "imus", "unique", "insufficient_excitation")
+
+
+def _same_body(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """True when two stored topology JSONs describe the same body (see :data:`_STRUCTURE_KEYS`)."""
+    return all(a.get(k) == b.get(k) for k in _STRUCTURE_KEYS)
+
+
+def _thin_history(s: Session, rid: int, method: str, keep: int) -> None:
+    """Delete the topology that just fell out of the newest ``keep`` of this robot and method when it
+    repeats its predecessor. The worker stores one topology per cycle, so an unchanged body would add
+    a row every few seconds forever; what the history must answer is when the body changed, which the
+    first row of each run of equal bodies (a change) says. Rows are looked at once, as they age past
+    ``keep``, so each insert costs one indexed read of two rows; rows that aged past it before this
+    limit was set (or lowered) stay."""
+    q = (
+        select(TopologyRow.id, TopologyRow.topology)
+        .where(TopologyRow.robot_id == rid, TopologyRow.method == method)
+        .order_by(TopologyRow.wall_time.desc(), TopologyRow.id.desc())
+        .offset(keep)
+        .limit(2)
+    )
+    rows = s.execute(q).all()
+    if len(rows) == 2 and _same_body(rows[0].topology, rows[1].topology):
+        s.execute(delete(TopologyRow).where(TopologyRow.id == rows[0].id))
 
 
 def _topology_rows(s: Session, rid: int, limit: int, method: str | None) -> list[TopologyRow]:

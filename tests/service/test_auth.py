@@ -299,7 +299,7 @@ def test_mutating_routes_take_json_bodies_only(store: Store, headers: dict[str, 
 
 
 def test_json_bodies_and_bodyless_posts_pass_the_type_check(store: Store) -> None:
-    client = make_client(store)
+    client = make_client(store, retrain_min_interval_seconds=0)  # two retrains in a row below
     resp = client.post(
         "/api/v1/robots/sim/simulate/damage",
         content=b'{"kind": "imu_dead"}',
