@@ -30,11 +30,12 @@ from fastapi import FastAPI, Request, Security
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, health, robots, simulate, status, topology
-from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request
+from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import JsonOnly, authorize
 from service.control import DamageControl, MonitorControl
 from service.ingest.pipeline import Pipeline
@@ -115,6 +116,28 @@ class BodySizeLimit:
         await send({"type": "http.response.body", "body": detail})
 
 
+def _declare_security_as_configured(app: FastAPI) -> None:
+    """The OpenAPI document names the bearer scheme on the ``/api/v1`` operations only when a token is
+    configured: without one :func:`~service.api.security.authorize` lets every request through, and a
+    document that required ``Authorization`` would tell clients (and generated ones) otherwise."""
+    if app.state.api_token is not None or app.state.api_read_token is not None:
+        return
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            spec = build()
+            for path, item in spec.get("paths", {}).items():
+                if path.startswith("/api/v1"):
+                    for op in item.values():
+                        if isinstance(op, dict):
+                            op.pop("security", None)
+            app.openapi_schema = spec
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def create_app(
     store: Store,
     *,
@@ -147,6 +170,7 @@ def create_app(
 
     for router in API_ROUTERS:
         app.include_router(router, dependencies=[Security(authorize)])
+    _declare_security_as_configured(app)
     app.include_router(health.router)  # probes and metrics stay open: they change nothing
 
     @app.exception_handler(UnknownRobot)
@@ -154,6 +178,7 @@ def create_app(
         return JSONResponse({"detail": f"unknown robot {exc.args[0]!r}"}, status_code=404)
 
     app.add_exception_handler(RequestValidationError, invalid_request)
+    app.add_exception_handler(StarletteHTTPException, unparsable_body)
     for error in DATABASE_ERRORS:  # a database that fails under a route: 503 + Retry-After, never a 500
         app.add_exception_handler(error, database_unavailable)
 

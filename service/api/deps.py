@@ -30,7 +30,9 @@ __all__ = [
 ]
 
 #: The ``{robot}`` path parameter: a name as every ingest source must give it (service.frames).
-RobotName = Annotated[str, Path(pattern=NAME_PATTERN, description=f"robot name: {NAME_RULE}")]
+RobotName = Annotated[
+    str, Path(pattern=NAME_PATTERN, description=f"robot name: {NAME_RULE}", examples=["ur5e-1"])
+]
 
 
 def get_store(request: Request) -> Store:

@@ -17,11 +17,14 @@ import logging
 from typing import Any
 
 from fastapi import Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.responses import Response
 
 from service.store.identity import DatabaseFileChanged
 
@@ -34,6 +37,7 @@ __all__ = [
     "database_unavailable",
     "invalid_request",
     "responses",
+    "unparsable_body",
 ]
 
 log = logging.getLogger(__name__)
@@ -101,6 +105,20 @@ async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
         for e in errors
     ]
     return JSONResponse({"detail": detail}, status_code=422)
+
+
+async def unparsable_body(request: Request, exc: Exception) -> Response:
+    """A JSON body FastAPI could not even decode (not UTF-8, nested past the parser's depth) is a 422
+    like every other malformed body, not FastAPI's undeclared 400; other HTTP errors pass unchanged."""
+    if (
+        isinstance(exc, StarletteHTTPException)
+        and exc.status_code == 400
+        and isinstance(exc.__cause__, ValueError | RecursionError)
+    ):
+        detail = [{"loc": ["body"], "msg": "body is not valid UTF-8 JSON", "type": "json_invalid"}]
+        return JSONResponse({"detail": detail}, status_code=422)
+    assert isinstance(exc, StarletteHTTPException)
+    return await http_exception_handler(request, exc)
 
 
 async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:

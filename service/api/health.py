@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 
 from fastapi import APIRouter, Depends, Response
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, PlainTextResponse
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.api.deps import get_metrics, get_pipeline, get_settings_dep, get_store, get_worker
@@ -93,6 +93,11 @@ def _check_worker(
         reasons.append("no worker heartbeat" if age is None else f"worker heartbeat {age:.0f} s old")
 
 
-@router.get("/metrics", summary="Prometheus metrics")
+@router.get(
+    "/metrics",
+    summary="Prometheus metrics",
+    response_class=PlainTextResponse,
+    responses={200: {"description": "Prometheus text exposition format"}},
+)
 def metrics(m: Metrics = Depends(get_metrics)) -> Response:
     return Response(m.render(), media_type=CONTENT_TYPE_LATEST)

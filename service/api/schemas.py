@@ -34,6 +34,9 @@ DamageKind = Literal[DAMAGE_KINDS]  # type: ignore[valid-type]
 #: A robot, joint or IMU name in a request body (the pattern every ingest source is held to).
 PartName = Annotated[str, Field(pattern=NAME_PATTERN, description=NAME_RULE)]
 
+#: One IMU axis triple (x, y, z) in a frames body.
+Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
 #: The parameters each damage kind takes, as the farm's simulator applies them (simulators/damage.py);
 #: a parameter another kind takes is refused here, with the kind's own list, before the farm sees it.
 #: A kind not listed is passed through and answered by the farm.
@@ -262,11 +265,29 @@ class RobotOut(BaseModel):
         )
 
 
+def _damage_variants(schema: dict[str, Any]) -> None:
+    """The body's JSON Schema says per kind what :meth:`DamageIn._params_fit_kind` accepts: one
+    ``oneOf`` branch per kind, in which a parameter the kind does not take may only be null and
+    ``mode`` is one of the kind's own modes."""
+    names = ("imu", "joint", "to", "value", "mode", "tether")
+    variants: list[dict[str, Any]] = []
+    for kind in DAMAGE_KINDS:
+        props: dict[str, Any] = {"kind": {"const": kind}}
+        allowed = DAMAGE_PARAMS.get(kind)
+        if allowed is not None:
+            props.update({k: {"type": "null"} for k in names if k not in allowed})
+            if "mode" in allowed:
+                props["mode"] = {"anyOf": [{"enum": list(DAMAGE_MODES[kind])}, {"type": "null"}]}
+        variants.append({"properties": props, "required": ["kind"]})
+    schema["oneOf"] = variants
+    schema["examples"] = [{"kind": "imu_dead", "imu": "imu0", "mode": "frozen"}]
+
+
 class DamageIn(BaseModel):
     """A damage to apply to a simulated robot. Part arguments are optional: the simulator picks
     a part when they are left out."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra=_damage_variants)
 
     kind: DamageKind = Field(description=f"one of {', '.join(DAMAGE_KINDS)}")
     imu: PartName | None = None
@@ -304,7 +325,22 @@ class DamageOut(BaseModel):
 class FramesIn(BaseModel):
     """Frames pushed over HTTP: the FrameBatch fields as nested lists (T samples)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "t": [0.0, 0.01],
+                    "joint_names": ["j1", "j2"],
+                    "q": [[0.0, 0.1], [0.001, 0.1]],
+                    "imu_names": ["imu0"],
+                    "acc": [[[0.0, 0.0, 9.81]], [[0.0, 0.01, 9.81]]],
+                    "gyro": [[[0.0, 0.0, 0.0]], [[0.1, 0.0, 0.0]]],
+                }
+            ]
+        },
+    )
 
     t: list[Annotated[float, Field(ge=0)]] = Field(
         min_length=1, description="device time, s: finite, not negative, strictly increasing"
@@ -312,5 +348,5 @@ class FramesIn(BaseModel):
     joint_names: list[PartName]
     q: list[list[float]]
     imu_names: list[PartName]
-    acc: list[list[list[float]]]
-    gyro: list[list[list[float]]]
+    acc: list[list[Vector3]] = Field(description="(T, K, 3) specific force, m/s²")
+    gyro: list[list[Vector3]] = Field(description="(T, K, 3) angular rate, rad/s")
