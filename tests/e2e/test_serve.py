@@ -48,11 +48,14 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
 #: device time against the wall clock and the worker's interval is wall time, so on a loaded machine
 #: (the suite beside other work) cycles cover uneven device time and the count wanders (seen: 5 for
 #: ``link_lost``). What this test holds is the kind and part of the first alert; latency in device
-#: time is the damage suite's (tests/service/test_damage_worker.py). ``joint_locked`` on the robot
-#: preset is slower still: the locked joint yields under its commanded torque by more than two encoder
-#: steps now and then, restarting the still stretch the lock is judged on (seen: 3, 8 and 16 cycles).
-MAX_CYCLES: dict[str, int] = {"joint_locked": 24}
-DEFAULT_MAX_CYCLES = 12
+#: time is the damage suite's (tests/service/test_damage_worker.py). So the cycle count here is a
+#: sanity ceiling, not a latency target: 24 cycles for every kind (seen: up to 14 for ``encoder_fault``
+#: on PostgreSQL in a fresh-clone run, where the faster estimator packs more cycles into the same
+#: device time). ``joint_locked`` on the robot preset is the slowest: the locked joint yields under its
+#: commanded torque by more than two encoder steps now and then, restarting the still stretch the lock
+#: is judged on (seen: 3, 8 and 16 cycles).
+MAX_CYCLES: dict[str, int] = {}
+DEFAULT_MAX_CYCLES = 24
 #: Alerts of another kind known to come up in this accumulated sequence (an open defect, not a rule):
 #: once ``j3``'s encoder froze after two of ``j2``'s link IMUs were detached and killed, ``link_lost``
 #: on ``j2`` is sometimes raised too, during the ``encoder_fault``, ``joint_locked`` or ``link_lost`` step
