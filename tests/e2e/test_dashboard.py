@@ -9,7 +9,6 @@ must give back the same trees, alerts and acks. Skipped only when no Chromium is
 from __future__ import annotations
 
 import shutil
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +22,7 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import free_port, serve_command, serve_in_thread
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = [
@@ -91,7 +90,6 @@ class RecordingFarm:
 
 @pytest.fixture
 def served(e2e_db_url: str) -> Iterator[tuple[str, Store, RecordingFarm]]:
-    import uvicorn
 
     store = open_store(e2e_db_url)
     n = 50
@@ -121,17 +119,9 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store, RecordingFarm]]:
     )
     store.heartbeat("worker", time.time())
     inj = RecordingFarm()
-    port = free_port()
     app = create_app(store, settings=Settings(database_url="sqlite://"), damage=inj)
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 20
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", store, inj
-    server.should_exit = True
-    th.join(10)
+    with serve_in_thread(app) as url:
+        yield url, store, inj
     store.close()
 
 

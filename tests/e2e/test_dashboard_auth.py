@@ -5,7 +5,6 @@ on every request. Skipped only when no Chromium is installed."""
 from __future__ import annotations
 
 import shutil
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,7 +16,7 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.e2e.processes import free_port
+from tests.e2e.processes import serve_in_thread
 from tests.e2e.test_dashboard import ARGS, CHROMIUM
 
 WRITE, READ = "dash-write-token", "dash-read-token"
@@ -33,7 +32,6 @@ pytestmark = [
 
 @pytest.fixture
 def served(tmp_path: Path) -> Iterator[tuple[str, Store, int]]:
-    import uvicorn
 
     store = open_store(f"sqlite:///{tmp_path / 'dash.db'}")
     n = 20
@@ -51,18 +49,10 @@ def served(tmp_path: Path) -> Iterator[tuple[str, Store, int]]:
     alert = store.upsert_alert(
         "arm", "imu_dead", "imu:i1", {"kind": "imu_dead", "imu": "i1"}, "active", time.time()
     )
-    port = free_port()
     settings = Settings(database_url="sqlite://", api_token=WRITE, api_read_token=READ)
     app = create_app(store, settings=settings)
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 20
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", store, alert.id
-    server.should_exit = True
-    th.join(10)
+    with serve_in_thread(app) as url:
+        yield url, store, alert.id
     store.close()
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +22,7 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.e2e.processes import free_port
+from tests.e2e.processes import serve_in_thread
 from tests.e2e.test_dashboard import SCREENSHOT, browser
 from tests.e2e.test_dashboard import pytestmark as dashboard_marks
 
@@ -63,7 +62,6 @@ def _frames(store: Store, robot: str, imus: list[str]) -> None:
 
 @pytest.fixture
 def served(e2e_db_url: str) -> Iterator[tuple[str, Store]]:
-    import uvicorn
 
     store = open_store(e2e_db_url)
     now = time.time()
@@ -85,17 +83,9 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store]]:
         now,
     )
     store.heartbeat("worker", now)
-    port = free_port()
     app = create_app(store, settings=Settings(database_url="sqlite://"))
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 20
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", store
-    server.should_exit = True
-    th.join(10)
+    with serve_in_thread(app) as url:
+        yield url, store
     store.close()
 
 

@@ -9,7 +9,6 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
@@ -18,25 +17,12 @@ from bodyschema.topology import Topology
 from cli.main import main as cli_main
 from service.api import create_app
 from service.api.security import MUTATING_METHODS
-from service.frames import FrameBatch
 from service.settings import Settings, get_settings, reset_settings
 from service.store import Store, TopologyRecord, open_store
+from tests.service.test_api import batch
 
 WRITE, READ = "write-secret-0123", "read-secret-4567"
 TOPO = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"}, method="fast")
-
-
-def batch(robot: str, n: int = 20, t0: float = 0.0) -> FrameBatch:
-    t = t0 + np.arange(n) * 0.01
-    return FrameBatch(
-        robot,
-        t,
-        ("j1", "j2"),
-        np.zeros((n, 2)),
-        ("imu0", "imu1"),
-        np.full((n, 2, 3), 9.81),
-        np.zeros((n, 2, 3)),
-    )
 
 
 def frames_body(n: int = 5, t0: float = 1.0) -> dict[str, Any]:
