@@ -71,6 +71,12 @@ class Settings(BaseSettings):
     imu_silent_seconds: float = Field(
         1.0, gt=0, description="an IMU not heard for this long (device time) counts as silent"
     )
+    clock_reset_seconds: float = Field(
+        10.0,
+        gt=0,
+        description="a batch whose newest stamp lies more than this (device time) behind the robot's "
+        "newest frame means its clock went back (a restart): a new epoch starts (docs/service.md)",
+    )
     chunk_max_samples: int = Field(1000, ge=1, description="most samples the store puts in one chunk row")
     prune_interval_seconds: float = Field(10.0, gt=0, description="wall time between retention prunes")
     topology_history_keep: int = Field(

@@ -119,6 +119,8 @@ class Worker:
         #: Per robot: the ``last_frame_t`` the worker last saw, and the wall time (``clock``) it first
         #: saw that value; see :meth:`_idle`.
         self._activity: dict[str, tuple[float | None, float]] = {}
+        #: Per robot: the device clock epoch of the last cycle (see :meth:`_epoch_seen`).
+        self._epochs: dict[str, int] = {}
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
         self._stop = threading.Event()
@@ -201,6 +203,7 @@ class Worker:
             for info in robots:
                 if self._stop.is_set():
                     break
+                self._epoch_seen(info.name, info.epoch)
                 if self._idle(info.name, info.last_frame_t):
                     out[info.name] = CycleResult(info.name, skipped="idle: no new frame within the window")
                     continue
@@ -225,6 +228,18 @@ class Worker:
             "worker cycle", extra={"cycle": self.cycles, "robots": len(out), "seconds": round(seconds, 3)}
         )
         return out
+
+    def _epoch_seen(self, robot: str, epoch: int) -> None:
+        """Forget the device times remembered for ``robot`` when its clock went back (a new epoch,
+        :mod:`service.store.frames`): an onset stamped on the old clock would lie in the new clock's
+        future and hold the IMU's finding forever. Alerts stay; the windows of the new epoch confirm or
+        resolve them."""
+        if self._epochs.get(robot, epoch) != epoch:
+            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
+            log.info(
+                "device clock went back: analysing the new epoch", extra={"robot": robot, "epoch": epoch}
+            )
+        self._epochs[robot] = epoch
 
     def _idle(self, robot: str, last_frame_t: float | None) -> bool:
         """True when ``robot``'s last frame has not moved for more than ``window_seconds`` of wall time

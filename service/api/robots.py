@@ -74,7 +74,9 @@ def _check_jump(batch: FrameBatch, last_t: float | None, bound: float) -> None:
 
     Device time is the robot's own clock, so it is never compared with the wall clock; but one batch
     stamped ``bound`` seconds past the robot's newest frame would move its window there and leave
-    everything stored behind. Going backwards is allowed (overlaps merge; a later write wins)."""
+    everything stored behind. Going backwards is allowed: a little is an overlap (a later write wins),
+    more than ``clock_reset_seconds`` a restarted clock, which starts a new epoch
+    (:mod:`service.store.frames`)."""
     if last_t is None:
         return
     end = max(float(batch.t[-1]), float(batch.encoder_t[-1]))

@@ -234,6 +234,10 @@ class RobotOut(BaseModel):
     catalog: str | None
     first_seen: float
     last_frame_t: float | None = Field(description="device time of the newest frame, s")
+    epoch: int = Field(0, description="times the robot's device clock went back (restarts seen)")
+    epoch_start_t: float | None = Field(
+        None, description="device time the current clock epoch began, s (null while it is the first)"
+    )
     excitation: dict[str, float] = Field(description="RMS joint velocity in the last window, rad/s")
     has_baseline: bool = False
     active_alerts: int = 0
@@ -258,6 +262,8 @@ class RobotOut(BaseModel):
             catalog=r.catalog,
             first_seen=r.first_seen,
             last_frame_t=r.last_frame_t,
+            epoch=r.epoch,
+            epoch_start_t=r.epoch_start_t,
             excitation=r.excitation,
             has_baseline=has_baseline,
             active_alerts=active_alerts,

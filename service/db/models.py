@@ -10,8 +10,10 @@ A multi-rate chunk (encoders on a clock of their own, docs/recording-format.md) 
 keeps ``q`` (n_q,N) on it; ``t``/``acc``/``gyro`` are then the IMU stream. ``t_q``/``n_q`` are NULL in a
 single-clock chunk; ``qd`` (joint velocities as the encoders reported them, on the encoder stamps) is
 NULL when the encoders report none. ``t_start``/``t_end`` span both streams.
-All ``*_t`` columns are device time; ``wall_time``/``*_at``/``first_seen`` are wall-clock seconds since
-the epoch.
+Each chunk belongs to one device clock epoch (``epoch``): a robot whose clock went back (a restart)
+starts a new epoch, and its windows are read from the current one (``robots.epoch``, see
+:mod:`service.store.frames`). All ``*_t`` columns are device time; ``wall_time``/``*_at``/``first_seen``
+are wall-clock seconds since 1970 (Unix time).
 """
 
 from __future__ import annotations
@@ -66,6 +68,10 @@ class Robot(Base):
     name: Mapped[str] = mapped_column(String(200), unique=True)
     first_seen: Mapped[float]
     last_frame_t: Mapped[float | None]
+    #: The current device clock epoch (bumped when the robot's clock goes back) and the device time
+    #: of its first frame (None before the first restart seen).
+    epoch: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    epoch_start_t: Mapped[float | None]
     simulated: Mapped[bool] = mapped_column(Boolean, default=False)
     catalog: Mapped[str | None] = mapped_column(String(200))
     excitation: Mapped[dict[str, Any]] = mapped_column(default=dict)
@@ -108,6 +114,7 @@ class Chunk(Base):
     t_start: Mapped[float]
     t_end: Mapped[float]
     n: Mapped[int]
+    epoch: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     joint_names: Mapped[list[str]]
     imu_names: Mapped[list[str]]
     t: Mapped[bytes] = mapped_column(LargeBinary)

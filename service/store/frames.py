@@ -5,16 +5,29 @@ times a second), so it registers robots through a cache, inserts chunk rows in o
 each robot's ``last_frame_t`` and each IMU's ``last_t`` forward in the same transaction. Reads select
 the chunks overlapping a window with one range scan on ``(robot_id, t_start, t_end)`` and leave the
 merging to :mod:`service.store.chunks`.
+
+Device clocks go back: a robot that restarts stamps its frames from (about) zero again. Stamps are
+device time, so the new frames would lie before everything stored, be pruned at once against the old
+``last_frame_t``, and the worker would analyse the old run's window forever. A batch whose newest
+stamp lies more than ``clock_reset_seconds`` behind the robot's newest frame therefore starts a new
+**epoch**: ``last_frame_t`` restarts from the new stamps, the chunks carry the epoch, reads see the
+current epoch only, and the old one ages out (:mod:`service.store.retention`). The error model behind
+the default (10 s): one clock's batches overlap only by what a transport reorders or a client resends,
+bounded by the ingest queue and the request timeout (about a second); a clock that went back by
+less than that threshold (a run shorter than it) stays in the epoch, and its frames overwrite the
+old ones where the stamps overlap (a read merges chunks, later writes win).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import case, func, insert, select, text, update
+from sqlalchemy import func, insert, select, text, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 
@@ -25,6 +38,31 @@ from service.store.chunks import PendingChunk, assemble, build_chunks, check_bat
 from service.store.robots import RegisteredRobot, RobotLimitReached, RobotsMixin, UnknownRobot, robot_id
 
 __all__ = ["FramesMixin"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Clock:
+    """One robot's device clock as a write transaction moves it: epoch, first stamp of the epoch,
+    newest stamp; ``stored_*`` is what the database held before."""
+
+    stored_epoch: int
+    start: float | None
+    stored_last: float | None
+
+    def __post_init__(self) -> None:
+        self.epoch = self.stored_epoch
+        self.last = self.stored_last
+
+    def advance(self, t_start: float, t_end: float, reset_after: float) -> bool:
+        """Take a chunk spanning ``t_start..t_end``; True when it starts a new epoch (it ends more than
+        ``reset_after`` before the newest stamp so far)."""
+        if self.last is not None and t_end < self.last - reset_after:
+            self.epoch, self.start, self.last = self.epoch + 1, t_start, t_end
+            return True
+        self.last = t_end if self.last is None else max(self.last, t_end)
+        return False
 
 
 class FramesMixin(RobotsMixin):
@@ -58,16 +96,21 @@ class FramesMixin(RobotsMixin):
 
     def _write_chunks(self, chunks: list[PendingChunk]) -> None:
         rows: list[dict[str, Any]] = []
-        last_t: dict[int, float] = {}
+        clocks: dict[int, _Clock] = {}
         imu_last: dict[tuple[int, str], float] = {}
         pending: list[tuple[RegisteredRobot, PendingChunk]] = []
         with self._session() as s, s.begin():
-            for ch in chunks:
+            for ch in chunks:  # per robot in batch order (build_chunks keeps it)
                 known = self._register_robot(s, ch.robot)
                 self._register_parts(s, known, ch)
                 pending.append((known, ch))
-                rows.append(ch.row(known.id))
-                last_t[known.id] = max(last_t.get(known.id, -math.inf), ch.t_end)
+                clock = clocks.get(known.id)
+                if clock is None:
+                    clock = clocks[known.id] = self._clock(s, known.id)
+                if clock.advance(ch.t_start, ch.t_end, self.clock_reset_seconds):
+                    # IMU stamps of the old epoch say nothing about the new one
+                    imu_last = {k: v for k, v in imu_last.items() if k[0] != known.id}
+                rows.append({**ch.row(known.id), "epoch": clock.epoch})
                 imu_end = ch.imu_t_end
                 if imu_end is None:
                     continue  # a piece of a split multi-rate batch holding encoder samples only
@@ -75,19 +118,8 @@ class FramesMixin(RobotsMixin):
                     key = (known.id, imu)
                     imu_last[key] = max(imu_last.get(key, -math.inf), imu_end)
             s.execute(insert(Chunk), rows)
-            for rid, t in last_t.items():
-                s.execute(
-                    update(Robot)
-                    .where(Robot.id == rid)
-                    .values(
-                        last_frame_t=case(
-                            (Robot.last_frame_t.is_(None), t),
-                            (Robot.last_frame_t < t, t),
-                            else_=Robot.last_frame_t,
-                        )
-                    )
-                    .execution_options(synchronize_session=False)
-                )
+            for rid, clock in clocks.items():
+                self._store_clock(s, rid, clock)
             if imu_last:
                 s.connection().execute(
                     text(
@@ -100,11 +132,44 @@ class FramesMixin(RobotsMixin):
         for known, ch in pending:
             known.joints.update(ch.joint_names)
             known.imus.update(ch.imu_names)
+        names = {known.id: ch.robot for known, ch in pending}
+        for rid, clock in clocks.items():
+            if clock.epoch != clock.stored_epoch:
+                log.warning(
+                    "device clock went back: new epoch",
+                    extra={
+                        "robot": names[rid],
+                        "epoch": clock.epoch,
+                        "from_t": clock.stored_last,
+                        "to_t": clock.start,
+                    },
+                )
+
+    def _clock(self, s: Session, rid: int) -> _Clock:
+        """The robot's stored clock state, locked for this transaction where the database can (another
+        process writing the same robot waits, so two writers never both start an epoch)."""
+        q = select(Robot.epoch, Robot.epoch_start_t, Robot.last_frame_t).where(Robot.id == rid)
+        if self.dialect == "postgresql":
+            q = q.with_for_update()
+        row = s.execute(q).one()
+        return _Clock(int(row.epoch), row.epoch_start_t, row.last_frame_t)
+
+    @staticmethod
+    def _store_clock(s: Session, rid: int, clock: _Clock) -> None:
+        values: dict[str, Any] = {"last_frame_t": clock.last}
+        if clock.epoch != clock.stored_epoch:
+            values.update(epoch=clock.epoch, epoch_start_t=clock.start)
+            # Every IMU counts as heard at the restart: one not heard since is silent from there on.
+            s.execute(update(Imu).where(Imu.robot_id == rid).values(last_t=clock.start))
+        s.execute(
+            update(Robot).where(Robot.id == rid).values(**values).execution_options(synchronize_session=False)
+        )
 
     def read_window(
         self, robot: str, seconds: float, end: float | None = None, *, partial_imus: str = "drop"
     ) -> Recording | None:
-        """The latest ``seconds`` of device time: samples with ``end - seconds < t <= end``.
+        """The latest ``seconds`` of device time: samples with ``end - seconds < t <= end``, of the
+        robot's current device clock epoch.
 
         ``end`` defaults to the robot's last frame. IMUs silent in the whole window are left out; an IMU
         heard in only part of it is left out too (``partial_imus="drop"``) or kept with NaN where it
@@ -137,14 +202,17 @@ class FramesMixin(RobotsMixin):
         return row.last_frame_t
 
     def read_between(
-        self, robot: str, start: float, end: float, *, partial_imus: str = "drop"
+        self, robot: str, start: float, end: float, *, partial_imus: str = "drop", epoch: int | None = None
     ) -> Recording | None:
         """Samples with ``start < t <= end``, each stream by its own stamps (see :meth:`read_window`;
-        ±inf allowed)."""
+        ±inf allowed), of device clock ``epoch`` (default: the robot's current one)."""
         if partial_imus not in ("drop", "nan"):
             raise ValueError(f"partial_imus must be 'drop' or 'nan', got {partial_imus!r}")
         with self._session() as s:
-            rid = robot_id(s, robot)
+            row = s.execute(select(Robot.id, Robot.epoch).where(Robot.name == robot)).first()
+            if row is None:
+                raise UnknownRobot(robot)
+            rid = row.id
             q = select(
                 Chunk.n,
                 Chunk.n_q,
@@ -157,7 +225,7 @@ class FramesMixin(RobotsMixin):
                 Chunk.acc,
                 Chunk.gyro,
             )
-            q = q.where(Chunk.robot_id == rid)
+            q = q.where(Chunk.robot_id == rid, Chunk.epoch == (row.epoch if epoch is None else epoch))
             if math.isfinite(end):
                 q = q.where(Chunk.t_start <= end)
             if math.isfinite(start):

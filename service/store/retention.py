@@ -24,15 +24,23 @@ class RetentionMixin(StoreBase):
     def prune(self, now_t: float | None = None) -> int:
         """Drop chunks that ended more than ``retention_seconds`` before ``now_t`` (device time; default
         each robot's last frame). Whole chunks go, so up to one chunk more than the retention may stay.
-        Returns the samples dropped."""
+
+        Chunks of an earlier device clock epoch (:mod:`service.store.frames`) are older than anything of
+        the current one, by an unknown amount: the previous epoch goes once the current one spans the
+        retention (its frames are then at least that old), every epoch before it at once. A robot that
+        restarts thus keeps at most two retentions of frames. Returns the samples dropped."""
         dropped = 0
         with self._write_lock, self._session() as s, s.begin():
-            for rid, last in s.execute(select(Robot.id, Robot.last_frame_t)).all():
+            robots = s.execute(select(Robot.id, Robot.last_frame_t, Robot.epoch, Robot.epoch_start_t)).all()
+            for rid, last, epoch, epoch_start in robots:
                 ref = now_t if now_t is not None else last
                 if ref is None:
                     continue
                 cutoff = ref - self.retention_seconds
-                cond = (Chunk.robot_id == rid) & (Chunk.t_end < cutoff)
+                # the earliest epoch kept: the previous one until the current one spans the retention
+                keep_from = epoch if epoch_start is not None and epoch_start < cutoff else epoch - 1
+                aged = (Chunk.epoch == epoch) & (Chunk.t_end < cutoff)
+                cond = (Chunk.robot_id == rid) & (aged | (Chunk.epoch < keep_from))
                 n = s.scalar(select(func.coalesce(func.sum(Chunk.n), 0)).where(cond)) or 0
                 if n:
                     s.execute(delete(Chunk).where(cond))

@@ -38,7 +38,9 @@ class RobotLimitReached(FrameError):
 @dataclass(frozen=True)
 class RobotInfo:
     """What the store knows about one robot. ``silent_imus`` have not been heard for
-    ``imu_silent_seconds`` of device time before ``last_frame_t``; ``first_seen`` is wall time."""
+    ``imu_silent_seconds`` of device time before ``last_frame_t``; ``first_seen`` is wall time.
+    ``epoch`` counts the times the robot's device clock went back (restarts); ``epoch_start_t`` is
+    the device time the current epoch began (None while it is the first)."""
 
     name: str
     joints: list[str]
@@ -49,6 +51,8 @@ class RobotInfo:
     simulated: bool
     catalog: str | None
     excitation: dict[str, float] = field(default_factory=dict)
+    epoch: int = 0
+    epoch_start_t: float | None = None
 
 
 @dataclass
@@ -102,6 +106,8 @@ class RobotsMixin(StoreBase):
             simulated=bool(r.simulated),
             catalog=r.catalog,
             excitation={str(k): float(v) for k, v in (r.excitation or {}).items()},
+            epoch=int(r.epoch or 0),
+            epoch_start_t=r.epoch_start_t,
         )
 
     def mark_simulated(self, name: str, catalog: str) -> None:

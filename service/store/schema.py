@@ -67,6 +67,7 @@ class StoreBase:
         self.retention_seconds = float(retention_seconds or s.retention_seconds)
         self.imu_silent_seconds = float(imu_silent_seconds or s.imu_silent_seconds)
         self.chunk_max_samples = int(chunk_max_samples or s.chunk_max_samples)
+        self.clock_reset_seconds = float(s.clock_reset_seconds)
         self.max_robots = int(s.max_robots)
         self.topology_history_keep = int(s.topology_history_keep)
         self.engine: Engine = make_engine(self.url, **(engine_kwargs or {}))

@@ -250,9 +250,12 @@ def test_a_jump_far_ahead_of_the_last_frame_is_422(store: Store) -> None:
     )
     assert store.robot("arm").last_frame_t == last
     assert client.post(url, json=frames_body(5, t0=last + 9.0)).status_code == 201
-    # earlier device time is no jump: overlaps and restarts of the stamps are stored as before
+    # earlier device time is no jump: a restarted clock is stored (a new epoch), and the bound then
+    # counts from the new epoch's newest frame; overlaps within it are stored as before
     assert client.post(url, json=frames_body(5, t0=0.0)).status_code == 201
-    assert client.post(url, json=frames_body(5, t0=1000.02)).status_code == 201
+    assert store.robot("arm").epoch == 1
+    assert client.post(url, json=frames_body(5, t0=1000.02)).status_code == 422
+    assert client.post(url, json=frames_body(5, t0=0.02)).status_code == 201
     assert store.sample_count("arm") == 20
 
 
