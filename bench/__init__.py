@@ -20,6 +20,7 @@ BENCHMARKS: tuple[str, ...] = (
     "topology",
     "scaling",
     "store",
+    "writes",
     "ingest",
     "sim2real",
     "gravity",

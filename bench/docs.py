@@ -594,6 +594,28 @@ def _store_doc(b: _Bench) -> str:
     )
 
 
+def _writes_doc(b: _Bench) -> str:
+    d = b.json("writes.json")
+    default = d["default_interval_s"]
+    rows = {(r["backend"], r["commit_interval_s"]): r for r in d["rows"]}
+    parts = []
+    for backend, name in (("sqlite", "SQLite"), ("postgresql", "PostgreSQL")):
+        at, none = rows.get((backend, default)), rows.get((backend, 0.0))
+        if at and none:
+            parts.append(
+                f"{name} {at['journal_amplification']:.2f}x journal ({at['total_amplification']:.2f}x in "
+                f"total) at {default:g} s, against {none['journal_amplification']:.2f}x "
+                f"({none['total_amplification']:.2f}x) when every queued batch is committed at once"
+            )
+    return (
+        f"`bodyhealth bench writes` streams {d['robots']} robots ({d['joints']} joints, {d['imus']} IMUs, "
+        f"100 Hz) in real time through the ingest pipeline and counts the bytes written per byte of "
+        f"frames, for each commit interval (target: journal at most {d['target']:g}x at the default "
+        f"{default:g} s). In the run recorded there ({b.provenance('writes')}, load average "
+        f"{d['load_average']:.1f}): " + "; ".join(parts) + "."
+    )
+
+
 def _ingest(b: _Bench) -> dict:
     return b.json("ingest.json")  # type: ignore[return-value]
 
@@ -1020,6 +1042,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/topology.md", "topology", "topology.json", _topology_doc),
     _f("docs/simulators.md", "sim", "sim.md", _sim_doc),
     _f("docs/store.md", "store", "store.json", _store_doc),
+    _f("docs/store.md", "writes", "writes.json", _writes_doc),
     _f("docs/transports.md", "ingest", "ingest.json", _ingest_doc),
     _f("docs/sim2real.md", "example", "sim2real/02_undisturbed_slow_rotation_B/report.md", _sim2real_example),
     _f("docs/sim2real.md", "results", "sim2real", _sim2real_doc),

@@ -37,7 +37,7 @@ from service.settings import Settings
 from service.store import open_store
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["Frames", "add_arguments", "database", "run"]
 
 TARGET_MULTIPLE = 100.0
 DEFAULT_PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # ------------------------------------------------------------------------------------------- data
-class _Frames:
+class Frames:
     """Batches of a synthetic robot: a 10 s block of random frames repeated with time running on."""
 
     def __init__(self, imus: int, joints: int, rate: float, seed: int, batch: int = 10) -> None:
@@ -105,7 +105,7 @@ class _IterSource(Source):
 
 # ---------------------------------------------------------------------------------------- backends
 @contextmanager
-def _database(backend: str, admin: str, tmp: Path) -> Iterator[str]:
+def database(backend: str, admin: str, tmp: Path) -> Iterator[str]:
     if backend == "sqlite":
         yield f"sqlite:///{tmp / f'bench-{uuid.uuid4().hex[:8]}.db'}"
         return
@@ -136,7 +136,7 @@ class Row:
     note: str = ""
 
 
-def _measure(backend: str, url: str, frames: _Frames, args: argparse.Namespace) -> list[Row]:
+def _measure(backend: str, url: str, frames: Frames, args: argparse.Namespace) -> list[Row]:
     settings = Settings(
         database_url=url, retention_seconds=max(args.seconds * 2, 600.0), prune_interval_seconds=1e9
     )
@@ -211,7 +211,7 @@ def _measure(backend: str, url: str, frames: _Frames, args: argparse.Namespace) 
 def run(args: argparse.Namespace) -> Path:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    frames = _Frames(args.imus, args.joints, args.rate, args.seed)
+    frames = Frames(args.imus, args.joints, args.rate, args.seed)
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     rows: list[Row] = []
     skipped: dict[str, str] = {}
@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> Path:
     with tempfile.TemporaryDirectory(prefix="bench-store-") as tmp:
         for backend in progress(backends, desc="bench store", unit="backend"):
             try:
-                with _database(backend, args.postgres_url, Path(tmp)) as url:
+                with database(backend, args.postgres_url, Path(tmp)) as url:
                     rows.extend(_measure(backend, url, frames, args))
             except ImportError as err:
                 skipped[backend] = str(err)

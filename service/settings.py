@@ -105,6 +105,12 @@ class Settings(BaseSettings):
 
     # ----------------------------------------------------------------- ingest
     queue_max_batches: int = Field(1000, ge=1, description="bounded ingest queue (backpressure)")
+    ingest_commit_interval_seconds: float = Field(
+        1.0,
+        ge=0,
+        description="while frames stream, the ingest writer commits at most this often, so chunks are "
+        "big enough that writes are not amplified (docs/bench/writes.md); 0 = commit what is queued",
+    )
     queue_put_timeout_seconds: float = Field(
         1.0, ge=0, description="how long a full queue blocks a reader before the batch is dropped"
     )

@@ -29,7 +29,7 @@ __all__ = ["SQLITE_JOURNAL_SIZE_LIMIT", "is_sqlite", "make_engine", "normalize_u
 #: How long (ms) an SQLite connection waits for another writer before giving up.
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 #: Page size of new SQLite files, bytes.
-SQLITE_PAGE_SIZE = 65536
+SQLITE_PAGE_SIZE = 16384
 #: Page cache per SQLite connection, KiB.
 SQLITE_CACHE_KIB = 65536
 #: Bytes an SQLite WAL file is truncated back to after a checkpoint. Without a limit the file keeps the
@@ -53,9 +53,12 @@ def is_sqlite(url: str) -> bool:
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     cur = dbapi_conn.cursor()
     try:
-        # Frame chunks are blobs of 100 kB and more: 64 KiB pages make their overflow chains 16x shorter
-        # (ingest about twice as fast as with the default 4 KiB, see docs/bench/store.md). It only takes
-        # effect on a new database file, so it must come before WAL mode creates one.
+        # Page size trades bulk speed against bytes written per commit. Every commit rewrites each page it
+        # touches in the WAL (the chunk rows' pages, their index, the robot's and the IMUs' rows): with
+        # 64 KiB pages a streaming robot's commits wrote several times the frames' own bytes; 16 KiB
+        # pages stay within the 2x target at the default commit interval while bulk writes keep most of
+        # the speed of big pages (docs/bench/writes.md, docs/bench/store.md). It only takes effect on a
+        # new database file, so it must come before WAL mode creates one.
         cur.execute(f"PRAGMA page_size={SQLITE_PAGE_SIZE}")
         cur.execute(f"PRAGMA cache_size=-{SQLITE_CACHE_KIB}")
         cur.execute("PRAGMA journal_mode=WAL")

@@ -3,8 +3,9 @@
 Each :class:`~service.ingest.base.Source` gets its own reader thread calling ``read()``. Batches go on
 one bounded queue: when the store falls behind, a full queue blocks the reader for at most
 ``put_timeout`` seconds (backpressure on the transport), after which the batch is dropped and counted
-as ``dropped``. The writer thread takes whatever is queued (up to ``coalesce_max_samples``), writes it
-with :meth:`Store.write_many` in one transaction, and counts ``stored``. A batch the store rejects is
+as ``dropped``. The writer thread takes whatever is queued (up to ``coalesce_max_samples``; while frames
+stream, what arrives within ``commit_interval`` of its previous commit), writes it with
+:meth:`Store.write_many` in one transaction, and counts ``stored``. A batch the store rejects is
 counted ``malformed`` without losing the good batches written with it; a database that is briefly
 unavailable is retried; nothing kills a thread. :meth:`Pipeline.stop` stops the readers, drains the
 queue into the store and joins every thread.
@@ -61,6 +62,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import queue
 import signal
 import sys
@@ -160,8 +162,9 @@ class Pipeline:
     """Ingest ``sources`` into ``store`` on background threads (see the module docstring).
 
     Parameters default to the settings: ``queue_max_batches`` and ``put_timeout``
-    (``queue_put_timeout_seconds``), ``prune_interval`` (``prune_interval_seconds``, wall time between
-    retention prunes; 0 disables). ``write_retry_seconds`` bounds how long one commit is retried while
+    (``queue_put_timeout_seconds``), ``commit_interval`` (``ingest_commit_interval_seconds``, the
+    writer's linger, see :meth:`_gather`), ``prune_interval`` (``prune_interval_seconds``, wall time
+    between retention prunes; 0 disables). ``write_retry_seconds`` bounds how long one commit is retried while
     the database is unavailable before its batches are dropped.
     """
 
@@ -175,6 +178,7 @@ class Pipeline:
         put_timeout: float | None = None,
         read_timeout: float = 0.1,
         coalesce_max_samples: int = 5000,
+        commit_interval: float | None = None,
         prune_interval: float | None = None,
         write_retry_seconds: float = 10.0,
         on_commit: CommitCallback | None = None,
@@ -189,6 +193,10 @@ class Pipeline:
         self.put_timeout = float(s.queue_put_timeout_seconds if put_timeout is None else put_timeout)
         self.read_timeout = float(read_timeout)
         self.coalesce_max_samples = int(coalesce_max_samples)
+        self.commit_interval = float(
+            s.ingest_commit_interval_seconds if commit_interval is None else commit_interval
+        )
+        self._last_commit = -math.inf  # monotonic time the writer last took a transaction's batches
         self.prune_interval = float(s.prune_interval_seconds if prune_interval is None else prune_interval)
         self.write_retry_seconds = float(write_retry_seconds)
         self.on_commit = on_commit
@@ -396,15 +404,7 @@ class Pipeline:
                     self._prune()
                     last_prune = time.monotonic()
                 continue
-            items = [first]
-            n = first[1].n_samples
-            while n < self.coalesce_max_samples:
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                items.append(item)
-                n += item[1].n_samples
+            items = self._gather(first)
             try:
                 self._commit(items)
             except Exception as err:  # never let the writer die: count and go on
@@ -418,6 +418,33 @@ class Pipeline:
             if self.prune_interval > 0 and time.monotonic() - last_prune >= self.prune_interval:
                 self._prune()
                 last_prune = time.monotonic()
+
+    def _gather(self, first: _Item) -> list[_Item]:
+        """``first`` and what else goes into its transaction: everything queued, up to
+        ``coalesce_max_samples``, and, while frames stream, what arrives until ``commit_interval`` has
+        passed since the previous commit. Each commit rewrites whole database pages (16 KiB on SQLite)
+        and index entries, so a transaction of a few samples writes far more than it stores; lingering
+        makes chunks big enough that the bytes written stay within 2x of the frames' own bytes
+        (docs/bench/writes.md). A batch someone waits for (:meth:`submit`) and a stopping pipeline end
+        the linger at once, and a lone batch after a quiet spell is committed at once."""
+        items, n = [first], first[1].n_samples
+        deadline = self._last_commit + self.commit_interval
+        waited_for = id(first[1]) in self._waiters
+        while n < self.coalesce_max_samples:
+            left = deadline - time.monotonic()
+            linger = left > 0 and not waited_for and not self._stop.is_set()
+            try:
+                # lingering polls, so a stop or a pushed batch ends it within 50 ms
+                item = self._queue.get(timeout=min(left, 0.05)) if linger else self._queue.get_nowait()
+            except queue.Empty:
+                if linger:
+                    continue
+                break
+            items.append(item)
+            n += item[1].n_samples
+            waited_for = waited_for or id(item[1]) in self._waiters
+        self._last_commit = time.monotonic()
+        return items
 
     def _done(self, n: int) -> None:
         with self._idle:

@@ -30,7 +30,8 @@ def _committed(log: Path) -> tuple[float, int]:
 
 
 def _start(db_url: str, rec: Path, log: Path) -> subprocess.Popen[bytes]:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    # Many small transactions (the writer commits what is queued, no linger), so kills land inside them.
+    env = {**os.environ, "PYTHONPATH": str(REPO), "BODYHEALTH_INGEST_COMMIT_INTERVAL_SECONDS": "0"}
     return subprocess.Popen(
         [
             sys.executable,
