@@ -21,6 +21,7 @@ BENCHMARKS: tuple[str, ...] = (
     "scaling",
     "store",
     "writes",
+    "load",
     "ingest",
     "sim2real",
     "gravity",

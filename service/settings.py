@@ -126,6 +126,12 @@ class Settings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     max_request_bytes: int = Field(1_000_000, ge=1)
+    api_cache_seconds: float = Field(
+        1.0,
+        ge=0,
+        description="a read route's answer is reused while nothing was committed, for at most this long "
+        "(the bound for writers in other processes); 0 = render every request",
+    )
     log_json: bool = True
 
     # --------------------------------------------------------------- security

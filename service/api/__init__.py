@@ -35,6 +35,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, health, robots, simulate, status, topology
+from service.api.cache import ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import JsonOnly, authorize
 from service.control import DamageControl, MonitorControl
@@ -165,6 +166,7 @@ def create_app(
     app.state.damage = damage
     app.state.api_token = settings.write_token()
     app.state.api_read_token = settings.read_token()
+    app.state.read_cache = ReadCache(store, settings.api_cache_seconds)
     for k, v in (extra_state or {}).items():
         setattr(app.state, k, v)
 

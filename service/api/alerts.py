@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response
 
-from service.api.deps import get_robot, get_store
+from service.api.cache import read_cache
+from service.api.deps import RobotName, get_robot, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import AlertOut
 from service.store import RobotInfo, Store
@@ -22,10 +23,15 @@ ACTIVE = Query(None, description="true: active only; false: pending and resolved
 
 
 @router.get("/alerts", response_model=list[AlertOut], summary="alerts of every robot, newest first")
-def all_alerts(
-    store: Store = Depends(get_store), active: bool | None = ACTIVE, limit: int = Query(500, ge=1, le=10000)
-) -> list[AlertOut]:
-    return [AlertOut.of(a) for a in store.alerts(active=active, limit=limit)]
+async def all_alerts(
+    request: Request,
+    store: Store = Depends(get_store),
+    active: bool | None = ACTIVE,
+    limit: int = Query(500, ge=1, le=10000),
+) -> Response:
+    return await read_cache(request).respond(
+        ("alerts", active, limit), lambda: [AlertOut.of(a) for a in store.alerts(active=active, limit=limit)]
+    )
 
 
 @router.get(
@@ -34,13 +40,18 @@ def all_alerts(
     summary="one robot's alerts",
     responses=responses(404),
 )
-def robot_alerts(
-    info: RobotInfo = Depends(get_robot),
+async def robot_alerts(
+    robot: RobotName,
+    request: Request,
     store: Store = Depends(get_store),
     active: bool | None = ACTIVE,
     limit: int = Query(500, ge=1, le=10000),
-) -> list[AlertOut]:
-    return [AlertOut.of(a) for a in store.alerts(info.name, active=active, limit=limit)]
+) -> Response:
+    def render() -> list[AlertOut]:
+        name = lookup_robot(store, robot).name
+        return [AlertOut.of(a) for a in store.alerts(name, active=active, limit=limit)]
+
+    return await read_cache(request).respond(("robot_alerts", robot, active, limit), render)
 
 
 def _ack(store: Store, alert_id: int, robot: str | None) -> AlertOut:

@@ -2,7 +2,9 @@
 farm. The worker and the farm are reached through the protocols of :mod:`service.control`.
 
 Everything lives on ``app.state`` (set by :func:`service.api.create_app`), so one process may host
-several apps (tests) and nothing is a module-level global.
+several apps (tests) and nothing is a module-level global. The getters are ``async``: they only read
+``app.state``, and FastAPI would run a plain ``def`` dependency on a worker thread, a thread hop per
+dependency per request.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ __all__ = [
     "get_settings_dep",
     "get_store",
     "get_worker",
+    "lookup_robot",
 ]
 
 #: The ``{robot}`` path parameter: a name as every ingest source must give it (service.frames).
@@ -35,33 +38,38 @@ RobotName = Annotated[
 ]
 
 
-def get_store(request: Request) -> Store:
+async def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
-def get_settings_dep(request: Request) -> Settings:
+async def get_settings_dep(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_pipeline(request: Request) -> Pipeline:
+async def get_pipeline(request: Request) -> Pipeline:
     return request.app.state.pipeline
 
 
-def get_worker(request: Request) -> MonitorControl | None:
+async def get_worker(request: Request) -> MonitorControl | None:
     return request.app.state.worker
 
 
-def get_metrics(request: Request) -> Metrics:
+async def get_metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
 
-def get_damage(request: Request) -> DamageControl | None:
+async def get_damage(request: Request) -> DamageControl | None:
     return request.app.state.damage
+
+
+def lookup_robot(store: Store, robot: str) -> RobotInfo:
+    """Robot ``robot`` of ``store``, or 404."""
+    info = store.robot(robot)
+    if info is None:
+        raise HTTPException(status_code=404, detail=f"unknown robot {robot!r}")
+    return info
 
 
 def get_robot(robot: RobotName, request: Request) -> RobotInfo:
     """The path's robot, or 404."""
-    info = get_store(request).robot(robot)
-    if info is None:
-        raise HTTPException(status_code=404, detail=f"unknown robot {robot!r}")
-    return info
+    return lookup_robot(request.app.state.store, robot)

@@ -6,9 +6,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
 
-from service.api.deps import RobotName, get_pipeline, get_robot, get_settings_dep, get_store
+from service.api.cache import read_cache
+from service.api.deps import RobotName, get_pipeline, get_settings_dep, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import FramesIn, RobotOut, StatusOut
 from service.frames import FrameBatch, FrameError
@@ -31,8 +32,8 @@ def _out(store: Store, info: RobotInfo) -> RobotOut:
 
 
 @router.get("", response_model=list[RobotOut], summary="every robot with its parts, alert count and status")
-def list_robots(store: Store = Depends(get_store)) -> list[RobotOut]:
-    return [_out(store, r) for r in store.robots()]
+async def list_robots(request: Request, store: Store = Depends(get_store)) -> Response:
+    return await read_cache(request).respond(("robots",), lambda: [_out(store, r) for r in store.robots()])
 
 
 @router.get(
@@ -41,8 +42,10 @@ def list_robots(store: Store = Depends(get_store)) -> list[RobotOut]:
     summary="one robot: joints, IMUs, excitation, last frame, status (healthy/damaged/undetermined)",
     responses=responses(404, 422),
 )
-def robot_detail(info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)) -> RobotOut:
-    return _out(store, info)
+async def robot_detail(robot: RobotName, request: Request, store: Store = Depends(get_store)) -> Response:
+    return await read_cache(request).respond(
+        ("robot", robot), lambda: _out(store, lookup_robot(store, robot))
+    )
 
 
 def _array(name: str, rows: Sequence[object]) -> np.ndarray:

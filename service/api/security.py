@@ -51,11 +51,14 @@ def _same(given: str, token: str | None) -> bool:
     return token is not None and hmac.compare_digest(given.encode("utf-8"), token.encode("utf-8"))
 
 
-def authorize(request: Request, credentials: HTTPAuthorizationCredentials | None = Security(bearer)) -> None:
+async def authorize(
+    request: Request, credentials: HTTPAuthorizationCredentials | None = Security(bearer)
+) -> None:
     """Let the request through when it needs no token or carries a right one; else 401.
 
     Mutating methods need the write token (``app.state.api_token``); other methods need the read or
-    the write token when a read token (``app.state.api_read_token``) is configured."""
+    the write token when a read token (``app.state.api_read_token``) is configured. ``async``: it only
+    compares strings, so it runs on the event loop rather than a worker thread."""
     write: str | None = request.app.state.api_token
     read: str | None = request.app.state.api_read_token
     mutating = request.method in MUTATING_METHODS

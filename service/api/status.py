@@ -7,14 +7,15 @@ process, and it is never more certain than the stored evidence (the rule is in :
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Request, Response
 
-from service.api.deps import get_robot, get_store
+from service.api.cache import read_cache
+from service.api.deps import RobotName, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import StatusOut
 from service.api.topology import Method
 from service.status import robot_status
-from service.store import RobotInfo, Store
+from service.store import Store
 
 __all__ = ["router"]
 
@@ -26,11 +27,15 @@ router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=r
     response_model=StatusOut,
     summary="healthy, damaged or undetermined, with the reasons, the trees that fit and what would decide",
 )
-def status(
-    info: RobotInfo = Depends(get_robot),
+async def status(
+    robot: RobotName,
+    request: Request,
     store: Store = Depends(get_store),
     method: Method | None = Query(
         None, description="judge the newest topology of this method (default: fast)"
     ),
-) -> StatusOut:
-    return StatusOut.of(robot_status(store, info.name, method))
+) -> Response:
+    def render() -> StatusOut:
+        return StatusOut.of(robot_status(store, lookup_robot(store, robot).name, method))
+
+    return await read_cache(request).respond(("status", robot, method), render)

@@ -13,10 +13,11 @@ import time
 from collections.abc import Callable
 from typing import Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 
 from bodyschema.diff import diff_bodies
-from service.api.deps import get_robot, get_settings_dep, get_store, get_worker
+from service.api.cache import read_cache
+from service.api.deps import RobotName, get_robot, get_store, get_worker, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import TopologyOut, TopologyPair
 from service.control import MonitorControl
@@ -60,7 +61,7 @@ def get_retrain_limiter(request: Request) -> RetrainLimiter:
     with _LIMITER_LOCK:
         limiter = getattr(state, "retrain_limiter", None)
         if limiter is None:
-            limiter = RetrainLimiter(get_settings_dep(request).retrain_min_interval_seconds)
+            limiter = RetrainLimiter(request.app.state.settings.retrain_min_interval_seconds)
             state.retrain_limiter = limiter
     return limiter
 
@@ -70,11 +71,18 @@ def get_retrain_limiter(request: Request) -> RetrainLimiter:
     response_model=TopologyPair,
     summary="the newest learned topology and the baseline (docs/design.md §2 JSON)",
 )
-def topology(
-    info: RobotInfo = Depends(get_robot),
+async def topology(
+    robot: RobotName,
+    request: Request,
     store: Store = Depends(get_store),
     method: Method | None = Query(None, description="newest of this method (default: fast)"),
-) -> TopologyPair:
+) -> Response:
+    return await read_cache(request).respond(
+        ("topology", robot, method), lambda: _pair(store, lookup_robot(store, robot), method)
+    )
+
+
+def _pair(store: Store, info: RobotInfo, method: str | None) -> TopologyPair:
     cur = store.latest_topology(info.name, method=method or "fast")
     if cur is None and method is None:
         cur = store.latest_topology(info.name)
@@ -92,12 +100,18 @@ def topology(
 
 
 @router.get("/topology/history", response_model=list[TopologyOut], summary="learned topologies, newest first")
-def history(
-    info: RobotInfo = Depends(get_robot),
+async def history(
+    robot: RobotName,
+    request: Request,
     store: Store = Depends(get_store),
     limit: int = Query(50, ge=1, le=1000),
-) -> list[TopologyOut]:
-    return [TopologyOut.of(r) for r in store.topology_history(info.name, limit=limit)]
+) -> Response:
+    def render() -> list[TopologyOut]:
+        return [
+            TopologyOut.of(r) for r in store.topology_history(lookup_robot(store, robot).name, limit=limit)
+        ]
+
+    return await read_cache(request).respond(("history", robot, limit), render)
 
 
 @router.post(

@@ -76,11 +76,20 @@ class StoreBase:
         # service.store.identity): a file deleted or replaced under the service is refused, not written.
         self._file = FileIdentity(sqlite_file(self.url))
         event.listen(self.engine, "connect", lambda *_: self._file.capture())
+        # Committed transactions of this store object: readers that keep rendered answers (the API's
+        # read cache, service.api.cache) reuse them while it stays the same.
+        self.generation = 0
+        self._generation_lock = threading.Lock()
+        event.listen(self._sessions, "after_commit", self._committed)
         self._write_lock = threading.RLock()
         self._schema_checked = False
         # Robots (and their parts) this store has registered, so a stream of frames does not look its
         # robot up batch after batch; see service.store.robots.
         self._known: dict[str, Any] = {}
+
+    def _committed(self, _session: Any) -> None:
+        with self._generation_lock:
+            self.generation += 1
 
     # ------------------------------------------------------------------------------- schema
     def upgrade(self) -> str:

@@ -1,0 +1,237 @@
+"""API load: latency of mixed reads at a given request rate while the demo farm ingests (locust).
+
+``bodyhealth serve --demo`` runs as its own process (embedded SQLite, the simulated farm streaming in
+real time, the worker learning every cycle); locust (``bench/locustfile.py``, the read mix a dashboard
+and REST clients make) offers each rate of ``--rps`` for ``--seconds`` after a warm-up, from a second
+process. Per rate: requests/s achieved, failures, p50/p95/p99 (locust's percentiles: 1 ms resolution
+below 100 ms), the service's CPU seconds per second, and the frames the farm got stored meanwhile
+(ingest must keep up: no drops). Target: p99 at most 20 ms at 200 rps.
+
+Both processes share the machine: the load generator's own CPU is part of what the service competes
+with, as it would be for a dashboard on the robot's computer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import httpx
+
+from bench import REPO_ROOT, RESULTS_DIR, machine_note
+from bodyschema.progress import progress
+from sim2real.figures import save_figure
+
+__all__ = ["TARGET_P99_MS", "TARGET_RPS", "add_arguments", "run"]
+
+TARGET_RPS = 200.0
+TARGET_P99_MS = 20.0
+LOCUSTFILE = Path(__file__).with_name("locustfile.py")
+USER_RPS = 10.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rps", default="50,100,200", help="offered request rates (comma list)")
+    p.add_argument("--seconds", type=float, default=60.0, help="measured seconds per rate")
+    p.add_argument("--warmup", type=float, default=30.0, help="seconds the farm runs before the first rate")
+    p.add_argument("--out", type=Path, default=RESULTS_DIR)
+
+
+@dataclass
+class Row:
+    offered_rps: float
+    achieved_rps: float
+    requests: int
+    failures: int
+    p50_ms: float
+    p95_ms: float
+    p99_ms: float
+    max_ms: float
+    service_cpu_per_s: float
+    frames_stored_per_s: float
+    frames_dropped: int
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _metric(text: str, name: str) -> float:
+    return sum(float(m.group(1)) for m in re.finditer(rf"^{name}(?:{{[^}}]*}})? (\S+)$", text, re.M))
+
+
+def _locust(host: str, rps: float, seconds: float, prefix: Path) -> dict[str, str]:
+    users = max(1, round(rps / USER_RPS))
+    env = {**os.environ, "BODYHEALTH_LOAD_USER_RPS": f"{rps / users:g}"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "locust",
+        "-f",
+        str(LOCUSTFILE),
+        "--headless",
+        "--host",
+        host,
+        "-u",
+        str(users),
+        "-r",
+        str(users),
+        "-t",
+        f"{seconds:g}s",
+        "--csv",
+        str(prefix),
+        "--only-summary",
+        "--reset-stats",
+        "--loglevel",
+        "WARNING",
+    ]
+    subprocess.run(cmd, env=env, check=False, capture_output=True, timeout=seconds + 120)
+    with open(f"{prefix}_stats.csv", newline="") as fh:
+        rows = {r["Name"]: r for r in csv.DictReader(fh)}
+    return rows["Aggregated"]
+
+
+def run(args: argparse.Namespace) -> Path:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rates = [float(x) for x in args.rps.split(",") if x.strip()]
+    port = _free_port()
+    host = f"http://127.0.0.1:{port}"
+    rows: list[Row] = []
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory(prefix="bench-load-") as tmp:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("BODYHEALTH_API_")}
+        cmd = [sys.executable, "-m", "cli", "serve", "--demo", "--port", str(port)]
+        cmd += ["--database-url", f"sqlite:///{tmp}/load.db"]
+        err = open(Path(tmp) / "serve.err", "w")
+        proc = subprocess.Popen(cmd, cwd=REPO_ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        try:
+            with httpx.Client(base_url=host, timeout=10) as c:
+                deadline = time.monotonic() + 120
+                while True:
+                    if proc.poll() is not None:
+                        raise RuntimeError((Path(tmp) / "serve.err").read_text()[-3000:])
+                    try:
+                        if len(c.get("/api/v1/robots").json()) >= 3:
+                            break
+                    except (httpx.HTTPError, ValueError):
+                        pass
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("the demo service did not come up within 120 s")
+                    time.sleep(0.5)
+                time.sleep(args.warmup)
+                for i, rps in enumerate(progress(rates, desc="bench load", unit="rate")):
+                    m0, c0, t0 = c.get("/metrics").text, _cpu_seconds(proc.pid), time.monotonic()
+                    agg = _locust(host, rps, args.seconds, Path(tmp) / f"rate{i}")
+                    m1, c1, t1 = c.get("/metrics").text, _cpu_seconds(proc.pid), time.monotonic()
+                    stored = _metric(m1, "bodyhealth_frames_stored_total") - _metric(
+                        m0, "bodyhealth_frames_stored_total"
+                    )
+                    dropped = _metric(m1, "bodyhealth_frames_dropped_total") - _metric(
+                        m0, "bodyhealth_frames_dropped_total"
+                    )
+                    rows.append(
+                        Row(
+                            offered_rps=rps,
+                            achieved_rps=float(agg["Requests/s"]),
+                            requests=int(agg["Request Count"]),
+                            failures=int(agg["Failure Count"]),
+                            p50_ms=float(agg["50%"]),
+                            p95_ms=float(agg["95%"]),
+                            p99_ms=float(agg["99%"]),
+                            max_ms=float(agg["Max Response Time"]),
+                            service_cpu_per_s=(c1 - c0) / (t1 - t0),
+                            frames_stored_per_s=stored / (t1 - t0),
+                            frames_dropped=int(dropped),
+                        )
+                    )
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+            err.close()
+    _write(out, rows, args, load)
+    return out / "load.md"
+
+
+def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) -> None:
+    note = machine_note()
+    (out / "load.json").write_text(
+        json.dumps(
+            {
+                "machine": note,
+                "load_average": load,
+                "seconds": args.seconds,
+                "warmup": args.warmup,
+                "target_rps": TARGET_RPS,
+                "target_p99_ms": TARGET_P99_MS,
+                "rows": [asdict(r) for r in rows],
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    lines = [
+        "# API load",
+        "",
+        f"`bodyhealth bench load`: `bodyhealth serve --demo` (embedded SQLite, the simulated farm "
+        f"ingesting in real time, the worker learning) under locust's mixed reads "
+        f"(`bench/locustfile.py`) at each offered rate for {args.seconds:g} s, after {args.warmup:g} s "
+        f"of warm-up. Target: p99 at most {TARGET_P99_MS:g} ms at {TARGET_RPS:g} rps.",
+        "",
+        f"Machine: {note}; load average {load:.1f} when the run started. The load generator runs on the "
+        "same machine.",
+        "",
+        "| offered rps | achieved rps | requests | failures | p50 | p95 | p99 | max | service CPU s/s "
+        "| frames stored/s | frames dropped |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.offered_rps:g} | {r.achieved_rps:.1f} | {r.requests} | {r.failures} | {r.p50_ms:g} ms "
+            f"| {r.p95_ms:g} ms | {r.p99_ms:g} ms | {r.max_ms:.0f} ms | {r.service_cpu_per_s:.2f} "
+            f"| {r.frames_stored_per_s:.0f} | {r.frames_dropped} |"
+        )
+    lines += ["", "![API latency against request rate](load.png)", ""]
+    (out / "load.md").write_text("\n".join(lines))
+    _plot(out / "load.png", rows, note)
+
+
+def _plot(path: Path, rows: list[Row], note: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    x = [r.achieved_rps for r in rows]
+    for key, label in (("p50_ms", "p50"), ("p95_ms", "p95"), ("p99_ms", "p99")):
+        ax.plot(x, [getattr(r, key) for r in rows], "o-", label=label)
+    ax.axhline(TARGET_P99_MS, color="red", ls="--", lw=1, label=f"p99 target {TARGET_P99_MS:g} ms")
+    ax.axvline(TARGET_RPS, color="grey", ls=":", lw=1)
+    ax.set_xlabel("achieved requests/s (mixed reads)")
+    ax.set_ylabel("latency, ms")
+    ax.set_yscale("log")
+    ax.legend()
+    ax.set_title(f"API latency while the farm ingests\n{note}", fontsize=8)
+    save_figure(fig, path)
