@@ -4,7 +4,8 @@ Each benchmark is a module here exposing ``add_arguments(parser)`` and ``run(arg
 results file it wrote); every one takes ``--out`` (an explicit results folder) whose default,
 :data:`RESULTS_DIR`, is found from this package, not from the working directory, so a benchmark run
 from anywhere updates the figures the docs cite. :data:`BENCHMARKS` lists them in the order
-``bench all`` runs them.
+``bench all`` runs them; a trailing ``_`` keeps a name that is a Python keyword importable
+(``import_`` is ``bodyhealth bench import``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ BENCHMARKS: tuple[str, ...] = (
     "sim2real",
     "gravity",
     "realism",
+    "import_",
     "docs",
 )
 

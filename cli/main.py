@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "serve",
     "db",
     "import_",
+    "export",
     "sim2real",
     "bench",
 )

@@ -5,7 +5,11 @@
 - :class:`~emulators.devices.SerialEmulator`: a device streaming serial frames;
 - :class:`~emulators.pty_port.PtyPort`: the pty underneath, with a stable link and unplug/replug.
 
-Both play a multi-rate recording (encoders on their own stamps) as a multi-rate device: two stamped
+:func:`emulators.rosbag.write_rosbag` writes a recording as a ROS bag (ROS 2 MCAP or sqlite3, ROS 1), as
+a robot's ROS drivers would have logged it (in its own module, so the device emulators never load
+``rosbags``).
+
+The devices play a multi-rate recording (encoders on their own stamps) as a multi-rate device: two stamped
 streams (docs/wire-formats.md).
 
 Command line: ``python -m emulators can|serial --robot ur5e --seconds 30 --seed 0``

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     for name, mod in mods.items():
         # argparse %-formats help strings; a docstring's '%' (e.g. "10 % of bits") must reach it escaped
         summary = (mod.__doc__ or "").strip().splitlines()[0] if mod.__doc__ else None
-        bp = bsub.add_parser(name, help=summary.replace("%", "%%") if summary else None)
+        bp = bsub.add_parser(name.rstrip("_"), help=summary.replace("%", "%%") if summary else None)
         mod.add_arguments(bp)  # type: ignore[attr-defined]
         bp.set_defaults(func=_runner(mod))
     ap = bsub.add_parser("all", help="every benchmark with its default settings")
@@ -49,6 +49,6 @@ def _run_all(mods: dict[str, object]) -> int:
     for name, mod in mods.items():
         parser = argparse.ArgumentParser()
         mod.add_arguments(parser)  # type: ignore[attr-defined]
-        print(f"== bench {name}")
+        print(f"== bench {name.rstrip('_')}")
         _runner(mod)(parser.parse_args([]))
     return 0

@@ -42,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="SPEC",
-        help="ingest source, e.g. farm:ur5e@2, replay:run.npz@10, can:..., serial:... (repeatable)",
+        help="ingest source, e.g. farm:ur5e@2, replay:run.npz@10, rosbag:run.mcap@10, can:..., serial:... "
+        "(repeatable)",
     )
     p.add_argument("--port", type=int, help="HTTP port (default: settings, 8000)")
     p.add_argument(

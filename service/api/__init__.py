@@ -34,7 +34,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api import alerts, health, robots, simulate, status, topology
+from service.api import alerts, diagnostics, health, robots, simulate, status, topology
 from service.api.cache import ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import JsonOnly, authorize
@@ -50,7 +50,14 @@ log = logging.getLogger(__name__)
 
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 #: The ``/api/v1`` routers: every route on them goes through :func:`~service.api.security.authorize`.
-API_ROUTERS = (robots.router, status.router, topology.router, alerts.router, simulate.router)
+API_ROUTERS = (
+    robots.router,
+    status.router,
+    diagnostics.router,
+    topology.router,
+    alerts.router,
+    simulate.router,
+)
 
 
 class BodySizeLimit:

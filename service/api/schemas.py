@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bodyschema.findings import DAMAGE_KINDS
+from service.diagnostics import DiagnosticStatus
 from service.frames import NAME_PATTERN, NAME_RULE
 from service.status import MAX_ALTERNATIVES, RobotStatus
 from service.store import AlertRecord, RobotInfo, TopologyRecord
@@ -21,7 +22,10 @@ __all__ = [
     "AlertOut",
     "DamageIn",
     "DamageOut",
+    "DiagnosticArrayOut",
+    "DiagnosticStatusOut",
     "FramesIn",
+    "KeyValueOut",
     "RobotOut",
     "StatusOut",
     "TimingOut",
@@ -356,3 +360,41 @@ class FramesIn(BaseModel):
     imu_names: list[PartName]
     acc: list[list[Vector3]] = Field(description="(T, K, 3) specific force, m/s²")
     gyro: list[list[Vector3]] = Field(description="(T, K, 3) angular rate, rad/s")
+
+
+class KeyValueOut(BaseModel):
+    """diagnostic_msgs/KeyValue: both strings."""
+
+    key: str
+    value: str
+
+
+class DiagnosticStatusOut(BaseModel):
+    """diagnostic_msgs/DiagnosticStatus of the robot or one of its parts."""
+
+    level: Literal[0, 1, 2, 3] = Field(
+        description="0 OK, 1 WARN (pending alert, unplaced joint, status undetermined), 2 ERROR (active "
+        "alert: damage), 3 STALE (silent IMU, robot without frames)"
+    )
+    name: str = Field(
+        description="bodyhealth/<robot> or bodyhealth/<robot>/<part> (imu:<name>, joint:<name>)"
+    )
+    message: str
+    hardware_id: str = Field(description="the robot")
+    values: list[KeyValueOut] = Field(default_factory=list)
+
+    @classmethod
+    def of(cls, d: DiagnosticStatus) -> DiagnosticStatusOut:
+        return cls(
+            level=d.level,  # type: ignore[arg-type]
+            name=d.name,
+            message=d.message,
+            hardware_id=d.hardware_id,
+            values=[KeyValueOut(key=k, value=v) for k, v in d.values],
+        )
+
+
+class DiagnosticArrayOut(BaseModel):
+    """diagnostic_msgs/DiagnosticArray without its header (the bridge stamps it when it publishes)."""
+
+    status: list[DiagnosticStatusOut]

@@ -2,6 +2,7 @@
 
 =======================================================  ==========================================
 ``replay:PATH[@SPEED][?robot=NAME&loop=1&chunk=0.1]``     an ``.npz`` recording at SPEED × real time
+``rosbag:PATH[@SPEED][?robot=NAME&imu_topics=/a,/b&...]``  a ROS bag, replayed like a recording
 ``farm:ur5e,paper-3,quadruped[@SPEED][?seed=0&...]``     the simulated farm (``ur5e*3`` = three UR5e)
 ``can:...``                                              :func:`service.ingest.can.open_from_spec`
 ``serial:...``                                           :func:`service.ingest.serial.open_from_spec`
@@ -11,7 +12,12 @@ SPEED is a positive number or ``max`` (as fast as possible); it defaults to 1. F
 (default: the settings' ``farm_seed``), ``rate`` (Hz, 100), ``imu_model`` (``mpu6050``), ``excitation``
 (``observable``), ``step`` (simulated seconds per batch, 0.1), ``sensing`` (``robot`` or ``ideal``,
 default: the settings' ``sensing``; ``rate`` is the physics rate only under ``ideal``). Replay option
-``resume=0`` replays from the start even when the store already has later frames.
+``resume=0`` replays from the start even when the store already has later frames. A ROS bag takes the
+replay options plus ``imu_topics`` and ``joint_topics`` (comma-separated; default: every
+``sensor_msgs/msg/Imu`` and ``sensor_msgs/msg/JointState`` topic); it is read into a recording
+(:func:`service.ingest.rosbag.read_rosbag`: header stamps, each stream on its own) and replayed by the
+same :class:`~service.ingest.replay.ReplaySource`; the robot is named after the bag unless ``robot``
+says otherwise.
 
 Example
 -------
@@ -27,8 +33,10 @@ from __future__ import annotations
 
 import importlib
 import math
+from pathlib import Path
 from urllib.parse import parse_qs
 
+from bodyschema.recording import Recording
 from service.ingest.base import Source
 from service.settings import Settings, get_settings
 
@@ -84,27 +92,53 @@ def _flag(v: str) -> bool:
     return v.lower() in ("1", "true", "yes", "on")
 
 
+_REPLAY_OPTIONS = {"robot", "loop", "chunk", "resume"}
+
+
+def _topics(v: str | None) -> tuple[str, ...]:
+    return tuple(filter(None, (x.strip() for x in (v or "").split(","))))
+
+
+def _open_replay(kind: str, rest: str) -> Source:
+    """A recording (``replay``) or a ROS bag (``rosbag``) played by the one replay source."""
+    from service.ingest.replay import ReplaySource
+
+    body, _, query = rest.partition("?")
+    topics = {"imu_topics", "joint_topics"} if kind == "rosbag" else set()
+    p = _params(query, _REPLAY_OPTIONS | topics, kind)
+    path, speed = parse_speed_suffix(body)
+    recording: Recording | str = path
+    robot = p.get("robot") or None
+    if kind == "rosbag":
+        from service.ingest.rosbag import RosbagOptions, part_name, read_rosbag
+
+        opts = RosbagOptions(
+            imu_topics=_topics(p.get("imu_topics")), joint_topics=_topics(p.get("joint_topics"))
+        )
+        recording, _ = read_rosbag(path, opts)
+        robot = robot or part_name(Path(path).stem)
+    return ReplaySource(
+        recording,
+        robot=robot,
+        speed=speed,
+        chunk_seconds=float(p.get("chunk", 0.1)),
+        loop=_flag(p.get("loop", "0")),
+        resume=_flag(p.get("resume", "1")),
+        name=f"{kind}:{robot}" if kind == "rosbag" else None,
+    )
+
+
 def open_source(spec: str, settings: Settings | None = None) -> Source:
     """The source a spec names (see the module docstring); :class:`SpecError` when malformed."""
     settings = settings or get_settings()
     kind, sep, rest = spec.partition(":")
     if not sep or not rest:
-        raise SpecError(f"source spec must look like KIND:ARGS (replay, farm, can, serial), got {spec!r}")
-    kind = kind.strip().lower()
-    if kind == "replay":
-        from service.ingest.replay import ReplaySource
-
-        body, _, query = rest.partition("?")
-        p = _params(query, {"robot", "loop", "chunk", "resume"}, "replay")
-        path, speed = parse_speed_suffix(body)
-        return ReplaySource(
-            path,
-            robot=p.get("robot") or None,
-            speed=speed,
-            chunk_seconds=float(p.get("chunk", 0.1)),
-            loop=_flag(p.get("loop", "0")),
-            resume=_flag(p.get("resume", "1")),
+        raise SpecError(
+            f"source spec must look like KIND:ARGS (replay, rosbag, farm, can, serial), got {spec!r}"
         )
+    kind = kind.strip().lower()
+    if kind in ("replay", "rosbag"):
+        return _open_replay(kind, rest)
     if kind == "farm":
         from service.ingest.farm import FarmSource, farm_robot_names
 
@@ -125,4 +159,4 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
     if kind in ("can", "serial"):
         module = importlib.import_module(f"service.ingest.{kind}")
         return module.open_from_spec(rest)
-    raise SpecError(f"unknown source kind {kind!r} in {spec!r}; expected replay, farm, can or serial")
+    raise SpecError(f"unknown source kind {kind!r} in {spec!r}; expected replay, rosbag, farm, can or serial")

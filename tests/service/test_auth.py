@@ -199,7 +199,7 @@ def test_write_token_alone_leaves_reads_open(store: Store) -> None:
 def test_read_token_guards_every_read_and_either_token_opens_it(store: Store) -> None:
     client = make_client(store, api_token=WRITE, api_read_token=READ)
     paths = read_routes(client)
-    assert len(paths) == 7
+    assert len(paths) == 8
     for path in paths:
         url = concrete(path, store)
         for headers in ({}, {"Authorization": "Bearer nope"}):
@@ -345,7 +345,7 @@ def test_openapi_declares_the_bearer_scheme_on_api_routes(store: Store) -> None:
                 n += 1
             else:
                 assert "security" not in op, (method, path)
-    assert n == 13
+    assert n == 14
 
 
 def test_serve_refuses_a_network_address_without_a_token(

@@ -31,6 +31,7 @@ MIN_BLOCKS = {
     "docs/simulators.md": 1,
     "docs/store.md": 1,
     "docs/algebra.md": 1,
+    "docs/recording-format.md": 1,
 }
 
 

@@ -1,0 +1,32 @@
+"""``GET /api/v1/robots/{robot}/diagnostics``: the robot's health as a ROS diagnostic_msgs/DiagnosticArray.
+
+The levels and names are :mod:`service.diagnostics`'s; docs/service.md shows how to publish the answer on
+a ROS 2 ``/diagnostics`` topic.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+
+from service.api.deps import get_robot, get_store
+from service.api.errors import responses
+from service.api.schemas import DiagnosticArrayOut, DiagnosticStatusOut
+from service.diagnostics import diagnose
+from service.status import robot_status
+from service.store import RobotInfo, Store
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=responses(401, 404, 422, 503))
+
+
+@router.get(
+    "/diagnostics",
+    response_model=DiagnosticArrayOut,
+    summary="ROS diagnostics: one status per robot, joint and IMU (0 OK, 1 WARN, 2 ERROR, 3 STALE)",
+)
+def diagnostics(
+    info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)
+) -> DiagnosticArrayOut:
+    st = robot_status(store, info.name)
+    return DiagnosticArrayOut(status=[DiagnosticStatusOut.of(d) for d in diagnose(info, st)])
