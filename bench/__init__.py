@@ -24,6 +24,7 @@ BENCHMARKS: tuple[str, ...] = (
     "sim2real",
     "gravity",
     "realism",
+    "kinematics",
     "docs",
 )
 
