@@ -28,6 +28,7 @@ BENCHMARKS: tuple[str, ...] = (
     "gravity",
     "realism",
     "import_",
+    "kinematics",
     "docs",
 )
 

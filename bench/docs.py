@@ -1042,6 +1042,77 @@ def _import_doc(b: _Bench) -> str:
     return "\n".join(lines)
 
 
+def _kinematics_rows(b: _Bench) -> dict:
+    d = b.json("kinematics.json")
+    assert isinstance(d, dict)
+    return d
+
+
+def _kinematics_line(r: dict) -> str:
+    return (
+        f"axis error median {r['axis_median_deg']:.2f}° (max {r['axis_max_deg']:.2f}°) against a gyro floor "
+        f"of {r['gyro_floor_median_deg']:.2f}° (max {r['gyro_floor_max_deg']:.2f}°), "
+        f"{r['axis_vs_gyro_median_deg']:.2f}° (max {r['axis_vs_gyro_max_deg']:.2f}°) from the axis the gyro "
+        f"reports; lever arm median {r['lever_median_mm']:.1f} mm (max {r['lever_max_mm']:.1f} mm); "
+        f"{r['converged']} of {r['imus_on_links']} IMUs converged"
+    )
+
+
+def _kinematics(b: _Bench) -> str:
+    d = _kinematics_rows(b)
+    s, t = d["settings"], d["targets"]
+    longest = d["summary"][-1]
+    verdict = []
+    for key, name, unit, got in (
+        ("axis_deg", "axis", "°", (longest["axis_median_deg"], longest["axis_max_deg"])),
+        ("lever_mm", "lever arm", " mm", (longest["lever_median_mm"], longest["lever_max_mm"])),
+    ):
+        ok = got[0] is not None and got[0] <= t[key][0] and got[1] <= t[key][1]
+        verdict.append(
+            f"{name} median ≤ {t[key][0]:g}{unit} (max {t[key][1]:g}{unit}) — {'met' if ok else 'not met'}"
+        )
+    lines = [
+        f"Measured with {b.provenance('kinematics')}: random trees of "
+        f"{', '.join(map(str, s['joints']))} joints ({s['robots_per_size']} per size), `{s['imu_model']}` "
+        f"IMU errors, `{s['sensing']}` sensing preset, the tree learned by `fast`. From "
+        f"{longest['seconds']} s: {_kinematics_line(longest)}. Targets from 60 s: "
+        + "; ".join(verdict)
+        + ".",
+        "",
+        "| seconds | converged | axis median / max ° | gyro floor median ° | vs gyro max ° "
+        "| lever median / max mm | CPU s |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in d["summary"]:
+        lines.append(
+            _row(
+                [
+                    r["seconds"],
+                    f"{r['converged']} / {r['imus_on_links']}",
+                    f"{r['axis_median_deg']:.2f} / {r['axis_max_deg']:.2f}",
+                    f"{r['gyro_floor_median_deg']:.2f}",
+                    f"{r['axis_vs_gyro_max_deg']:.2f}",
+                    f"{r['lever_median_mm']:.1f} / {r['lever_max_mm']:.1f}",
+                    f"{r['cpu_s_median']:.2f}",
+                ]
+            )
+        )
+    pub = "; ".join(
+        f"{p['source']}, {p['what']}: "
+        + ", ".join(
+            x
+            for x in (
+                f"{p['axis_deg']:g}°" if p["axis_deg"] is not None else "",
+                f"{p['lever_mm']:g} mm" if p["lever_mm"] is not None else "",
+            )
+            if x
+        )
+        for p in d["published"]
+    )
+    lines += ["", f"Published figures, on other robots and sensors: {pub}."]
+    return "\n".join(lines)
+
+
 @dataclass(frozen=True)
 class Figure:
     """One marked block: which doc, which marker id, which bench file it is rendered from, and how."""
@@ -1085,6 +1156,8 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/topology.md", "realism", "realism.json", _realism),
     _f("README.md", "realism", "realism.json", _realism),
     _f("docs/recording-format.md", "import", "import.json", _import_doc),
+    _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
+    _f("README.md", "kinematics", "kinematics.json", _kinematics),
 )
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["DAMAGE_KINDS", "FINDING_KINDS", "Diff", "Finding"]
+__all__ = ["DAMAGE_KINDS", "FINDING_KINDS", "KINEMATIC_KINDS", "Diff", "Finding"]
 
 #: Kinds that are damage. ``insufficient_excitation`` is a finding but not a damage.
 DAMAGE_KINDS: tuple[str, ...] = (
@@ -24,7 +24,10 @@ DAMAGE_KINDS: tuple[str, ...] = (
     "joint_reparented",
     "link_lost",
 )
-FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation")
+#: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift`). Not yet damage: the
+#: service's alerts and damage API know only :data:`DAMAGE_KINDS`.
+KINEMATIC_KINDS: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed")
+FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation", *KINEMATIC_KINDS)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "robots",
     "simulate",
     "topology",
+    "kinematics",
     "diff",
     "serve",
     "db",

@@ -1,0 +1,158 @@
+"""Geometry drift between two kinematics estimates of one robot: IMUs turned or shifted, axes changed.
+
+The topology diff (:mod:`bodyschema.diff`) sees an IMU that moved to another link; an IMU that turned
+or slid on its own link, or a joint whose axis bent, keeps the topology and shows only in the geometry
+(:mod:`bodyschema.kinematics`). Each estimate carries its own standard deviation, and the systematic
+part of each (a gyro's misalignment, an accelerometer's gain) belongs to the sensor, not to the run, so
+it cancels between two estimates from the same sensors. A change is reported when it exceeds
+``sigmas`` combined standard deviations plus a small floor:
+
+* ``axis_changed`` — a joint's axis seen from its parent IMU turned (``θ > sigmas √(σ₁² + σ₂²) +
+  floor``, with twice the variance: both IMUs' errors enter), and that parent IMU was not itself found
+  turned;
+* ``imu_rotated`` — otherwise, the axis seen from the IMU turned: the IMU turned on its link (a turned
+  child IMU leaves the axis in the *parent's* frame as it was). Under a root joint nothing tells the two
+  apart, and the finding says so;
+* ``imu_shifted`` — the lever arm changed by more than its combined std plus a floor (for an IMU that
+  also turned, only its length is compared: a turn alone rotates the vector, not its length).
+
+Only IMUs that converged in both estimates on the same joint are compared; an IMU on another joint is
+the topology diff's ``imu_moved``.
+
+Example
+-------
+>>> import numpy as np
+>>> from bodyschema.kinematics import ImuKinematics, JointKinematics, Kinematics
+>>> from bodyschema.topology import Topology
+>>> def kin(axis):
+...     imu = ImuKinematics("imu1", "j1", axis=np.array(axis), lever_arm=np.array([0.1, 0, 0]),
+...                         axis_std_deg=0.05, lever_arm_std_m=0.001, converged=True)
+...     return Kinematics({"imu1": imu}, {"j1": JointKinematics("j1", None, ("imu1",), "imu1")}, (),
+...                       10.0, 0.0, 100, Topology({"j1": None}, {"imu1": "j1"}))
+>>> [f.kind for f in kinematic_findings(kin([0, 0, 1.0]), kin([0, np.sin(0.1), np.cos(0.1)]))]
+['imu_rotated']
+>>> kinematic_findings(kin([0, 0, 1.0]), kin([0, 0, 1.0]))
+()
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodyschema.findings import Finding
+from bodyschema.kinematics import ImuKinematics, Kinematics
+
+__all__ = ["DriftOptions", "kinematic_findings"]
+
+
+@dataclass(frozen=True)
+class DriftOptions:
+    """How far beyond the estimates' own uncertainty a change must be: ``sigmas`` combined stds plus
+    ``floor_deg`` (angles) or ``floor_m`` (lever arms)."""
+
+    sigmas: float = 5.0
+    floor_deg: float = 0.2
+    floor_m: float = 0.002
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    c = float(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))
+    return math.degrees(math.acos(c))
+
+
+def _both(a: ImuKinematics | None, b: ImuKinematics | None) -> bool:
+    return (
+        a is not None
+        and b is not None
+        and a.converged
+        and b.converged
+        and a.joint == b.joint
+        and a.axis is not None
+        and b.axis is not None
+    )
+
+
+def _confidence(change: float, limit: float) -> float:
+    """How far past its limit a change is, as a score in (0.5, 1)."""
+    return round(1.0 - 0.5 * limit / max(change, limit), 4)
+
+
+def kinematic_findings(
+    baseline: Kinematics, current: Kinematics, options: DriftOptions | None = None
+) -> tuple[Finding, ...]:
+    """``imu_rotated``, ``imu_shifted`` and ``axis_changed`` findings from ``baseline`` to ``current``.
+
+    Joints are visited parents first, so a parent IMU found turned is known before its children's axes
+    are judged in its frame.
+    """
+    o = options or DriftOptions()
+    out: list[Finding] = []
+    rotated: set[str] = set()
+    for jn, joint in baseline.joints.items():
+        bent = False
+        for name in joint.imus:
+            old, new = baseline.imus.get(name), current.imus.get(name)
+            if not _both(old, new):
+                continue
+            assert old is not None and new is not None and old.axis is not None and new.axis is not None
+            limit = o.sigmas * math.hypot(old.axis_std_deg, new.axis_std_deg) + o.floor_deg
+            p = old.parent_imu
+            judged = p is not None and p == new.parent_imu and p not in rotated
+            if judged and old.axis_in_parent is not None and new.axis_in_parent is not None:
+                # both IMUs' axis errors and the rotation between them: twice the variance
+                turn_p = _angle(old.axis_in_parent, new.axis_in_parent)
+                limit_p = (
+                    o.sigmas * math.sqrt(2) * math.hypot(old.axis_std_deg, new.axis_std_deg) + o.floor_deg
+                )
+                if turn_p > limit_p:
+                    if not bent:
+                        out.append(
+                            Finding(
+                                kind="axis_changed",
+                                joint=jn,
+                                confidence=_confidence(turn_p, limit_p),
+                                detail=f"axis in {p}'s frame turned {turn_p:.2f} deg (limit {limit_p:.2f})",
+                            )
+                        )
+                    bent = True
+                    continue
+            turn = _angle(old.axis, new.axis)
+            if turn > limit:
+                rotated.add(name)
+                where = "" if p is not None else " (a root joint: its axis bending would read the same)"
+                out.append(
+                    Finding(
+                        kind="imu_rotated",
+                        imu=name,
+                        joint=jn,
+                        confidence=_confidence(turn, limit),
+                        detail=f"axis seen from {name} turned {turn:.2f} deg (limit {limit:.2f}){where}",
+                    )
+                )
+            shifted = _shifted(old, new, name in rotated, o)
+            if shifted is not None:
+                out.append(shifted)
+    return tuple(out)
+
+
+def _shifted(old: ImuKinematics, new: ImuKinematics, turned: bool, o: DriftOptions) -> Finding | None:
+    """``imu_shifted`` when the lever arm changed beyond its uncertainty (its length only, if turned)."""
+    if old.lever_arm is None or new.lever_arm is None:
+        return None
+    if turned:
+        shift = abs(float(np.linalg.norm(new.lever_arm) - np.linalg.norm(old.lever_arm)))
+    else:
+        shift = float(np.linalg.norm(new.lever_arm - old.lever_arm))
+    limit = o.sigmas * math.hypot(old.lever_arm_std_m, new.lever_arm_std_m) + o.floor_m
+    if shift <= limit:
+        return None
+    return Finding(
+        kind="imu_shifted",
+        imu=old.imu,
+        joint=old.joint,
+        confidence=_confidence(shift, limit),
+        detail=f"lever arm changed {shift * 1e3:.1f} mm (limit {limit * 1e3:.1f})",
+    )

@@ -1,0 +1,146 @@
+"""Joint axes and IMU lever arms (:mod:`bodyschema.kinematics`) against the simulator's truth.
+
+Every recording is simulated on the realistic ``robot`` sensing preset (position-only 14-bit encoders at
+250 Hz on their own clock, IMU low-pass, skew and drift). Errors must stay within five reported stds plus
+a floor: with an ideal IMU model the floor is numerical (0.05°, 1.5 mm); with the MPU-6050 model it is
+what its sensitivity errors put beyond any estimate (gyro cross-axis up to 2 % and gains up to 3 % tilt
+the axis a gyro reports by up to about 2°; accelerometer gains up to 3 % scale a lever arm of up to
+0.15 m by up to 4.5 mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from bodyschema.estimate import estimate_topology
+from bodyschema.kinematics import Kinematics, estimate_kinematics, project_rotation, rotation_about
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+from simulators.kinematics_truth import ImuTruth, axis_error_deg, kinematics_truth
+from simulators.random_robot import random_robot
+from simulators.robot import Robot
+from simulators.sensing import apply_sensing
+from simulators.simulation import Simulation
+
+
+@dataclass(frozen=True)
+class Case:
+    rec: Recording
+    truth: dict[str, ImuTruth]
+    robot: Robot
+
+
+def record(robot: Robot, seconds: float, seed: int, imu_model: str = "mpu6050", lock: str = "") -> Case:
+    """``seconds`` of ``robot`` at 1 kHz physics, then the ``robot`` sensing preset."""
+    sim = Simulation(robot, seed=seed, rate=1000.0, imu_model=imu_model)
+    if lock:
+        sim.apply_damage("joint_locked", joint=lock)
+    fine = sim.advance(seconds=seconds)
+    rec = apply_sensing(fine, "robot", np.random.default_rng(seed + 1000))
+    return Case(rec=rec, truth=kinematics_truth(robot), robot=robot)
+
+
+def truth_topology(rec: Recording) -> Topology:
+    return Topology(joint_parent=rec.truth_parent_map, imu_joint=rec.truth_imu_map)  # type: ignore[arg-type]
+
+
+def check_errors(kin: Kinematics, truth: dict[str, ImuTruth], axis_floor: float, lever_floor: float) -> int:
+    """Every converged IMU within 5 std + floor of the truth; returns how many were checked."""
+    n = 0
+    for name, k in kin.imus.items():
+        t = truth[name]
+        assert k.joint == t.joint, name
+        if not k.converged:
+            continue
+        assert k.axis is not None and k.lever_arm is not None and t.axis is not None
+        ea = axis_error_deg(k.axis, t.axis)
+        el = float(np.linalg.norm(k.lever_arm - t.lever_arm))
+        assert ea < 5 * k.axis_std_deg + axis_floor, (name, ea, k.axis_std_deg)
+        assert el < 5 * k.lever_arm_std_m + lever_floor, (name, el, k.lever_arm_std_m)
+        assert abs(float(k.axis @ k.lever_arm)) < 1e-9  # perpendicular by construction
+        n += 1
+    return n
+
+
+@pytest.fixture(scope="module")
+def random_ideal() -> Case:
+    return record(random_robot(np.random.default_rng(3), 5, rate=1000.0), 20.0, seed=1, imu_model="ideal")
+
+
+@pytest.fixture(scope="module")
+def random_mpu() -> Case:
+    return record(random_robot(np.random.default_rng(3), 5, rate=1000.0), 20.0, seed=1)
+
+
+def test_random_tree_ideal_imus_match_truth(random_ideal: Case) -> None:
+    kin = estimate_kinematics(random_ideal.rec, truth_topology(random_ideal.rec))
+    n_link_imus = sum(t.joint is not None for t in random_ideal.truth.values())
+    assert check_errors(kin, random_ideal.truth, axis_floor=0.05, lever_floor=1.5e-3) == n_link_imus
+    assert all(k.axis_std_deg < 0.5 and k.lever_arm_std_m < 3e-3 for k in kin.imus.values() if k.joint)
+    assert kin.imus["imu0"].joint is None and not kin.imus["imu0"].converged
+
+
+def test_random_tree_mpu6050_within_sensor_floor(random_mpu: Case) -> None:
+    kin = estimate_kinematics(random_mpu.rec)  # the tree learned by the fast estimator
+    assert kin.topology.joint_parent == random_mpu.rec.truth_parent_map
+    n_link_imus = sum(t.joint is not None for t in random_mpu.truth.values())
+    # 20 s leave a lever-arm std near the 5 mm convergence bound for an IMU or two
+    assert check_errors(kin, random_mpu.truth, axis_floor=2.0, lever_floor=4.5e-3) >= n_link_imus - 2
+    assert 10.0 < kin.lag_ms < 16.0  # 8 ms skew + 4.8 ms DLPF delay, estimated
+
+
+def test_rotation_from_parent_matches_truth(random_ideal: Case) -> None:
+    """``rotation_from_parent`` and the axis in the parent frame: the simulator's relative site pose."""
+    kin = estimate_kinematics(random_ideal.rec, truth_topology(random_ideal.rec))
+    m, d = random_ideal.robot.model, random_ideal.robot.data
+    import mujoco
+
+    checked = 0
+    for name, k in kin.imus.items():
+        if k.parent_imu is None or k.rotation_from_parent is None:
+            continue
+        j = random_ideal.rec.joint_names.index(k.joint)  # type: ignore[arg-type]
+        data = mujoco.MjData(m)
+        data.qpos[:] = d.qpos
+        mujoco.mj_kinematics(m, data)
+        Rp = data.site_xmat[m.site(k.parent_imu).id].reshape(3, 3)
+        Rc = data.site_xmat[m.site(name).id].reshape(3, 3)
+        q = float(data.qpos[m.jnt_qposadr[m.joint(k.joint).id]])  # type: ignore[arg-type]
+        predicted = rotation_about(k.axis, np.array([-q]))[0] @ k.rotation_from_parent  # type: ignore[arg-type]
+        err = np.linalg.norm(
+            project_rotation(predicted @ (Rc.T @ Rp).T) - np.eye(3)
+        )  # ~ angle for small errors
+        assert np.degrees(err) < 1.0, (name, np.degrees(err), j)
+        checked += 1
+    assert checked >= 2
+
+
+def test_locked_joint_is_not_converged() -> None:
+    robot = random_robot(np.random.default_rng(3), 5, rate=1000.0)
+    case = record(robot, 6.0, seed=2, imu_model="ideal", lock="j2")
+    kin = estimate_kinematics(case.rec, truth_topology(case.rec))
+    on_j2 = [n for n, t in case.truth.items() if t.joint == "j2"]
+    assert on_j2
+    for n in on_j2:
+        assert kin.imus[n].converged is False and "hardly moved" in kin.imus[n].reason
+    assert kin.joints["j2"].converged is False
+    assert kin.to_json()["imus"][on_j2[0]]["converged"] is False
+    # the joints that did move still answer
+    assert sum(k.converged for k in kin.imus.values()) >= 3
+
+
+@pytest.mark.slow
+def test_catalog_ur5e_learned_tree() -> None:
+    case = record(Robot.from_catalog("ur5e", rate=1000.0), 30.0, seed=4)
+    topo = estimate_topology(case.rec, method="fast")
+    assert topo.joint_parent == case.rec.truth_parent_map
+    kin = estimate_kinematics(case.rec, topo)
+    assert check_errors(kin, case.truth, axis_floor=2.0, lever_floor=4.5e-3) >= 10
+    js = kin.to_json()
+    assert set(js["imus"]) == set(case.rec.imu_names)
+    assert js["joints"]["shoulder_lift"]["parent"] == "shoulder_pan"
+    assert js["joints"]["shoulder_lift"]["axis_in_parent"]  # the base IMU sees no root axis; this one has it
+    assert any("along" in s for s in js["unobservable"])
