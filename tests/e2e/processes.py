@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -11,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["emulator_command", "free_port", "serve_command"]
+__all__ = ["emulator_command", "free_port", "serve_command", "wait_answering"]
 
 
 def free_port() -> int:
@@ -34,6 +35,25 @@ def serve_command(port: int, database_url: str, *args: str) -> list[str]:
         database_url,
         *args,
     ]
+
+
+def wait_answering(
+    proc: subprocess.Popen[Any], client: Any, err: Path, path: str = "/livez", timeout: float = 60.0
+) -> None:
+    """Wait until ``client`` (an httpx client on the service) gets 200 from ``path``; fail with the tail
+    of the service's stderr file ``err`` when the process died, or after ``timeout`` seconds."""
+    import httpx
+
+    deadline = time.monotonic() + timeout
+    while True:
+        assert proc.poll() is None, err.read_text()[-3000:]
+        try:
+            if client.get(path).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        assert time.monotonic() < deadline, f"{path} did not answer 200 within {timeout:g} s"
+        time.sleep(0.2)
 
 
 def emulator_command(kind: str, recording: Path, robot: str, config_out: Path) -> list[str]:

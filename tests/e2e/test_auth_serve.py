@@ -6,13 +6,12 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import free_port, serve_command, wait_answering
 
 pytestmark = [pytest.mark.e2e]
 
@@ -43,16 +42,7 @@ def test_token_is_required_over_real_http(tmp_path: Path) -> None:
     url = f"http://127.0.0.1:{port}"
     try:
         with httpx.Client(base_url=url, timeout=10) as c:
-            deadline = time.monotonic() + 60
-            while True:
-                assert proc.poll() is None, (tmp_path / "serve.err").read_text()[-3000:]
-                try:
-                    if c.get("/livez").status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    pass
-                assert time.monotonic() < deadline, "serve did not answer within 60 s"
-                time.sleep(0.2)
+            wait_answering(proc, c, tmp_path / "serve.err")
             frames = "/api/v1/robots/arm/frames"
             for headers in ({}, {"Authorization": "Bearer wrong"}):
                 resp = c.post(frames, json=FRAMES, headers=headers)

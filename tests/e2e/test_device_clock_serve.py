@@ -20,7 +20,7 @@ import pytest
 
 from bodyschema.recording import Recording
 from tests.bodyschema.test_health import synth
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import free_port, serve_command, wait_answering
 
 pytestmark = [pytest.mark.e2e]
 
@@ -62,16 +62,7 @@ def test_restarted_clock_is_kept_and_learned_from(e2e_db_url: str, tmp_path: Pat
     rng = np.random.default_rng(12)
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
-            deadline = time.monotonic() + 60
-            while True:
-                assert proc.poll() is None, (tmp_path / "serve.err").read_text()[-3000:]
-                try:
-                    if c.get("/readyz").status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    pass
-                assert time.monotonic() < deadline, "serve did not get ready within 60 s"
-                time.sleep(0.2)
+            wait_answering(proc, c, tmp_path / "serve.err", "/readyz")
             post_run(c, synth(rng, seconds=12), offset=1000.0)  # the old run, 1000.00 .. 1011.99 s
             post_run(c, synth(rng, seconds=12), offset=0.0)  # the robot restarted: 0.00 .. 11.99 s
             robot = c.get("/api/v1/robots/arm").json()
