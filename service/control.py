@@ -19,7 +19,7 @@ from typing import Any, Protocol, runtime_checkable
 
 from service.store import TopologyRecord
 
-__all__ = ["DamageControl", "MonitorControl"]
+__all__ = ["DamageControl", "MonitorControl", "TrainingStatus"]
 
 
 @runtime_checkable
@@ -38,6 +38,15 @@ class MonitorControl(Protocol):
     def approve_baseline(self, robot: str) -> TopologyRecord:
         """Make the newest learned topology the robot's baseline (operator decision); raises
         ``LookupError`` when nothing was learned yet."""
+        ...
+
+
+@runtime_checkable
+class TrainingStatus(Protocol):
+    """A worker that trains the sensor networks elsewhere (a Dask cluster) and can say why it cannot."""
+
+    def training_fault(self) -> str | None:
+        """Why retrains cannot run now, naming the cluster; None when they can."""
         ...
 
 

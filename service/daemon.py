@@ -1,9 +1,12 @@
 """The service process: REST API + dashboard (uvicorn), ingest pipeline and monitoring worker in one.
 
 Start order: store (migrated) → pipeline (sources attached, reader and writer threads) → worker thread
-→ HTTP server in the main thread. SIGTERM or SIGINT stops the server, then the worker (after its
-current robot), then the pipeline (readers stop, everything already queued is written), then the store
-is closed, and the process exits 0. A SIGKILL loses at most the batches still queued: every committed
+→ HTTP server in the main thread. The training cluster (:mod:`service.cluster`) never delays the
+start: an external scheduler is connected on a background thread, an embedded cluster is started there
+on the first retrain. SIGTERM or SIGINT stops the server, then the worker (after its current robot),
+then the training cluster (an embedded one's worker processes end; retrains in flight are dropped),
+then the pipeline (readers stop, everything already queued is written), then the store is closed, and
+the process exits 0. A SIGKILL loses at most the batches still queued: every committed
 transaction is in the database (SQLite WAL or PostgreSQL), and a replay source resumes after the last
 stored frame.
 """
@@ -20,12 +23,15 @@ from pathlib import Path
 from typing import Any
 
 from service.api import create_app
+from service.cluster import ClusterOptions, TrainingCluster
 from service.ingest.base import Source
 from service.ingest.farm import FarmDamage, FarmSource
 from service.ingest.pipeline import CommitLog, Pipeline
 from service.metrics import Metrics
+from service.retrain_task import shareable_url
 from service.settings import Settings
 from service.store import Store
+from service.training import RemoteRetrains, TrainingOptions
 from service.worker import Estimator, Worker
 
 __all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage"]
@@ -59,7 +65,9 @@ class Daemon:
     specs: Sequence[str] = ()
     estimator: Estimator | None = None
     commit_log: Path | None = None
+    training: TrainingOptions | None = None
     store: Store | None = field(default=None, init=False)
+    cluster: TrainingCluster | None = field(default=None, init=False)
     pipeline: Pipeline | None = field(default=None, init=False)
     worker: Worker | None = field(default=None, init=False)
     sources: list[Source] = field(default_factory=list, init=False)
@@ -80,7 +88,8 @@ class Daemon:
         self.pipeline = Pipeline(self.store, self.sources, settings=s, on_commit=self._commit_log)
         metrics.bind_counters(self.pipeline.totals)
         self.pipeline.start()
-        self.worker = Worker(self.store, s, estimator=self.estimator, metrics=metrics)
+        remote = self._remote_retrains(metrics)
+        self.worker = Worker(self.store, s, estimator=self.estimator, metrics=metrics, remote=remote)
         self.worker.start()
         log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
         return create_app(
@@ -92,10 +101,30 @@ class Daemon:
             damage=farm_damage(self.sources),
         )
 
+    def _remote_retrains(self, metrics: Metrics) -> RemoteRetrains | None:
+        """The cluster retrains of the worker; None (they run in the worker thread) when the settings
+        turn the cluster off or the database is in memory (no worker process could read it)."""
+        s = self.settings
+        assert self.store is not None
+        if not s.dask_enabled:
+            return None
+        if shareable_url(self.store.url) is None:
+            log.warning("in-memory database: the sensor networks train in the worker thread")
+            return None
+        self.cluster = TrainingCluster(ClusterOptions.from_settings(s))
+        if s.dask_scheduler:
+            self.cluster.start()  # an external scheduler: connect now, so /readyz can report it
+        return RemoteRetrains(
+            self.cluster, self.store, s.window_seconds, options=self.training, metrics=metrics
+        )
+
     def stop(self) -> None:
-        """Stop worker, drain the pipeline, close the store (idempotent)."""
+        """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent)."""
         if self.worker is not None:
             self.worker.stop()
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
         if self.pipeline is not None:
             self.pipeline.stop()
             log.info("ingest drained", extra={"counters": self.pipeline.totals()})

@@ -98,6 +98,17 @@ class Metrics:
             buckets=(0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 60, 120, 300),
             registry=self.registry,
         )
+        self.retrain_failures = Counter(
+            "bodyhealth_retrain_failures",
+            "cluster retrains that raised, or were cancelled when the cluster was lost",
+            ["method"],
+            registry=self.registry,
+        )
+        self.retrains_in_flight = Gauge(
+            "bodyhealth_retrains_in_flight",
+            "retrains submitted to the cluster, not yet collected",
+            registry=self.registry,
+        )
         self.cycle_seconds = Histogram(
             "bodyhealth_worker_cycle_seconds",
             "seconds one worker cycle over all robots took",

@@ -103,6 +103,24 @@ class Settings(BaseSettings):
         "0 = no limit",
     )
 
+    # --------------------------------------------------------------- training
+    dask_enabled: bool = Field(
+        True,
+        description="run the sensor-network retrains as Dask distributed tasks (docs/service.md, "
+        "Training on Dask); false = in the worker thread, as the offline tools do",
+    )
+    dask_scheduler: str | None = Field(
+        None,
+        description="address of an existing Dask scheduler (tcp://host:port); unset: the service starts "
+        "an embedded LocalCluster on the first retrain",
+    )
+    dask_workers: int | None = Field(
+        None, ge=1, description="worker processes of the embedded cluster (unset: CPU count - 1, at least 1)"
+    )
+    dask_connect_timeout_seconds: float = Field(
+        5.0, gt=0, description="how long one attempt to reach the scheduler may take before it is retried"
+    )
+
     # ----------------------------------------------------------------- ingest
     queue_max_batches: int = Field(1000, ge=1, description="bounded ingest queue (backpressure)")
     ingest_commit_interval_seconds: float = Field(
@@ -163,6 +181,14 @@ class Settings(BaseSettings):
         if isinstance(v, str) and not v.strip():
             return None
         return v.strip() if isinstance(v, str) else v
+
+    @field_validator("dask_scheduler", mode="before")
+    @classmethod
+    def _blank_scheduler_is_unset(cls, v: object) -> object:
+        # BODYHEALTH_DASK_SCHEDULER= reads as "embedded cluster", never as an address
+        if isinstance(v, str):
+            return v.strip() or None
+        return v
 
     @field_validator("allowed_hosts", mode="before")
     @classmethod

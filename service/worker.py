@@ -18,6 +18,11 @@ One cycle, for every robot the store knows:
    ``imu_detached``, and never the one before the other;
 6. a heartbeat to the store, which ``/readyz`` checks.
 
+The sensor-network methods run in another process when the worker is given a
+:class:`~service.training.RemoteRetrains` (the service's default: a Dask cluster, docs/service.md
+"Training on Dask"): the cycle only marks them wanted, submits them, and stores the results of those
+that finished since the last cycle; it never waits for one. Without it they run here, in the cycle.
+
 The worker runs in its own thread so the API and the ingest pipeline never wait for it; a failing robot
 is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one cycle synchronously
 (tests, the offline tools).
@@ -49,6 +54,7 @@ from service.alerts import AlertTracker, Transition
 from service.metrics import Metrics
 from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
+from service.training import RemoteRetrains
 
 __all__ = ["HEARTBEAT_COMPONENT", "CycleResult", "Estimator", "Worker", "default_estimator"]
 
@@ -85,6 +91,7 @@ class Worker:
 
     ``estimator`` is injected so tests and benchmarks can swap the method; ``clock`` is the wall clock
     (alert and heartbeat times). Settings give the interval, window, K, M and the network schedule.
+    ``remote``, when given, runs every method but ``fast`` on a cluster (module doc).
     """
 
     def __init__(
@@ -96,8 +103,10 @@ class Worker:
         metrics: Metrics | None = None,
         clock: Callable[[], float] = time.time,
         min_samples: int = 50,
+        remote: RemoteRetrains | None = None,
     ) -> None:
         self.store = store
+        self.remote = remote
         self.settings = settings or get_settings()
         self.estimator = estimator or default_estimator
         self.metrics = metrics or Metrics()
@@ -155,6 +164,10 @@ class Worker:
             self._requests.setdefault(robot, set()).add(method)
         self._wake.set()
 
+    def training_fault(self) -> str | None:
+        """Why retrains cannot run now (the cluster named), None when they can or run in this process."""
+        return None if self.remote is None else self.remote.fault
+
     def _loop(self) -> None:
         interval = self.settings.worker_interval_seconds
         while not self._stop.is_set():
@@ -198,6 +211,7 @@ class Worker:
         out: dict[str, CycleResult] = {}
         with self._cycle_lock:
             self.cycles += 1
+            self._collect_retrains()
             robots = self.store.robots()
             self.metrics.robots.set(len(robots))
             for info in robots:
@@ -220,6 +234,7 @@ class Worker:
                 except UnknownRobot:
                     continue
                 self.metrics.alerts_active.labels(robot=info.name).set(n)
+            self._submit_retrains()
             self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
         seconds = time.perf_counter() - t0
         self.metrics.cycles.inc()
@@ -228,6 +243,26 @@ class Worker:
             "worker cycle", extra={"cycle": self.cycles, "robots": len(out), "seconds": round(seconds, 3)}
         )
         return out
+
+    def _collect_retrains(self) -> None:
+        """Store the cluster retrains that finished since the last cycle (never waits for one)."""
+        if self.remote is None:
+            return
+        try:
+            self.remote.collect(self.clock)
+        except Exception:
+            self.metrics.cycle_errors.inc()
+            log.exception("collecting retrains failed")
+
+    def _submit_retrains(self) -> None:
+        """Hand the wanted retrains to the cluster; without one they wait (ingest and the API never do)."""
+        if self.remote is None:
+            return
+        try:
+            self.remote.submit_wanted()
+        except Exception:
+            self.metrics.cycle_errors.inc()
+            log.exception("submitting retrains failed")
 
     def _epoch_seen(self, robot: str, epoch: int) -> None:
         """Forget the device times remembered for ``robot`` when its clock went back (a new epoch,
@@ -279,6 +314,9 @@ class Worker:
         fast: Topology | None = None
         learn = drop_impacts(rec)  # velocity jumps at stops read as contradictions to the estimators
         for method in self._methods(robot):
+            if method != "fast" and self.remote is not None:
+                self.remote.want(robot, method)  # submitted at the end of the cycle, stored when done
+                continue
             t0 = time.perf_counter()
             topo = self.estimator(learn, method)
             self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)

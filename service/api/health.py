@@ -5,6 +5,11 @@ SQLite file must still be the one it opened (:meth:`Store.storage_fault`), the i
 write must have succeeded (:meth:`Pipeline.write_health`: a full disk answers pings and refuses every
 commit) and the worker's heartbeat must be fresh. A 503 names each reason in ``reasons`` (and all of
 them joined in ``reason``), so an operator reads the cause off the probe.
+
+A training cluster that cannot be reached (:mod:`service.cluster`) is a *degraded* state, not a
+reason to be unready: ingest, the API and the fast monitoring every cycle go on without it, and a
+load balancer that took the service out would lose frames for a fault that only delays retrains. It
+is answered 200 with the cluster named in ``degraded`` (and under ``checks.training``).
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.api.deps import get_metrics, get_pipeline, get_settings_dep, get_store, get_worker
-from service.control import MonitorControl
+from service.control import MonitorControl, TrainingStatus
 from service.ingest.pipeline import Pipeline
 from service.metrics import CONTENT_TYPE_LATEST, Metrics
 from service.settings import Settings
@@ -40,7 +45,8 @@ def livez() -> dict[str, str]:
         503: {
             "description": "not ready: the same body, with `reason` naming why (database unreachable, "
             "database file deleted or replaced, writes failing, worker heartbeat stale)"
-        }
+        },
+        200: {"description": "ready; `degraded` names what works less well (training cluster unreachable)"},
     },
 )
 def readyz(
@@ -63,8 +69,19 @@ def readyz(
     if health.failing:
         reasons.append(f"writes failing: {health.reason}")
     _check_worker(store, settings, worker, checks, reasons)
+    degraded: list[str] = []
+    if isinstance(worker, TrainingStatus):
+        training = worker.training_fault()
+        checks["training"] = training or "ok"
+        if training is not None:
+            degraded.append(f"training cluster: {training}")
     ok = not reasons
-    body = {"status": "ready" if ok else "not ready", "reason": "; ".join(reasons), "reasons": reasons}
+    body = {
+        "status": "ready" if ok else "not ready",
+        "reason": "; ".join(reasons),
+        "reasons": reasons,
+        "degraded": degraded,
+    }
     return JSONResponse({**body, "checks": checks}, status_code=200 if ok else 503)
 
 

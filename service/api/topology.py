@@ -1,8 +1,10 @@
 """``/api/v1/robots/{robot}/topology`` and ``/baseline``: learned bodies and the baseline.
 
-A retrain runs an estimator (the sensor networks: seconds of CPU each) in the worker's next cycle, so
-each robot accepts at most one retrain request per ``retrain_min_interval_seconds``; more are 429 with
-``Retry-After`` (:class:`RetrainLimiter`, one per app on ``app.state.retrain_limiter``).
+A retrain runs an estimator (the sensor networks: seconds of CPU each) from the worker's next cycle —
+as a task on the Dask cluster when the service has one (:mod:`service.training`), never on the
+request's thread — so each robot accepts at most one retrain request per
+``retrain_min_interval_seconds``; more are 429 with ``Retry-After`` (:class:`RetrainLimiter`, one per
+app on ``app.state.retrain_limiter``).
 """
 
 from __future__ import annotations

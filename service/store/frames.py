@@ -166,10 +166,17 @@ class FramesMixin(RobotsMixin):
         )
 
     def read_window(
-        self, robot: str, seconds: float, end: float | None = None, *, partial_imus: str = "drop"
+        self,
+        robot: str,
+        seconds: float,
+        end: float | None = None,
+        *,
+        partial_imus: str = "drop",
+        epoch: int | None = None,
     ) -> Recording | None:
         """The latest ``seconds`` of device time: samples with ``end - seconds < t <= end``, of the
-        robot's current device clock epoch.
+        robot's current device clock epoch (or of ``epoch``: a window named by its end and epoch reads
+        back the same samples in another process, see :mod:`service.retrain_task`).
 
         ``end`` defaults to the robot's last frame. IMUs silent in the whole window are left out; an IMU
         heard in only part of it is left out too (``partial_imus="drop"``) or kept with NaN where it
@@ -192,7 +199,7 @@ class FramesMixin(RobotsMixin):
         # A sample exactly ``seconds`` before ``end`` is out even when float rounding says otherwise
         # (0.09 - 0.05 < 0.04): a 100 Hz stream then gives exactly 100 * seconds samples.
         slack = max(1e-9, 16 * abs(float(np.spacing(end))))
-        return self.read_between(robot, end - seconds + slack, end, partial_imus=partial_imus)
+        return self.read_between(robot, end - seconds + slack, end, partial_imus=partial_imus, epoch=epoch)
 
     def _last_frame_t(self, robot: str) -> float | None:
         with self._session() as s:

@@ -66,3 +66,32 @@ def test_bad_values_are_rejected_naming_the_field(
         ValueError, match=name.lower() if name != "RETENTION_SECONDS" else "retention_seconds"
     ):
         get_settings()
+
+
+def test_dask_settings_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    from service.cluster import ClusterOptions, embedded_workers
+
+    s = Settings()
+    assert (s.dask_enabled, s.dask_scheduler, s.dask_workers, s.dask_connect_timeout_seconds) == (
+        True,
+        None,
+        None,
+        5.0,
+    )
+    monkeypatch.setenv("BODYHEALTH_DASK_SCHEDULER", "  ")  # blank: the embedded cluster
+    assert Settings().dask_scheduler is None
+    monkeypatch.setenv("BODYHEALTH_DASK_SCHEDULER", "tcp://10.0.0.7:8786")
+    monkeypatch.setenv("BODYHEALTH_DASK_WORKERS", "3")
+    monkeypatch.setenv("BODYHEALTH_DASK_ENABLED", "false")
+    s = Settings()
+    assert (s.dask_scheduler, s.dask_workers, s.dask_enabled) == ("tcp://10.0.0.7:8786", 3, False)
+    opts = ClusterOptions.from_settings(s)
+    assert (opts.scheduler, opts.workers, opts.where) == (
+        "tcp://10.0.0.7:8786",
+        3,
+        "Dask scheduler tcp://10.0.0.7:8786",
+    )
+    assert ClusterOptions().where == "embedded Dask cluster" and embedded_workers(4) == 3
+    monkeypatch.setenv("BODYHEALTH_DASK_WORKERS", "0")
+    with pytest.raises(ValueError, match="dask_workers"):
+        Settings()

@@ -1,0 +1,139 @@
+"""One sensor-network retrain as a task that runs in another process (a Dask worker).
+
+The scheduler and the network carry only a :class:`RetrainJob`: the database URL, the robot, the
+window's reference (device clock epoch, end, length), the method and its seed. Never arrays: the task
+opens the store itself (an SQLite file in WAL mode is read by other processes while the service
+writes it; PostgreSQL anyway), reads the window, drops the samples around encoder impacts as the
+worker does, runs :func:`bodyschema.estimate.estimate_topology` and returns a :class:`RetrainResult`
+(plain data: the topology JSON and what it cost).
+
+The task only reads the database. Storing the result is the service's job, when it collects the
+finished future: a task that Dask runs twice (its worker died half-way) still yields one future and
+one stored row. :func:`job_key` is the task's Dask key, a function of (robot, method, epoch, window end),
+so the same job submitted again while it is known to the scheduler is recognised as the same task.
+
+Example
+-------
+>>> job = RetrainJob("sqlite:///var/x.db", "arm", "network", window_end=12.5, window_seconds=10.0)
+>>> job_key(job)
+'retrain-network-arm-e0-12.500000'
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["RetrainJob", "RetrainResult", "WindowGone", "job_key", "run_retrain", "shareable_url"]
+
+
+class WindowGone(LookupError):
+    """The job's window holds too little data (pruned, or the robot was removed) to train on."""
+
+
+@dataclass(frozen=True)
+class RetrainJob:
+    """What one retrain needs, all of it small: the task reads the data itself.
+
+    ``options`` are extra keyword arguments of the estimator as (name, value) pairs, e.g.
+    ``(("epochs", 5),)``; ``seed`` seeds the networks' initialization and batches.
+    """
+
+    database_url: str
+    robot: str
+    method: str
+    window_end: float
+    window_seconds: float
+    epoch: int = 0
+    seed: int = 0
+    options: tuple[tuple[str, Any], ...] = ()
+    min_samples: int = 50
+
+
+@dataclass(frozen=True)
+class RetrainResult:
+    """A finished retrain: the topology JSON (docs/design.md §2) and what it cost where it ran."""
+
+    key: str
+    robot: str
+    method: str
+    window_end: float
+    topology: dict[str, Any]
+    cpu_seconds: float
+    wall_seconds: float
+    epochs: float | None
+    converged: bool | None
+    pid: int
+    host: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def shareable_url(url: str) -> str | None:
+    """``url`` as another process opens the same database: an SQLite file by its absolute path (a
+    worker's working directory may differ); None for an in-memory database, which no other process
+    can open.
+
+    >>> shareable_url("sqlite://") is None, shareable_url("postgresql+psycopg://u@h/db")
+    (True, 'postgresql+psycopg://u@h/db')
+    >>> shareable_url("sqlite:////srv/x.db")
+    'sqlite:////srv/x.db'
+    """
+    from sqlalchemy.engine import make_url
+
+    from service.store.identity import sqlite_file
+
+    u = make_url(url)
+    if u.get_backend_name() != "sqlite":
+        return url
+    path = sqlite_file(url)
+    if path is None:
+        return None
+    return u.set(database=str(path)).render_as_string(hide_password=False)
+
+
+def job_key(job: RetrainJob) -> str:
+    """The Dask key of ``job``: one per robot, method, device clock epoch and window end."""
+    return f"retrain-{job.method}-{job.robot}-e{job.epoch}-{job.window_end:.6f}"
+
+
+def run_retrain(job: RetrainJob) -> RetrainResult:
+    """Read the job's window from its store, learn the topology, return it (the Dask task body).
+
+    Raises :class:`WindowGone` when the window no longer holds ``min_samples`` samples with encoder
+    positions (retention pruned it, or the robot's clock went back to a new epoch long ago).
+    """
+    from bodyschema.estimate import estimate_topology
+    from bodyschema.health import drop_impacts
+    from service.store import Store
+
+    wall0, cpu0 = time.monotonic(), time.process_time()
+    store = Store(job.database_url)
+    try:
+        rec = store.read_window(job.robot, job.window_seconds, end=job.window_end, epoch=job.epoch)
+    finally:
+        store.close()
+    if rec is None or rec.q is None or rec.n_samples < job.min_samples:
+        raise WindowGone(
+            f"window of {job.robot!r} ending at {job.window_end:g} (epoch {job.epoch}) holds too little data"
+        )
+    topo = estimate_topology(
+        drop_impacts(rec), method=job.method, timer=time.process_time, seed=job.seed, **dict(job.options)
+    )
+    training = topo.training or {}
+    converged = training.get("converged")
+    return RetrainResult(
+        key=job_key(job),
+        robot=job.robot,
+        method=job.method,
+        window_end=job.window_end,
+        topology=topo.to_json(),
+        cpu_seconds=time.process_time() - cpu0,
+        wall_seconds=time.monotonic() - wall0,
+        epochs=training.get("epochs"),
+        converged=None if converged is None else bool(converged),
+        pid=os.getpid(),
+        host=socket.gethostname(),
+    )

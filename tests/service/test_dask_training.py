@@ -1,0 +1,360 @@
+"""Sensor-network retrains on a real Dask cluster (worker processes, no mocks) and a real store.
+
+* a requested ``network`` retrain runs in a Dask worker process, is stored once, and learns the tree a
+  direct :func:`bodyschema.estimate.estimate_topology` call gives on the same window with the same seed;
+* a worker process killed while it trains: the task runs again on the other worker, one row is stored;
+* a task that raises: counted in ``bodyhealth_retrain_failures_total``, nothing stored;
+* a scheduler nobody listens on: the cycle's fast estimate, the API and ``/readyz`` (200, the cluster
+  named under ``degraded``) go on; once a scheduler listens there, the waiting retrain runs;
+* the daemon's embedded cluster: startup does not wait for it, and stopping ends its processes.
+
+The fast method is scripted (:class:`tests.service.test_worker.Scripted`): what is under test is where
+the networks train, not the fast estimator.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+import pytest
+from distributed import Client, LocalCluster
+from fastapi.testclient import TestClient
+
+from bodyschema.estimate import estimate_topology
+from bodyschema.health import drop_impacts
+from service.api import create_app
+from service.cluster import ClusterOptions, TrainingCluster
+from service.daemon import Daemon
+from service.metrics import Metrics
+from service.retrain_task import RetrainJob, job_key, run_retrain
+from service.settings import Settings
+from service.store import Store, open_store
+from service.training import RemoteRetrains, TrainingOptions
+from service.worker import Worker
+from tests.bodyschema.test_health import synth
+from tests.service.test_worker import GOOD, Scripted, feed
+
+pytestmark = pytest.mark.slow
+
+WINDOW = 6.0
+SEED = 5
+EPOCHS = 4
+
+
+def _cluster(**kw: Any) -> LocalCluster:
+    return LocalCluster(
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+        **kw,
+    )
+
+
+def _children() -> list[psutil.Process]:
+    """This process's children, less multiprocessing's resource tracker: one per process that ever
+    spawned, living as long as it does by design."""
+    out = []
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if "multiprocessing.resource_tracker" not in " ".join(p.cmdline()):
+                out.append(p)
+        except psutil.NoSuchProcess:
+            continue
+    return out
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_process_left() -> Iterator[None]:
+    """Every worker process the tests here started has ended."""
+    before = {p.pid for p in _children()}
+    yield
+    _, alive = psutil.wait_procs([p for p in _children() if p.pid not in before], timeout=20)
+    assert alive == [], alive
+
+
+@pytest.fixture(scope="module")
+def dask_cluster(_no_process_left: None) -> Iterator[LocalCluster]:
+    """Two worker processes of one thread each, shared by the tests of this module."""
+    cluster = _cluster(n_workers=2)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+@pytest.fixture
+def dask_client(dask_cluster: LocalCluster) -> Iterator[Client]:
+    client = Client(dask_cluster, set_as_default=False)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def _settings(url: str, **kw: Any) -> Settings:
+    return Settings(**{"database_url": url, "window_seconds": WINDOW, "worker_interval_seconds": 0.05, **kw})
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _network_rows(store: Store, robot: str = "arm") -> list[Any]:
+    return [r for r in store.topology_history(robot, limit=1000) if r.method == "network"]
+
+
+def _cycle_until(worker: Worker, done: Callable[[], bool], timeout: float, what: str) -> float:
+    """Run worker cycles until ``done()``; returns the seconds it took."""
+    t0 = time.monotonic()
+    while not done():
+        if time.monotonic() - t0 > timeout:
+            raise AssertionError(f"not within {timeout} s: {what}")
+        worker.run_cycle()
+        time.sleep(0.05)
+    return time.monotonic() - t0
+
+
+def _worker(store: Store, settings: Settings, cluster: TrainingCluster, epochs: int = EPOCHS) -> Worker:
+    options = TrainingOptions(seed=SEED, estimator_options=(("epochs", epochs),))
+    metrics = Metrics()
+    remote = RemoteRetrains(cluster, store, settings.window_seconds, options=options, metrics=metrics)
+    return Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics)
+
+
+def test_requested_retrain_runs_on_a_worker_process_and_matches_a_direct_call(
+    db_url: str, dask_cluster: LocalCluster, dask_client: Client
+) -> None:
+    store = open_store(db_url)
+    cluster = TrainingCluster(ClusterOptions(scheduler=dask_cluster.scheduler_address))
+    try:
+        feed(store, synth(np.random.default_rng(3), seconds=8))
+        w = _worker(store, _settings(db_url), cluster)
+        w.request("arm", "network")
+        first = w.run_cycle()["arm"]
+        assert first.methods == ["fast"]  # the network retrain went to the cluster, not into the cycle
+        _cycle_until(w, lambda: bool(_network_rows(store)), 45, "the network topology stored")
+        (row,) = _network_rows(store)
+        (res,) = w.remote.results
+        worker_pids = set(dask_client.run(os.getpid).values())
+        assert res.pid != os.getpid() and res.pid in worker_pids
+        info = store.robot("arm")
+        assert info is not None and row.window_end_t == res.window_end == info.last_frame_t
+        assert res.key == f"retrain-network-arm-e0-{res.window_end:.6f}"
+        assert res.epochs == EPOCHS and res.converged is False and res.cpu_seconds > 0
+
+        window = store.read_window("arm", WINDOW, end=res.window_end)
+        direct = estimate_topology(drop_impacts(window), "network", seed=SEED, epochs=EPOCHS)
+        assert row.topology.joint_parent == direct.joint_parent
+        assert row.topology.imu_joint == direct.imu_joint
+        assert row.topology.training["epochs"] == EPOCHS
+
+        # the same window asked again: already learned, nothing submitted, still one row
+        w.request("arm", "network")
+        for _ in range(3):
+            w.run_cycle()
+        assert w.remote.in_flight() == {} and len(_network_rows(store)) == 1
+    finally:
+        cluster.close()
+        store.close()
+
+
+def test_a_worker_killed_mid_task_reruns_it_elsewhere_stored_once(
+    tmp_path: Path, dask_cluster: LocalCluster, dask_client: Client
+) -> None:
+    url = f"sqlite:///{tmp_path / 'kill.db'}"
+    store = open_store(url)
+    cluster = TrainingCluster(ClusterOptions(scheduler=dask_cluster.scheduler_address))
+    try:
+        feed(store, synth(np.random.default_rng(4), seconds=8))
+        dask_client.wait_for_workers(2, timeout=60)
+        w = _worker(store, _settings(url), cluster, epochs=60)  # seconds of training: time to kill it
+        w.request("arm", "network")
+        _cycle_until(w, lambda: bool(w.remote.in_flight()), 30, "the retrain submitted")
+        ((_, key),) = w.remote.in_flight().items()
+
+        def running_on() -> str | None:
+            return next((a for a, keys in dask_client.processing().items() if key in keys), None)
+
+        t0 = time.monotonic()
+        while (addr := running_on()) is None:
+            assert time.monotonic() - t0 < 30, "the task never started"
+            time.sleep(0.05)
+        time.sleep(1.0)  # well inside its training (torch import alone takes longer)
+        assert running_on() == addr and not _network_rows(store)
+        killed = dask_client.run(os.getpid, workers=[addr])[addr]
+        os.kill(killed, signal.SIGKILL)
+
+        _cycle_until(w, lambda: bool(_network_rows(store)), 90, "the rerun stored")
+        for _ in range(3):
+            w.run_cycle()
+        assert len(_network_rows(store)) == 1
+        (res,) = w.remote.results
+        assert res.pid != killed and res.key == key and res.epochs == 60
+        assert w.metrics.retrain_failures.labels(method="network")._value.get() == 0
+    finally:
+        cluster.close()
+        store.close()
+
+
+def test_a_task_that_raises_is_counted_and_stores_nothing(tmp_path: Path, dask_cluster: LocalCluster) -> None:
+    url = f"sqlite:///{tmp_path / 'raise.db'}"
+    store = open_store(url)
+    cluster = TrainingCluster(ClusterOptions(scheduler=dask_cluster.scheduler_address))
+    try:
+        feed(store, synth(np.random.default_rng(9), seconds=8))
+        settings = _settings(url)
+        metrics = Metrics()
+        # asks for more samples than the window holds: the task raises WindowGone on the worker
+        remote = RemoteRetrains(cluster, store, WINDOW, metrics=metrics, min_samples=10**6)
+        w = Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics)
+        w.request("arm", "network")
+        _cycle_until(w, lambda: bool(remote.in_flight()), 30, "the retrain submitted")
+        _cycle_until(w, lambda: not remote.in_flight(), 30, "the failed retrain collected")
+        assert metrics.retrain_failures.labels(method="network")._value.get() == 1
+        assert not _network_rows(store) and not remote.results and remote.wanted() == set()
+        assert w.run_cycle()["arm"].methods == ["fast"]
+    finally:
+        cluster.close()
+        store.close()
+
+
+def test_unreachable_scheduler_degrades_then_retrains_resume(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'down.db'}"
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    store = open_store(url)
+    cluster = TrainingCluster(ClusterOptions(scheduler=address, connect_timeout=1.0, retry_seconds=0.2))
+    late: LocalCluster | None = None
+    try:
+        feed(store, synth(np.random.default_rng(5), seconds=8))
+        settings = _settings(url)
+        w = _worker(store, settings, cluster)
+        cluster.start()
+        app = create_app(store, settings=settings, worker=w)
+        with TestClient(app) as http:
+            w.request("arm", "network")
+            r = w.run_cycle()["arm"]
+            assert r.methods == ["fast"] and r.topology is not None  # monitoring goes on
+            t0 = time.monotonic()
+            while "unreachable" not in (cluster.fault or ""):
+                assert time.monotonic() - t0 < 20, cluster.fault
+                time.sleep(0.1)
+            ready = http.get("/readyz")
+            body = ready.json()
+            assert ready.status_code == 200 and body["status"] == "ready" and body["reasons"] == []
+            (degraded,) = body["degraded"]
+            assert degraded.startswith(f"training cluster: Dask scheduler {address}: unreachable")
+            assert http.get("/api/v1/robots/arm").status_code == 200
+            assert http.post("/api/v1/robots/arm/topology/retrain?method=network").status_code == 202
+            for _ in range(3):
+                w.run_cycle()
+            assert w.remote.wanted() == {("arm", "network")} and not _network_rows(store)
+
+            late = _cluster(n_workers=1, scheduler_port=port)
+            _cycle_until(w, lambda: bool(_network_rows(store)), 60, "the retrain after the scheduler came")
+            assert len(_network_rows(store)) == 1
+            body = http.get("/readyz").json()
+            assert body["degraded"] == [] and body["checks"]["training"] == "ok"
+    finally:
+        cluster.close()
+        if late is not None:
+            late.close()
+        store.close()
+
+
+def test_a_scheduler_lost_under_the_service_is_reconnected(tmp_path: Path) -> None:
+    """A cluster closed while a retrain runs: the future is cancelled, the retrain is wanted again, and
+    runs on the cluster that comes up at the same address."""
+    url = f"sqlite:///{tmp_path / 'lost.db'}"
+    port = _free_port()
+    store = open_store(url)
+    first = _cluster(n_workers=1, scheduler_port=port)
+    cluster = TrainingCluster(
+        ClusterOptions(scheduler=first.scheduler_address, connect_timeout=1.0, retry_seconds=0.2)
+    )
+    second: LocalCluster | None = None
+    try:
+        feed(store, synth(np.random.default_rng(6), seconds=8))
+        w = _worker(store, _settings(url), cluster)
+        w.request("arm", "network")
+        _cycle_until(w, lambda: bool(w.remote.in_flight()), 30, "the retrain submitted")
+        first.close()  # at once: the task is still importing torch
+        _cycle_until(w, lambda: not w.remote.in_flight(), 30, "the lost retrain given up")
+        assert w.remote.wanted() == {("arm", "network")} and not _network_rows(store)
+        assert w.metrics.retrain_failures.labels(method="network")._value.get() == 1
+        second = _cluster(n_workers=1, scheduler_port=port)
+        _cycle_until(w, lambda: bool(_network_rows(store)), 90, "the retrain on the new cluster")
+        assert len(_network_rows(store)) == 1 and cluster.fault is None
+    finally:
+        cluster.close()
+        if second is not None:
+            second.close()
+        store.close()
+
+
+def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'serve.db'}"
+    before = {p.pid for p in _children()}
+    settings = _settings(url, dask_workers=1, worker_interval_seconds=0.2)
+    daemon = Daemon(
+        settings,
+        estimator=Scripted(GOOD),
+        training=TrainingOptions(seed=SEED, estimator_options=(("epochs", 2),)),
+    )
+    t0 = time.monotonic()
+    app = daemon.start()
+    started = time.monotonic() - t0
+    try:
+        assert started < 5.0, started
+        assert daemon.store is not None and daemon.cluster is not None
+        assert daemon.cluster.fault is None  # nothing asked for it yet: not started, not a fault
+        feed(daemon.store, synth(np.random.default_rng(7), seconds=8))
+        with TestClient(app) as http:
+            assert http.post("/api/v1/robots/arm/topology/retrain?method=network").status_code == 202
+            t0 = time.monotonic()
+            while not _network_rows(daemon.store):
+                assert time.monotonic() - t0 < 90, http.get("/readyz").json()
+                time.sleep(0.2)
+        ours = [p for p in _children() if p.pid not in before]
+        assert ours, "the embedded cluster runs worker processes"
+        assert daemon.worker is not None
+        (res,) = daemon.worker.remote.results
+        assert res.pid in {p.pid for p in ours}
+    finally:
+        daemon.stop()
+    _, alive = psutil.wait_procs(ours, timeout=20)
+    assert alive == [], alive
+
+
+def test_task_reads_only_what_its_job_names(tmp_path: Path) -> None:
+    """The task body in this process: the job's window by end and epoch, nothing from the caller."""
+    url = f"sqlite:///{tmp_path / 'job.db'}"
+    with open_store(url) as store:
+        feed(store, synth(np.random.default_rng(8), seconds=8))
+        info = store.robot("arm")
+    assert info is not None and info.last_frame_t is not None
+    end = info.last_frame_t
+    job = RetrainJob(
+        url, "arm", "network", window_end=end, window_seconds=WINDOW, seed=SEED, options=(("epochs", 2),)
+    )
+    res = run_retrain(job)
+    assert res.key == job_key(job) and res.pid == os.getpid() and res.window_end == end
+    with open_store(url) as store:
+        window = store.read_window("arm", WINDOW, end=end)
+    direct = estimate_topology(drop_impacts(window), "network", seed=SEED, epochs=2)
+    assert res.topology["joints"] == direct.to_json()["joints"]
+    assert res.topology["imus"] == direct.to_json()["imus"]
+    gone = RetrainJob(url, "arm", "network", window_end=end + 1000.0, window_seconds=1.0)
+    with pytest.raises(LookupError, match="too little data"):
+        run_retrain(gone)
