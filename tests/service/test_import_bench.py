@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -10,14 +9,14 @@ import pytest
 
 from bench import import_ as bench
 from cli.main import build_parser
+from tests.bench.args import bench_args
 
 
 @pytest.mark.slow
 def test_bench_import_writes_results(tmp_path: Path) -> None:
-    p = argparse.ArgumentParser()
-    bench.add_arguments(p)
-    args = p.parse_args(
-        [
+    args = bench_args(
+        bench,
+        *[
             "--joints",
             "2",
             "--imus",
@@ -30,7 +29,7 @@ def test_bench_import_writes_results(tmp_path: Path) -> None:
             "1",
             "--out",
             str(tmp_path),
-        ]
+        ],
     )
     md = bench.run(args)
     data = json.loads((tmp_path / "import.json").read_text())

@@ -3,21 +3,19 @@ JSON and plot written and values that can only come from a real run."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import pytest
 
 from bench import load as bench
+from tests.bench.args import bench_args
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 
 def test_bench_load_measures_latency_while_the_farm_ingests(tmp_path: Path) -> None:
-    p = argparse.ArgumentParser()
-    bench.add_arguments(p)
-    args = p.parse_args(["--rps", "20", "--seconds", "6", "--warmup", "2", "--out", str(tmp_path)])
+    args = bench_args(bench, *["--rps", "20", "--seconds", "6", "--warmup", "2", "--out", str(tmp_path)])
     assert bench.run(args) == tmp_path / "load.md"
     data = json.loads((tmp_path / "load.json").read_text())
     assert (tmp_path / "load.png").stat().st_size > 1000

@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import pytest
 
 from bench import store as bench
+from tests.bench.args import bench_args
 
 
 def test_bench_store_writes_results(tmp_path) -> None:
-    p = argparse.ArgumentParser()
-    bench.add_arguments(p)
-    args = p.parse_args(
-        [
+    args = bench_args(
+        bench,
+        *[
             "--seconds",
             "3",
             "--imus",
@@ -27,7 +26,7 @@ def test_bench_store_writes_results(tmp_path) -> None:
             "sqlite",
             "--out",
             str(tmp_path),
-        ]
+        ],
     )
     md = bench.run(args)
     data = json.loads((tmp_path / "store.json").read_text())

@@ -3,18 +3,17 @@ commit interval grows (the journal holds every frame byte at least once)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 from bench import writes as bench
+from tests.bench.args import bench_args
 
 
 def test_bench_writes_measures_amplification_against_the_interval(tmp_path: Path) -> None:
-    p = argparse.ArgumentParser()
-    bench.add_arguments(p)
-    args = p.parse_args(
-        [
+    args = bench_args(
+        bench,
+        *[
             "--seconds",
             "3",
             "--robots",
@@ -25,7 +24,7 @@ def test_bench_writes_measures_amplification_against_the_interval(tmp_path: Path
             "sqlite",
             "--out",
             str(tmp_path),
-        ]
+        ],
     )
     assert bench.run(args) == tmp_path / "writes.md"
     data = json.loads((tmp_path / "writes.json").read_text())
