@@ -58,6 +58,22 @@ def test_restart_policy_and_healthchecks() -> None:
     assert all("test" in svc.get("healthcheck", {}) for svc in SERVICES.values())
 
 
+def test_distributed_training_layout() -> None:
+    """A Dask scheduler, two workers and the service, all from the one image; the service sends its
+    retrains to the scheduler, and the workers reach the database the windows are read from."""
+    images = {name: svc.get("image") for name, svc in SERVICES.items() if name != "db"}
+    assert set(images) == {"scheduler", "worker-1", "worker-2", "service"}
+    assert set(images.values()) == {"bodyhealth:local"}
+    assert SERVICES["scheduler"]["command"][:2] == ["dask", "scheduler"]
+    for name in ("worker-1", "worker-2"):
+        worker = SERVICES[name]
+        assert worker["command"][:3] == ["dask", "worker", "tcp://scheduler:8786"]
+        assert set(worker["depends_on"]) == {"scheduler", "db"}
+        assert "ports" not in worker
+    assert SERVICES["service"]["environment"]["BODYHEALTH_DASK_SCHEDULER"] == "tcp://scheduler:8786"
+    assert "8786" not in str([p for svc in SERVICES.values() for p in svc.get("ports", [])])
+
+
 def test_image_runs_unprivileged() -> None:
     lines = [line.split() for line in (ROOT / "Dockerfile").read_text().splitlines() if line.strip()]
     users = [words[1] for words in lines if words[0] == "USER"]
