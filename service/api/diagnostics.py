@@ -6,14 +6,15 @@ a ROS 2 ``/diagnostics`` topic.
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request, Response
 
-from service.api.deps import get_robot, get_store
+from service.api.cache import read_cache
+from service.api.deps import RobotName, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import DiagnosticArrayOut, DiagnosticStatusOut
 from service.diagnostics import diagnose
 from service.status import robot_status
-from service.store import RobotInfo, Store
+from service.store import Store
 
 __all__ = ["router"]
 
@@ -25,8 +26,10 @@ router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=r
     response_model=DiagnosticArrayOut,
     summary="ROS diagnostics: one status per robot, joint and IMU (0 OK, 1 WARN, 2 ERROR, 3 STALE)",
 )
-def diagnostics(
-    info: RobotInfo = Depends(get_robot), store: Store = Depends(get_store)
-) -> DiagnosticArrayOut:
-    st = robot_status(store, info.name)
-    return DiagnosticArrayOut(status=[DiagnosticStatusOut.of(d) for d in diagnose(info, st)])
+async def diagnostics(robot: RobotName, request: Request, store: Store = Depends(get_store)) -> Response:
+    def render() -> DiagnosticArrayOut:
+        info = lookup_robot(store, robot)
+        st = robot_status(store, info.name)
+        return DiagnosticArrayOut(status=[DiagnosticStatusOut.of(d) for d in diagnose(info, st)])
+
+    return await read_cache(request).respond(("diagnostics", robot), render)

@@ -27,6 +27,7 @@ READS = [
     "/api/v1/robots/arm/topology/history",
     "/api/v1/alerts",
     "/api/v1/robots/arm/alerts",
+    "/api/v1/robots/arm/diagnostics",
 ]
 
 
