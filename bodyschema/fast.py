@@ -799,9 +799,11 @@ def fast_fit_timed(
     2. the velocity is the band-limited derivative of the positions; a velocity the encoders may
        report is not used (it is usually a difference itself, of unknown quality);
     3. the IMU's lag behind the encoders is the shift that lets the encoder velocities explain the most
-       band-limited gyro variance, per quarter of the recording when it is long enough, so a clock
-       drift shows as a slope; ``skew_ms`` is that lag less ``imu_delay``, the stated on-chip filter
-       delay (docs/design.md §4 lists the MPU-6050's);
+       band-limited gyro variance (first per IMU, weighted median over the IMUs: an IMU the encoders
+       cannot explain does not decide it, :func:`bodyschema.timing.robust_lag`; then from the accepted
+       models), per quarter of the recording when it is long enough, so a clock drift shows as a slope;
+       ``skew_ms`` is that lag less ``imu_delay``, the stated on-chip filter delay (docs/design.md §4
+       lists the MPU-6050's);
     4. positions and velocities are evaluated at the lagged instants on the IMU grid, every regressor
        is formed there, and the regressors and the gyro go through one band (``band`` Hz, chosen by
        :func:`bodyschema.timing.choose_band` from the rates and ``imu_bandwidth`` when not given),
@@ -957,12 +959,13 @@ class _Lag:
 
 
 def _first_lag(data: _TimedGrid, max_lag: float) -> _Lag:
-    """Step 3, first pass: the lag from a linear regression of the gyro on all joint velocities (it
-    ignores the rotation terms of the models, so it is good to a ms or two)."""
+    """Step 3, first pass: the lag from a linear regression of each IMU's gyro on all joint velocities,
+    combined over the IMUs by :func:`bodyschema.timing.robust_lag` (it ignores the rotation terms of
+    the models, so it is good to a ms or two; per IMU, so a broken link cannot pull it away)."""
     from bodyschema import timing as tm
 
     tk = data.tk
-    lag_mid, _, _ = tm.estimate_lag(data.gyro_b, lambda d: data.qd_c(tk - d), max_lag=max_lag, step=2e-3)
+    lag_mid, _, _ = tm.robust_lag(data.gyro_b, lambda d: data.qd_c(tk - d), max_lag=max_lag, step=2e-3)
     return _Lag(lag_mid, 0.0, float(tk.mean()))
 
 

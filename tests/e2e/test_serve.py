@@ -56,15 +56,6 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
 #: is judged on (seen: 3, 8 and 16 cycles).
 MAX_CYCLES: dict[str, int] = {}
 DEFAULT_MAX_CYCLES = 24
-#: Alerts of another kind known to come up in this accumulated sequence (an open defect, not a rule):
-#: once ``j3``'s encoder froze after two of ``j2``'s link IMUs were detached and killed, ``link_lost``
-#: on ``j2`` is sometimes raised too, during the ``encoder_fault``, ``joint_locked`` or ``link_lost`` step
-#: (seen in 3 of 5 runs, on both backends; never on device-time cycles, see docs/service.md). Each
-#: damage on a healthy robot raises only its own (tests/service/test_damage_worker.py).
-_J2_LOST = {("link_lost", "joint:j2")}
-KNOWN_EXTRA: dict[str, set[tuple[str, str]]] = {
-    k: _J2_LOST for k in ("encoder_fault", "joint_locked", "link_lost")
-}
 
 
 def raised(service: Service) -> set[tuple[str, str]]:
@@ -190,7 +181,7 @@ def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> No
         # the first alert this damage raised is its own: no transient alert of another kind or part
         now = raised(service)
         extra = now - before - {(kind, part)}
-        assert extra <= KNOWN_EXTRA.get(kind, set()), f"{kind}: alerts raised besides it: {extra}"
+        assert extra == set(), f"{kind}: alerts raised besides it: {extra}"
     print("cycles to alert:", report)
     no_alert_on_healthy()
     # the alerts are served the same way across robots, with the part split out
