@@ -53,7 +53,12 @@ MAX_CANDIDATES = 24
 
 
 def estimate_topology(
-    rec: Recording, method: str = "fast", *, timer: Callable[[], float] | None = None, **kw: Any
+    rec: Recording,
+    method: str = "fast",
+    *,
+    timer: Callable[[], float] | None = None,
+    imu_delay: float | None = None,
+    **kw: Any,
 ) -> Topology:
     """Learn the joint tree and IMU placement of ``rec`` with ``method`` (see :data:`METHODS`).
 
@@ -66,7 +71,9 @@ def estimate_topology(
     A multi-rate recording (encoders on their own stamps ``t_q``, docs/recording-format.md) goes
     through :func:`bodyschema.fast.fast_fit_recording` first: it estimates the IMU's lag behind the
     encoders, reported in ``timing``; the network methods train on the streams aligned by it
-    (:func:`bodyschema.timing.aligned_recording`).
+    (:func:`bodyschema.timing.aligned_recording`). ``imu_delay`` (s) is the stated group delay of the
+    IMU's on-chip filter: ``timing["skew_ms"]`` is the lag less it, for every method (a recording
+    that states its filter, ``extra["sensing"]``, gives it itself).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -83,7 +90,10 @@ def estimate_topology(
         # directly); the networks then train on the streams aligned by that lag
         from bodyschema.fast import fast_fit_recording
 
-        timed = fast_fit_recording(rec, **(kw if method == "fast" else {}))
+        timed_kw = dict(kw) if method == "fast" else {}
+        if imu_delay is not None:
+            timed_kw["imu_delay"] = imu_delay
+        timed = fast_fit_recording(rec, **timed_kw)
         timing = {
             "lag_ms": float(timed.lag_ms or 0.0),
             "skew_ms": float(timed.skew_ms or 0.0),

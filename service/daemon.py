@@ -18,7 +18,7 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +57,16 @@ def farm_damage(sources: Sequence[Source]) -> FarmDamage | None:
     return FarmDamage(farms) if farms else None
 
 
+def _with_farm_filter_delay(settings: Settings, sources: Sequence[Source]) -> Settings:
+    """``settings`` with ``imu_filter_delay_ms`` set from the farm's sensing model when the service
+    runs the simulated farm and the delay is not stated: the farm's IMUs are known parts (with farms
+    of different filters the delay stays unstated)."""
+    delays = {x.farm.sensing.gyro_delay for x in sources if isinstance(x, FarmSource)}
+    if settings.imu_filter_delay_ms is not None or len(delays) != 1:
+        return settings
+    return settings.model_copy(update={"imu_filter_delay_ms": 1e3 * delays.pop()})
+
+
 @dataclass
 class Daemon:
     """Everything one ``bodyhealth serve`` runs (see the module doc)."""
@@ -83,6 +93,7 @@ class Daemon:
         self.store = Store(s.database_url, settings=s)
         self.store.upgrade()  # the schema step of every start (a store never migrates on its own)
         self.sources = [open_source(spec, s) for spec in self.specs]
+        s = self.settings = _with_farm_filter_delay(s, self.sources)
         metrics = Metrics()
         self._commit_log = CommitLog(self.commit_log) if self.commit_log else None
         self.pipeline = Pipeline(self.store, self.sources, settings=s, on_commit=self._commit_log)
@@ -114,9 +125,11 @@ class Daemon:
         self.cluster = TrainingCluster(ClusterOptions.from_settings(s))
         if s.dask_scheduler:
             self.cluster.start()  # an external scheduler: connect now, so /readyz can report it
-        return RemoteRetrains(
-            self.cluster, self.store, s.window_seconds, options=self.training, metrics=metrics
-        )
+        options = self.training or TrainingOptions()
+        if s.imu_filter_delay_ms is not None and "imu_delay" not in dict(options.estimator_options):
+            extra = (("imu_delay", 1e-3 * s.imu_filter_delay_ms),)
+            options = replace(options, estimator_options=options.estimator_options + extra)
+        return RemoteRetrains(self.cluster, self.store, s.window_seconds, options=options, metrics=metrics)
 
     def stop(self) -> None:
         """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent)."""

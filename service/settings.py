@@ -132,6 +132,14 @@ class Settings(BaseSettings):
     queue_put_timeout_seconds: float = Field(
         1.0, ge=0, description="how long a full queue blocks a reader before the batch is dropped"
     )
+    imu_filter_delay_ms: float | None = Field(
+        None,
+        ge=0,
+        le=100,
+        description="stated group delay of the IMUs' on-chip low-pass, ms (MPU-6050 DLPF_CFG 3: 4.8, "
+        "docs/design.md §4); taken out of the estimated IMU lag to report the clock skew alone. Unset: "
+        "the farm's sensing preset's when the service runs the farm, else 0 (skew_ms is then the lag)",
+    )
     farm_seed: int = Field(0, description="seed of the simulated farm")
     sensing: str = Field(
         "robot",

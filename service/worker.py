@@ -30,6 +30,7 @@ is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one c
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
@@ -66,10 +67,12 @@ HEARTBEAT_COMPONENT = "worker"
 Estimator = Callable[[Recording, str], Topology]
 
 
-def default_estimator(rec: Recording, method: str) -> Topology:
+def default_estimator(rec: Recording, method: str, imu_delay: float | None = None) -> Topology:
+    """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
+    IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew."""
     from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
 
-    return estimate_topology(rec, method=method, timer=time.process_time)
+    return estimate_topology(rec, method=method, timer=time.process_time, imu_delay=imu_delay)
 
 
 @dataclass
@@ -108,7 +111,10 @@ class Worker:
         self.store = store
         self.remote = remote
         self.settings = settings or get_settings()
-        self.estimator = estimator or default_estimator
+        delay = self.settings.imu_filter_delay_ms
+        self.estimator = estimator or functools.partial(
+            default_estimator, imu_delay=None if delay is None else 1e-3 * delay
+        )
         self.metrics = metrics or Metrics()
         self.clock = clock
         self.min_samples = min_samples

@@ -61,3 +61,31 @@ def test_unknown_method_is_refused_by_the_parser(rec_path):
     _, path = rec_path
     with pytest.raises(SystemExit):
         main(["topology", str(path), "--method", "magic"])
+
+
+def test_stated_imu_filter_delay_is_taken_out_of_the_skew(tmp_path, capsys):
+    """A multi-rate recording that does not state its IMU filter (a real robot's log): the skew is
+    the lag unless ``--imu-delay-ms`` states the delay; a recording that states it (``extra["sensing"]``
+    from the simulator) gives it itself. The ``robot`` preset: 8 ms skew, DLPF_CFG 3 (4.8 ms)."""
+    import dataclasses
+
+    from simulators.sensing import apply_sensing, resolve_sensing
+
+    fine = random_robot_recording(np.random.default_rng(3), n_joints=5, seconds=20.0, rate=1000.0)
+    sensed = apply_sensing(fine, resolve_sensing("robot"), np.random.default_rng(4))
+    assert "sensing" in sensed.extra
+    unstated = dataclasses.replace(sensed, extra={k: v for k, v in sensed.extra.items() if k != "sensing"})
+    out = {}
+    for name, rec, flags in [
+        ("stated", sensed, []),
+        ("unstated", unstated, []),
+        ("flag", unstated, ["--imu-delay-ms", "4.8"]),
+    ]:
+        save_recording(rec, tmp_path / f"{name}.npz")
+        assert main(["topology", str(tmp_path / f"{name}.npz"), "--json", *flags]) == 0
+        out[name] = json.loads(capsys.readouterr().out)["timing"]
+    lag = out["unstated"]["lag_ms"]
+    assert lag == pytest.approx(8.0 + 4.8, abs=2.0)
+    assert out["unstated"]["skew_ms"] == lag
+    assert out["flag"]["skew_ms"] == pytest.approx(lag - 4.8, abs=1e-9)
+    assert out["stated"]["skew_ms"] == pytest.approx(out["stated"]["lag_ms"] - 4.8, abs=1e-9)

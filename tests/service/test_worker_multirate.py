@@ -45,3 +45,35 @@ def test_moved_imu_on_robot_sensing_raises_imu_moved_first(db_url: str) -> None:
         assert raised and raised[0] == ("imu_moved", "imu:imu35")
         assert [(a.kind, a.part) for a in store.alerts("r")] == [("imu_moved", "imu:imu35")]
         assert store.alerts("r")[0].finding["to"] == truth.to
+
+
+def test_stated_filter_delay_is_taken_out_of_the_reported_skew(db_url: str) -> None:
+    """The lag the estimator finds is the clock skew plus the IMU filter's group delay; the service
+    reports the skew alone when the delay is stated (``imu_filter_delay_ms``), and the lag otherwise.
+    The robot preset: 8 ms skew, DLPF_CFG 3 (4.8 ms), 30 ppm drift (simulators/sensing.py); the lag
+    is found within its stated 2 ms (bodyschema.fast)."""
+    from service.daemon import _with_farm_filter_delay
+    from service.ingest.farm import FarmSource
+
+    farm = Farm({"r": "paper-3"}, seed=0, sensing="robot")
+    with open_store(db_url) as store:
+        _step(farm, store, 10.0)
+        timings = []
+        for delay in (None, 4.8):
+            settings = Settings(database_url=db_url, window_seconds=10.0, imu_filter_delay_ms=delay)
+            topo = Worker(store, settings).run_cycle()["r"].topology
+            assert topo is not None
+            timings.append(topo.timing)
+    unstated, stated = timings
+    assert unstated["lag_ms"] == stated["lag_ms"] == pytest.approx(8.0 + 4.8, abs=2.0)
+    assert unstated["skew_ms"] == unstated["lag_ms"]
+    assert stated["skew_ms"] == pytest.approx(stated["lag_ms"] - 4.8, abs=1e-9)
+    # the farm's IMUs are known parts: unstated, the service takes the delay of the farm's filter
+    base = Settings(database_url=db_url)
+    robot, ideal = FarmSource(farm), FarmSource(Farm({"r": "paper-3"}, sensing="ideal"))
+    assert _with_farm_filter_delay(base, [robot]).imu_filter_delay_ms == pytest.approx(4.8)
+    assert _with_farm_filter_delay(base, [ideal]).imu_filter_delay_ms == 0.0
+    assert _with_farm_filter_delay(base, []).imu_filter_delay_ms is None
+    assert _with_farm_filter_delay(base, [robot, ideal]).imu_filter_delay_ms is None
+    stated = base.model_copy(update={"imu_filter_delay_ms": 1.0})
+    assert _with_farm_filter_delay(stated, [robot]).imu_filter_delay_ms == 1.0
