@@ -465,19 +465,18 @@ class Pipeline:
             self._record_failure(_reason(err))
 
     def _commit(self, items: list[_Item]) -> None:
-        stored = self._write_retrying(items)
-        if stored is None:  # one batch is bad: write them one by one to keep the good ones
+        try:
+            stored = self._write_retrying(items)
+        except FrameError as err:  # a lone batch is the bad one; else write one by one, keep the good
             stored = []
-            for src, b in items:
-                try:
-                    ok = self._write_retrying([(src, b)])
-                except FrameError:
-                    ok = None
-                if ok is None:
-                    src.counters.add("malformed", b.n_samples)
-                    self._settle([(src, b)], "malformed")
-                else:
-                    stored.extend(ok)
+            if len(items) == 1:
+                self._reject(*items[0], err)
+            else:
+                for src, b in items:
+                    try:
+                        stored.extend(self._write_retrying([(src, b)]))
+                    except FrameError as bad:
+                        self._reject(src, b, bad)
         for src, b in stored:
             src.counters.add("stored", b.n_samples)
         self._settle(stored, "stored")
@@ -487,9 +486,17 @@ class Pipeline:
             except Exception:
                 log.exception("on_commit callback failed")
 
-    def _write_retrying(self, items: list[_Item]) -> list[_Item] | None:
+    def _reject(self, src: Source, batch: FrameBatch, err: FrameError) -> None:
+        """Count a batch the store refused, then tell its submitter: in that order, so a count read
+        right after the answer (POST /frames' 422) includes it."""
+        log.warning("ingest writer: rejected batch from %s: %s", src.name, err)
+        src.counters.add("malformed", batch.n_samples)
+        self._settle([(src, batch)], "malformed", str(err))
+
+    def _write_retrying(self, items: list[_Item]) -> list[_Item]:
         """Write in one transaction, retrying while the database is unavailable. Returns the items
-        written, None when the store rejected a batch, [] when the retries ran out (counted dropped)."""
+        written, [] when the retries ran out (counted dropped); raises :class:`FrameError` when the
+        store rejected a batch (nothing of the transaction is stored)."""
         deadline = time.monotonic() + self.write_retry_seconds
         delay = 0.05
         while True:
@@ -498,11 +505,6 @@ class Pipeline:
                 self.stats.add("transactions")
                 self._record_commit()
                 return items
-            except FrameError as err:
-                if len(items) == 1:
-                    log.warning("ingest writer: rejected batch from %s: %s", items[0][0].name, err)
-                    self._settle(items, "malformed", str(err))
-                return None
             except SQLAlchemyError as err:
                 self.stats.add("write_errors")
                 self._record_failure(_reason(err))

@@ -344,10 +344,12 @@ def test_dashboard_served(client: TestClient) -> None:
     assert r.status_code == 200 and "bodyhealth" in r.text
 
 
-def test_pushed_frames_go_through_the_running_pipeline(sstore: Store) -> None:
+def test_pushed_frames_go_through_the_running_pipeline(
+    sstore: Store, caplog: pytest.LogCaptureFixture
+) -> None:
     """POST /frames is one more source of the pipeline: queued behind what the devices sent, written by
     its writer, counted under ``api``, seen by the commit log; what the store refuses is a 422 with the
-    store's reason, and counted malformed."""
+    store's reason, counted malformed before the answer goes out, and tried once."""
     from service.ingest.pipeline import Pipeline
 
     committed: list[FrameBatch] = []
@@ -364,4 +366,5 @@ def test_pushed_frames_go_through_the_running_pipeline(sstore: Store) -> None:
         assert resp.status_code == 422 and "unique" in resp.json()["detail"]
         assert pipe.counters()["api"] == {"received": 34, "stored": 30, "dropped": 0, "malformed": 4}
     assert [b.robot for b in committed] == ["pushed"] * 3
+    assert len([r for r in caplog.records if "rejected batch" in r.getMessage()]) == 1
     assert sstore.sample_count("pushed") == 30
