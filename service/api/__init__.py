@@ -35,7 +35,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api import alerts, diagnostics, health, robots, simulate, status, topology
-from service.api.cache import ReadCache
+from service.api.cache import ClearOnWrite, ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import JsonOnly, authorize
 from service.control import DamageControl, MonitorControl
@@ -202,7 +202,9 @@ def create_app(
         def dashboard() -> FileResponse:
             return FileResponse(DASHBOARD_DIR / "index.html")
 
-    # The last added runs first: Host, then the body's type (headers only), then its size.
+    # The last added runs first: Host, then the body's type (headers only), then its size; a write
+    # that succeeds empties the read cache before its answer goes out.
+    app.add_middleware(ClearOnWrite, cache=app.state.read_cache)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_request_bytes)
     app.add_middleware(JsonOnly)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.trusted_hosts(), www_redirect=False)

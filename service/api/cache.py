@@ -1,15 +1,25 @@
-"""Rendered answers of the read routes, reused while nothing was written.
+"""Rendered answers of the read routes, reused while nothing was written, refreshed off the request path.
 
 Dashboards and REST clients poll the same few reads many times a second, and each costs the store 10 to
 30 SQL statements (the robot list: every robot's parts, newest topology, baseline and alerts), while
 what they read changes about once a second: the ingest writer commits at most once per
 ``ingest_commit_interval_seconds`` and the worker every cycle. So the JSON of a read is kept, keyed by
-route and arguments, and served again while the store's count of committed transactions
-(:attr:`Store.generation <service.store.schema.StoreBase.generation>`) is unchanged and the entry is at
-most ``api_cache_seconds`` old. A read therefore never misses a write this process committed before it
-began; writers in other processes sharing a PostgreSQL database are seen within ``api_cache_seconds``.
-Authentication runs before the cache (a route's dependencies), errors are never kept, and a hit runs
-on the event loop without touching the database or a worker thread.
+route and arguments, with the store's count of committed transactions
+(:attr:`Store.generation <service.store.schema.StoreBase.generation>`) when its rendering began.
+
+An entry is served while it is at most ``api_cache_seconds`` old. When the store has committed since
+it was rendered, or it is past half that age, the request that finds it still gets it, and one
+rendering for that key starts on the cache's own threads (never two for one key); the next requests
+get the new answer once it is there (stale-while-revalidate, as HTTP's RFC 5861). Only a request that
+finds no entry young enough waits for a rendering, and it shares one in flight. Rendering on the
+request path was what made the tail: under the ingest and the worker, every commit sent the next
+requests of each key into a rendering of tens to hundreds of milliseconds (docs/bench/load.md).
+
+So a read reflects every commit made at least ``api_cache_seconds`` (plus one rendering) before it;
+writers in other processes sharing a PostgreSQL database are seen the same way. Writes made through
+this API are seen by the next read at once: a mutating request that succeeds empties the cache
+(:func:`service.api.create_app`). Authentication runs before the cache (a route's dependencies),
+errors are never kept, and a hit runs on the event loop without touching the database or a thread.
 
 Written here rather than taken from an HTTP caching library: the validity rule is the store's commit
 count, which no generic cache knows about.
@@ -17,19 +27,22 @@ count, which no generic cache knows about.
 
 from __future__ import annotations
 
+import asyncio
+import threading
 import time
 from collections.abc import Callable, Hashable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 from fastapi import Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse, Response
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.store import Store
 
-__all__ = ["ReadCache", "read_cache"]
+__all__ = ["ClearOnWrite", "ReadCache", "read_cache"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +72,7 @@ class ReadCache:
         max_age: float,
         max_entries: int = 4096,
         clock: Callable[[], float] = time.monotonic,
+        threads: int = 2,
     ) -> None:
         self.store = store
         self.max_age = float(max_age)
@@ -66,25 +80,108 @@ class ReadCache:
         self.clock = clock
         self.hits = 0
         self.misses = 0
+        #: Hits served while a newer answer was being rendered (the store had committed since).
+        self.stale_hits = 0
         self._entries: dict[Hashable, _Entry] = {}
+        self._floor = 0  # entries rendered from an older generation are not served (see clear)
+        self._inflight: dict[Hashable, tuple[int, Future[bytes], object]] = {}
+        self._lock = threading.Lock()
+        self._threads = int(threads)
+        self._pool: ThreadPoolExecutor | None = None
 
     async def respond(self, key: Hashable, render: Callable[[], Any]) -> Response:
-        """The kept body for ``key`` when still valid, else ``render()`` (on a worker thread: it reads
-        the database) encoded as the route's JSON and kept."""
+        """The kept body for ``key`` while young enough (refreshed in the background when the store
+        committed since), else ``render()`` (on a thread: it reads the database) encoded as the route's
+        JSON and kept."""
         generation, now = self.store.generation, self.clock()
-        if self.max_age > 0:
-            entry = self._entries.get(key)
-            if entry is not None and entry.generation == generation and now - entry.at <= self.max_age:
-                self.hits += 1
-                return Response(entry.body, media_type="application/json")
+        if self.max_age <= 0:
+            self.misses += 1
+            return _json(await asyncio.wrap_future(self._executor().submit(lambda: _encode(render()))))
+        entry = self._entries.get(key)
+        if entry is not None and entry.generation >= self._floor and now - entry.at <= self.max_age:
+            self.hits += 1
+            if entry.generation != generation or now - entry.at > self.max_age / 2:
+                self.stale_hits += entry.generation != generation
+                self._start(key, render, generation, now)  # its errors are dropped: not kept
+            return _json(entry.body)
         self.misses += 1
-        body = JSONResponse(jsonable_encoder(await run_in_threadpool(render))).body
-        if self.max_age > 0:
-            if len(self._entries) >= self.max_entries:
-                self._entries.clear()  # a bounded cache; clearing is cheap and refills on demand
-            # the generation read before rendering: a write committed meanwhile invalidates the entry
-            self._entries[key] = _Entry(generation, now, bytes(body))
-        return Response(body, media_type="application/json")
+        return _json(await asyncio.wrap_future(self._start(key, render, generation, now)))
+
+    def clear(self) -> None:
+        """Forget every kept answer, and any rendered before now that is still in flight (a write
+        through the API: its next read must see it)."""
+        with self._lock:
+            self._entries.clear()
+            self._floor = self.store.generation
+
+    def _executor(self) -> ThreadPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="read-cache")
+            return self._pool
+
+    def _start(self, key: Hashable, render: Callable[[], Any], generation: int, at: float) -> Future[bytes]:
+        """The rendering of ``key`` in flight (unless it began before the last :meth:`clear`), or a
+        new one."""
+        pool = self._executor()
+        with self._lock:
+            flight = self._inflight.get(key)
+            if flight is not None and flight[0] >= self._floor:
+                return flight[1]
+            token = object()
+            fut = pool.submit(self._render, key, render, generation, at, token)
+            self._inflight[key] = (generation, fut, token)
+            return fut
+
+    def _render(
+        self, key: Hashable, render: Callable[[], Any], generation: int, at: float, token: object
+    ) -> bytes:
+        try:
+            body = _encode(render())
+            with self._lock:
+                if len(self._entries) >= self.max_entries and key not in self._entries:
+                    self._entries.clear()  # a bounded cache; clearing is cheap and refills on demand
+                # the generation read before rendering: a write committed meanwhile leaves it stale;
+                # a rendering that began earlier and ends later does not replace a newer one
+                kept = self._entries.get(key)
+                if kept is None or kept.generation <= generation:
+                    self._entries[key] = _Entry(generation, at, body)
+            return body
+        finally:
+            with self._lock:
+                flight = self._inflight.get(key)
+                if flight is not None and flight[2] is token:
+                    del self._inflight[key]
+
+
+def _encode(value: Any) -> bytes:
+    """``value`` as the body FastAPI would send for it."""
+    return bytes(JSONResponse(jsonable_encoder(value)).body)
+
+
+def _json(body: bytes) -> Response:
+    return Response(body, media_type="application/json")
+
+
+class ClearOnWrite:
+    """ASGI middleware: a mutating request (not GET, HEAD or OPTIONS) that succeeds empties ``cache``
+    before its answer goes out, so the client's next read sees its write (module doc)."""
+
+    def __init__(self, app: ASGIApp, cache: ReadCache) -> None:
+        self.app = app
+        self.cache = cache
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope["method"] in ("GET", "HEAD", "OPTIONS"):
+            await self.app(scope, receive, send)
+            return
+
+        async def send_clearing(message: Message) -> None:
+            if message["type"] == "http.response.start" and message["status"] < 400:
+                self.cache.clear()
+            await send(message)
+
+        await self.app(scope, receive, send_clearing)
 
 
 def read_cache(request: Request) -> ReadCache:

@@ -1,9 +1,13 @@
-"""The read routes' cache on a real store: a repeated read runs no SQL, any commit of the store makes the
-next read fresh, writers in another process are seen within ``api_cache_seconds``, errors are not kept,
-and authentication still runs on every request."""
+"""The read routes' cache on a real store: a repeated read runs no SQL; after a commit of the store the
+next read still gets the kept answer while one rendering runs off the request path, and the reads after
+it get the new one; a write through the API is read at once; writers in another process are seen within
+``api_cache_seconds``; concurrent requests share one rendering; errors are not kept; and
+authentication still runs on every request."""
 
 from __future__ import annotations
 
+import asyncio
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +19,7 @@ from pydantic import SecretStr
 from sqlalchemy import event
 
 from service.api import create_app
+from service.api.cache import ReadCache
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
@@ -76,14 +81,62 @@ def test_a_repeated_read_runs_no_sql_and_answers_the_same(store: Store) -> None:
     assert store.generation > 0
 
 
-def test_any_commit_of_the_store_makes_the_next_read_fresh(store: Store) -> None:
+def _until(read: object, want: float, seconds: float = 5.0) -> float:
+    """Poll ``read()`` until it gives ``want`` (a rendering in flight ends) or ``seconds`` pass."""
+    deadline = time.monotonic() + seconds
+    while (got := read()) != pytest.approx(want) and time.monotonic() < deadline:  # type: ignore[operator]
+        time.sleep(0.01)
+    return got
+
+
+def test_a_commit_is_read_after_one_rendering_off_the_request_path(store: Store) -> None:
     c = client(store, api_cache_seconds=60.0)
-    assert c.get("/api/v1/robots/arm").json()["last_frame_t"] == pytest.approx(0.04)
+    cache: ReadCache = c.app.state.read_cache  # type: ignore[attr-defined]
+
+    def last_t() -> float:
+        return c.get("/api/v1/robots/arm").json()["last_frame_t"]
+
+    assert last_t() == pytest.approx(0.04)
     store.write(frames("arm", 1.0))  # the ingest writer's path
-    assert c.get("/api/v1/robots/arm").json()["last_frame_t"] == pytest.approx(1.04)
+    assert last_t() == pytest.approx(0.04)  # the kept answer, while the new one renders
+    assert cache.stale_hits == 1
+    assert _until(last_t, 1.04) == pytest.approx(1.04)
     assert [r["name"] for r in c.get("/api/v1/robots").json()] == ["arm"]
     assert c.post("/api/v1/robots/b/frames", json=_body(2.0)).status_code == 201  # the API's own write
-    assert [r["name"] for r in c.get("/api/v1/robots").json()] == ["arm", "b"]
+    assert [r["name"] for r in c.get("/api/v1/robots").json()] == ["arm", "b"]  # read at once
+    assert c.post("/api/v1/robots/b/frames", json={"t": []}).status_code == 422  # a failed write
+    assert cache._entries  # keeps what was kept
+
+
+def test_concurrent_requests_share_one_rendering(store: Store) -> None:
+    cache = ReadCache(store, max_age=60.0)
+    calls: list[int] = []
+    gate = threading.Event()
+
+    def render() -> dict[str, int]:
+        calls.append(store.generation)
+        assert gate.wait(10)
+        return {"generation": calls[-1]}
+
+    async def burst(n: int) -> list[bytes]:
+        tasks = [asyncio.create_task(cache.respond(("k",), render)) for _ in range(n)]
+        await asyncio.sleep(0.05)
+        gate.set()
+        return [r.body for r in await asyncio.gather(*tasks)]
+
+    g0 = store.generation
+    assert asyncio.run(burst(20)) == [f'{{"generation":{g0}}}'.encode()] * 20
+    assert calls == [g0]  # twenty waiting requests, one rendering
+    gate.clear()
+    store.write(frames("arm", 1.0))
+    # after the commit: the kept answer at once, for every request, and one rendering in flight
+    assert asyncio.run(burst(20)) == [f'{{"generation":{g0}}}'.encode()] * 20
+    assert calls == [g0, g0 + 1]
+    deadline = time.monotonic() + 5
+    while cache._inflight and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert asyncio.run(cache.respond(("k",), render)).body == f'{{"generation":{g0 + 1}}}'.encode()
+    assert calls == [g0, g0 + 1]
 
 
 def _body(t0: float) -> dict[str, object]:
