@@ -594,6 +594,33 @@ def _store_doc(b: _Bench) -> str:
     )
 
 
+def _load_readme(b: _Bench) -> str:
+    d = b.json("load.json")
+    target = next((r for r in d["rows"] if r["offered_rps"] == d["target_rps"]), None)
+    verdict = (
+        "not measured at the target rate"
+        if target is None
+        else ("met" if target["p99_ms"] <= d["target_p99_ms"] and not target["failures"] else "missed")
+        + f" (p99 {target['p99_ms']:g} ms at {target['achieved_rps']:.0f} rps)"
+    )
+    lines = [
+        f"Measured with {b.provenance('load')}, load average {d['load_average']:.1f}: `bodyhealth serve "
+        f"--demo` (SQLite, the farm ingesting in real time, the worker learning) under locust's mixed reads "
+        f"on the same machine, {d['seconds']:g} s per rate. Target: p99 ≤ {d['target_p99_ms']:g} ms at "
+        f"{d['target_rps']:g} rps — {verdict}.",
+        "",
+        "| offered rps | achieved rps | p50 | p95 | p99 | failures | service CPU s/s | frames stored/s |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in d["rows"]:
+        lines.append(
+            f"| {r['offered_rps']:g} | {r['achieved_rps']:.1f} | {r['p50_ms']:g} ms | {r['p95_ms']:g} ms "
+            f"| {r['p99_ms']:g} ms | {r['failures']} | {r['service_cpu_per_s']:.2f} "
+            f"| {r['frames_stored_per_s']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
 def _writes_doc(b: _Bench) -> str:
     d = b.json("writes.json")
     default = d["default_interval_s"]
@@ -1138,6 +1165,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("README.md", "sim", "sim.md", _sim_readme),
     _f("README.md", "store", "store.json", _store_readme),
     _f("README.md", "ingest", "ingest.json", _ingest_readme),
+    _f("README.md", "load", "load.json", _load_readme),
     _f("README.md", "sim2real", "sim2real", _sim2real_readme),
     _f("README.md", "gravity", "gravity.json", _gravity_readme),
     _f("docs/algebra.md", "algebra", "algebra.md", _algebra_doc),
