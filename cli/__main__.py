@@ -2,4 +2,5 @@
 
 from cli.main import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # not when a spawned child process imports the main module again
+    raise SystemExit(main())

@@ -1,14 +1,15 @@
 """The service process: REST API + dashboard (uvicorn), ingest pipeline and monitoring worker in one.
 
 Start order: store (migrated) → pipeline (sources attached, reader and writer threads) → worker thread
-→ HTTP server in the main thread. The training cluster (:mod:`service.cluster`) never delays the
-start: an external scheduler is connected on a background thread, an embedded cluster is started there
-on the first retrain. SIGTERM or SIGINT stops the server, then the worker (after its current robot),
-then the training cluster (an embedded one's worker processes end; retrains in flight are dropped),
-then the pipeline (readers stop, everything already queued is written), then the store is closed, and
-the process exits 0. A SIGKILL loses at most the batches still queued: every committed
-transaction is in the database (SQLite WAL or PostgreSQL), and a replay source resumes after the last
-stored frame.
+(its estimates in a child process, :mod:`service.estimation`) → HTTP server in the main thread. The
+training cluster (:mod:`service.cluster`) never delays the start: an external scheduler is connected on
+a background thread, an embedded cluster is started there on the first retrain. SIGTERM or SIGINT stops
+the server, then the worker (after its current robot) and its estimating child, then the training
+cluster (an embedded one's worker processes end; retrains in flight are dropped), then the pipeline
+(readers stop, everything already queued is written), then the store is closed, and the process exits
+0. A SIGKILL loses at most the batches still queued: every committed transaction is in the database
+(SQLite WAL or PostgreSQL), and a replay source resumes after the last stored frame; the estimating
+child ends within a second of its parent.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 
 from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
+from service.estimation import EstimatorProcess
 from service.ingest.base import Source
 from service.ingest.farm import FarmDamage, FarmSource
 from service.ingest.pipeline import CommitLog, Pipeline
@@ -83,6 +85,7 @@ class Daemon:
     sources: list[Source] = field(default_factory=list, init=False)
     _stop: threading.Event = field(default_factory=threading.Event, init=False)
     _commit_log: Any = field(default=None, init=False)
+    _estimates: EstimatorProcess | None = field(default=None, init=False)
 
     def start(self) -> Any:
         """Open the store, start ingest and the worker; returns the ASGI app (not yet served)."""
@@ -100,7 +103,11 @@ class Daemon:
         metrics.bind_counters(self.pipeline.totals)
         self.pipeline.start()
         remote = self._remote_retrains(metrics)
-        self.worker = Worker(self.store, s, estimator=self.estimator, metrics=metrics, remote=remote)
+        estimator = self.estimator
+        if estimator is None:  # estimates off the API's interpreter lock (service.estimation)
+            delay = s.imu_filter_delay_ms
+            estimator = self._estimates = EstimatorProcess(None if delay is None else 1e-3 * delay)
+        self.worker = Worker(self.store, s, estimator=estimator, metrics=metrics, remote=remote)
         self.worker.start()
         log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
         return create_app(
@@ -135,6 +142,9 @@ class Daemon:
         """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent)."""
         if self.worker is not None:
             self.worker.stop()
+        if self._estimates is not None:
+            self._estimates.close()
+            self._estimates = None
         if self.cluster is not None:
             self.cluster.close()
             self.cluster = None

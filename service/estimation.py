@@ -1,0 +1,105 @@
+"""The worker's topology estimates in a child process: CPU-bound work off the API's interpreter lock.
+
+The API, the ingest writer and the worker share one process (:mod:`service.daemon`). A fast estimate
+of one robot's window is 0.1 to 1 CPU s of numpy and Python; in the worker thread it holds the
+interpreter lock for most of that, and every request that arrives meanwhile waits for it: the latency
+tail of docs/bench/load.md. In a child process it costs the service only the pickling of the window
+and of the answer. The child is started on the first estimate (``spawn``: the service process has
+threads by then, which ``fork`` would copy half-way) and serves one estimate at a time, in order.
+
+A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
+robot, and the next cycle tries again. The network methods do not come here: they train on the
+training cluster (:mod:`service.training`), or in the worker thread when there is none.
+
+>>> import numpy as np
+>>> from bodyschema.recording import Recording
+>>> t = np.arange(400) / 100.0
+>>> q = np.sin(np.stack([t, 1.3 * t], axis=1))
+>>> qd = np.cos(np.stack([t, 1.3 * t], axis=1)) * np.array([1.0, 1.3])
+>>> gyro = np.zeros((400, 2, 3))
+>>> gyro[:, 0, 2], gyro[:, 1, 2] = qd[:, 0], qd[:, 0] + qd[:, 1]
+>>> rec = Recording(t=t, joint_names=("a", "b"), q=q, qd=qd, imu_names=("i0", "i1"),
+...                 acc=np.zeros((400, 2, 3)), gyro=gyro)
+>>> with EstimatorProcess() as estimate:
+...     topo = estimate(rec, "fast")
+>>> topo.joint_parent, topo.imu_joint
+({'a': None, 'b': 'a'}, {'i0': 'a', 'i1': 'b'})
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from types import TracebackType
+
+from bodyschema.recording import Recording
+from bodyschema.topology import Topology
+
+__all__ = ["EstimatorProcess"]
+
+
+class EstimatorProcess:
+    """An :data:`~service.worker.Estimator` that runs
+    :func:`~bodyschema.estimate.estimate_topology` in a child process (module doc); ``imu_delay`` (s)
+    is the IMUs' stated filter delay, as for :func:`service.worker.default_estimator`."""
+
+    def __init__(self, imu_delay: float | None = None) -> None:
+        self.imu_delay = imu_delay
+        self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self, rec: Recording, method: str) -> Topology:
+        from bodyschema.estimate import estimate_topology
+
+        pool = self._ensure()
+        try:
+            fut = pool.submit(
+                estimate_topology, rec, method, timer=time.process_time, imu_delay=self.imu_delay
+            )
+            return fut.result()
+        except BrokenProcessPool:
+            with self._lock:  # the child died: the next call starts another
+                if self._pool is pool:
+                    self._pool = None
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+    def _ensure(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                ctx = multiprocessing.get_context("spawn")
+                self._pool = ProcessPoolExecutor(
+                    max_workers=1, mp_context=ctx, initializer=_exit_with_parent, initargs=(os.getpid(),)
+                )
+            return self._pool
+
+    def close(self) -> None:
+        """End the child (idempotent); an estimate in flight is waited for."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> EstimatorProcess:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def _exit_with_parent(parent: int, poll: float = 1.0) -> None:
+    """In the child: end when the service process is gone (a SIGKILL leaves the pool's children
+    running otherwise; they are reparented and nothing tells them)."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()

@@ -1,0 +1,85 @@
+"""The worker's estimates in a child process (service.estimation): the same answer as in the thread,
+a child that died is replaced, and a child never outlives a SIGKILLed service."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodyschema.estimate import estimate_topology
+from service.estimation import EstimatorProcess
+from simulators.kinematic_tree import random_robot_recording
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    stat = Path(f"/proc/{pid}/stat")
+    return not (stat.exists() and stat.read_text().rsplit(")", 1)[1].split()[0] == "Z")
+
+
+def _child(est: EstimatorProcess) -> int:
+    pool = est._pool
+    assert pool is not None
+    (pid,) = pool._processes  # type: ignore[attr-defined]
+    return int(pid)
+
+
+def test_the_child_answers_as_the_thread_and_is_replaced_when_it_dies() -> None:
+    rec = random_robot_recording(np.random.default_rng(5), n_joints=6, seconds=10.0)
+    here = estimate_topology(rec, "fast", imu_delay=4.8e-3)
+    with EstimatorProcess(imu_delay=4.8e-3) as est:
+        there = est(rec, "fast")
+        assert (there.joint_parent, there.imu_joint) == (here.joint_parent, here.imu_joint)
+        assert there.joint_parent == rec.truth_parent_map and there.seconds > 0
+        first = _child(est)
+        os.kill(first, signal.SIGKILL)
+        with pytest.raises(BrokenProcessPool):  # the estimate it died in fails, as a worker cycle would
+            est(rec, "fast")
+        again = est(rec, "fast")  # the next one gets a new child
+        assert again.joint_parent == here.joint_parent
+        assert _child(est) != first
+    assert not _alive(first)
+
+
+@pytest.mark.slow
+def test_the_child_ends_with_a_sigkilled_parent(tmp_path: Path) -> None:
+    script = tmp_path / "parent.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import os, signal, sys
+            import numpy as np
+            from service.estimation import EstimatorProcess
+            from simulators.kinematic_tree import random_robot_recording
+
+            if __name__ == "__main__":
+                est = EstimatorProcess()
+                est(random_robot_recording(np.random.default_rng(0), n_joints=3, seconds=5.0), "fast")
+                print(*est._pool._processes, flush=True)
+                os.kill(os.getpid(), signal.SIGKILL)
+            """
+        )
+    )
+    proc = subprocess.run(
+        [sys.executable, str(script)], cwd=REPO, capture_output=True, text=True, timeout=120, check=False
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    child = int(proc.stdout.split()[0])
+    deadline = time.monotonic() + 10
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _alive(child)  # it polls its parent every second
