@@ -30,7 +30,7 @@ run: setup
 
 ## test: set up and run every test (slow ones included)
 test: setup setup-browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 ## test-fast: skip the slow and end-to-end tests while developing
 test-fast: setup
