@@ -29,6 +29,8 @@ Example (any object with the farm's ``advance``/``robot_names``/``catalog_name``
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -38,7 +40,7 @@ from service.frames import FrameBatch
 from service.ingest.base import Source
 from service.ingest.replay import recording_batch
 
-__all__ = ["FarmDamage", "FarmSource", "farm_robot_names"]
+__all__ = ["FarmDamage", "FarmProcess", "FarmSource", "farm_robot_names"]
 
 #: Wall seconds within which a step counts as due.
 _SLACK = 1e-6
@@ -102,6 +104,12 @@ class FarmSource(Source):
         with self.lock:
             return self.farm.apply_damage(robot, kind, **params)
 
+    def close(self) -> None:
+        """End the farm's child process, when it runs in one (:class:`FarmProcess`)."""
+        close = getattr(self.farm, "close", None)
+        if close is not None:
+            close()
+
     def _behind(self) -> float:
         """Simulated seconds the farm is behind its wall-clock target (negative: ahead)."""
         assert self._wall0 is not None
@@ -154,3 +162,111 @@ class FarmDamage:
     def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
         truth = self._farm_of(robot).apply_damage(robot, kind, **params)
         return truth.to_json() if hasattr(truth, "to_json") else dict(truth or {})
+
+
+class FarmProcess:
+    """A :class:`simulators.farm.Farm` built from ``farm_kwargs`` in a child process, with the calls
+    :class:`FarmSource` and :class:`FarmDamage` make: ``advance``, ``apply_damage``, ``robot_names``,
+    ``catalog_name`` and ``sensing``.
+
+    The farm stands for robots, and robots do not share the service's interpreter: stepping the demo's
+    three robots at the ``robot`` preset's 1 kHz physics rate in the service process held its
+    interpreter lock in runs of milliseconds, every request that came meanwhile waited for it, and
+    that was a large part of the API's latency tail (docs/bench/load.md). Here the service's reader
+    thread waits on a pipe, which leaves the lock free, and pays only for unpickling each step's
+    recordings. The child is started with ``spawn`` (the service has threads by the time sources
+    open) and ends with its parent: on :meth:`close`, when the pipe breaks, or within a second of a
+    SIGKILL of the service. Errors raised in the child (an unknown damage part) are raised here.
+
+    >>> farm = FarmProcess(robots={"p": "paper-1"}, seed=0, imu_model="ideal")
+    >>> farm.robot_names, farm.catalog_name("p"), sorted(farm.advance(0.2)["p"].t.shape)
+    (('p',), 'paper-1', [20])
+    >>> farm.apply_damage("p", "imu_dead", imu="nope")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: ...
+    >>> farm.close()
+    """
+
+    def __init__(self, **farm_kwargs: Any) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(
+            target=_serve_farm, args=(child, farm_kwargs, os.getpid()), name="farm", daemon=True
+        )
+        self._proc.start()
+        child.close()
+        self._lock = threading.Lock()
+        names, catalog, sensing = self._call("describe")
+        self.robot_names: tuple[str, ...] = tuple(names)
+        self._catalog: dict[str, str] = dict(catalog)
+        self.sensing = sensing
+
+    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            try:
+                self._conn.send((name, args, kwargs))
+                ok, value = self._conn.recv()
+            except (EOFError, OSError) as err:
+                raise RuntimeError(f"the farm process ended (exit code {self._proc.exitcode})") from err
+        if not ok:
+            raise value
+        return value
+
+    def catalog_name(self, robot: str) -> str:
+        return self._catalog[robot]
+
+    def advance(self, seconds: float) -> Any:
+        return self._call("advance", seconds)
+
+    def apply_damage(self, robot: str, kind: str, **params: Any) -> Any:
+        return self._call("apply_damage", robot, kind, **params)
+
+    def close(self) -> None:
+        """End the child (idempotent)."""
+        with self._lock:
+            if self._proc.is_alive():
+                try:
+                    self._conn.send(None)
+                except OSError:
+                    pass
+            self._proc.join(5)
+            if self._proc.is_alive():
+                self._proc.kill()
+                self._proc.join(5)
+            self._conn.close()
+
+
+def _serve_farm(conn: Any, farm_kwargs: dict[str, Any], parent: int) -> None:
+    """The child's loop: build the farm, then answer calls until told to stop or the parent is gone."""
+    from simulators.farm import Farm
+
+    try:
+        farm = Farm(**farm_kwargs)
+    except Exception as err:  # a bad spec: said to the parent, which raises it
+        conn.send((False, err))
+        return
+    while True:
+        if not conn.poll(1.0):
+            if os.getppid() != parent:
+                return
+            continue
+        try:
+            msg = conn.recv()
+        except EOFError:
+            return
+        if msg is None:
+            return
+        name, args, kwargs = msg
+        try:
+            if name == "describe":
+                value: Any = (
+                    farm.robot_names,
+                    {n: farm.catalog_name(n) for n in farm.robot_names},
+                    farm.sensing,
+                )
+            else:
+                value = getattr(farm, name)(*args, **kwargs)
+            conn.send((True, value))
+        except Exception as err:
+            conn.send((False, err))

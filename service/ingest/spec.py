@@ -11,7 +11,9 @@
 SPEED is a positive number or ``max`` (as fast as possible); it defaults to 1. Farm options: ``seed``
 (default: the settings' ``farm_seed``), ``rate`` (Hz, 100), ``imu_model`` (``mpu6050``), ``excitation``
 (``observable``), ``step`` (simulated seconds per batch, 0.1), ``sensing`` (``robot`` or ``ideal``,
-default: the settings' ``sensing``; ``rate`` is the physics rate only under ``ideal``). Replay option
+default: the settings' ``sensing``; ``rate`` is the physics rate only under ``ideal``), ``process``
+(``1``, the default: the farm runs in a child process, :class:`~service.ingest.farm.FarmProcess`, as
+robots are not in the service's process; ``0``: in the reader thread). Replay option
 ``resume=0`` replays from the start even when the store already has later frames. A ROS bag takes the
 replay options plus ``imu_topics`` and ``joint_topics`` (comma-separated; default: every
 ``sensor_msgs/msg/Imu`` and ``sensor_msgs/msg/JointState`` topic); it is read into a recording
@@ -34,6 +36,7 @@ from __future__ import annotations
 import importlib
 import math
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs
 
 from bodyschema.recording import Recording
@@ -143,18 +146,26 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
         from service.ingest.farm import FarmSource, farm_robot_names
 
         body, _, query = rest.partition("?")
-        p = _params(query, {"seed", "rate", "imu_model", "excitation", "step", "sensing"}, "farm")
+        p = _params(query, {"seed", "rate", "imu_model", "excitation", "step", "sensing", "process"}, "farm")
         robots, speed = parse_speed_suffix(body)
-        from simulators.farm import Farm  # heavy (MuJoCo): only when a farm is asked for
+        if p.get("process", "1") not in ("0", "1"):
+            raise SpecError(f"farm option process must be 0 or 1, got {p['process']!r}")
+        kwargs = {
+            "robots": farm_robot_names(farm_catalog(robots)),
+            "seed": int(p.get("seed", settings.farm_seed)),
+            "imu_model": p.get("imu_model", "mpu6050"),
+            "excitation": p.get("excitation", "observable"),
+            "rate": float(p.get("rate", 100.0)),
+            "sensing": p.get("sensing", settings.sensing),
+        }
+        if p.get("process", "1") == "1":
+            from service.ingest.farm import FarmProcess
 
-        farm = Farm(
-            robots=farm_robot_names(farm_catalog(robots)),
-            seed=int(p.get("seed", settings.farm_seed)),
-            imu_model=p.get("imu_model", "mpu6050"),
-            excitation=p.get("excitation", "observable"),
-            rate=float(p.get("rate", 100.0)),
-            sensing=p.get("sensing", settings.sensing),
-        )
+            farm: Any = FarmProcess(**kwargs)
+        else:
+            from simulators.farm import Farm  # heavy (MuJoCo): only when a farm is asked for
+
+            farm = Farm(**kwargs)
         return FarmSource(farm, speed=speed, step_seconds=float(p.get("step", 0.1)))
     if kind in ("can", "serial"):
         module = importlib.import_module(f"service.ingest.{kind}")

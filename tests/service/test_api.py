@@ -59,7 +59,10 @@ class RecordingFarm:
         return {"changed": True, "findings": [{"kind": kind, **params, "confidence": 1.0}]}
 
 
-SETTINGS = Settings(database_url="sqlite://", max_request_bytes=20_000, worker_interval_seconds=1.0)
+#: Every read renders what the store holds now; the read cache has its own tests (test_read_cache.py).
+SETTINGS = Settings(
+    database_url="sqlite://", max_request_bytes=20_000, worker_interval_seconds=1.0, api_cache_seconds=0.0
+)
 
 
 @pytest.fixture

@@ -23,7 +23,8 @@ from service.settings import Settings
 from service.status import judge
 from service.store import Store
 
-SETTINGS = Settings(database_url="sqlite://", worker_interval_seconds=1.0)
+#: Every read renders what the store holds now; the read cache has its own tests (test_read_cache.py).
+SETTINGS = Settings(database_url="sqlite://", worker_interval_seconds=1.0, api_cache_seconds=0.0)
 JOINTS = ["j1", "j2", "j3"]
 # A serial chain j1 → j2 → j3. Fully instrumented: one IMU per link.
 FULL = topology_from_dependency(

@@ -205,3 +205,30 @@ def test_real_farm_spec(db_url: str) -> None:
         # the settings' default sensing is the robot preset: IMUs at 100 Hz, encoders at 250 Hz, jittered
         assert rec.n_imus == len(info.imus) and rec.sample_rate == pytest.approx(100.0, rel=0.02)
         assert rec.is_multirate and rec.encoder_rate == pytest.approx(250.0, rel=0.02)
+
+
+def test_farm_in_a_child_process_gives_the_same_frames_and_ends_with_close() -> None:
+    """The spec's farm runs in a child process by default (``process=1``); it yields the frames the same
+    farm yields in the reader thread (``process=0``), raises the farm's errors, and its child ends on
+    close."""
+    from service.ingest.farm import FarmProcess
+
+    spec = "farm:paper-1@max?seed=3&step=0.1&sensing=robot"
+    child, here = open_source(spec, Settings()), open_source(spec + "&process=0", Settings())
+    assert isinstance(child.farm, FarmProcess) and not isinstance(here.farm, FarmProcess)
+    assert child.farm.sensing == here.farm.sensing and child.robot_names == here.robot_names
+    got = [child.read() for _ in range(3)]
+    want = [here.read() for _ in range(3)]
+    assert [len(b) for b in got] == [len(b) for b in want] and sum(len(b) for b in got) > 0
+    for a, b in zip([x for g in got for x in g], [x for w in want for x in w], strict=True):
+        assert a.robot == b.robot
+        np.testing.assert_array_equal(a.t, b.t)
+        np.testing.assert_array_equal(a.gyro, b.gyro)
+        np.testing.assert_array_equal(a.q, b.q)
+    with pytest.raises(ValueError, match="unknown IMU 'nope'"):
+        child.apply_damage("paper-1-1", "imu_dead", imu="nope")
+    proc = child.farm._proc
+    child.close()
+    assert not proc.is_alive() and proc.exitcode == 0
+    with pytest.raises(SpecError, match="process must be 0 or 1"):
+        open_source("farm:paper-1?process=yes", Settings())
