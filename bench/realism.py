@@ -337,6 +337,14 @@ def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str,
                 )
             lines.append(f"| {cell} | " + " | ".join(parts) + " |")
         lines.append("")
+        epochs = sorted(r["epochs"] for r in rows if r["method"] == m and "epochs" in r)
+        if epochs:
+            done = sum(bool(r.get("converged")) for r in rows if r["method"] == m and "epochs" in r)
+            lines += [
+                f"Training ran to a flat loss (no fixed epoch count): {epochs[0]}–{epochs[-1]} epochs, "
+                f"median {epochs[len(epochs) // 2]}; converged in {done} of {len(epochs)} estimates.",
+                "",
+            ]
     errors = sorted({r["error"] for r in rows if "error" in r})
     if errors:
         lines += ["Refused inputs (counted as undetermined):", ""] + [f"- {e}" for e in errors] + [""]
