@@ -105,8 +105,7 @@ class Daemon:
         remote = self._remote_retrains(metrics)
         estimator = self.estimator
         if estimator is None:  # estimates off the API's interpreter lock (service.estimation)
-            delay = s.imu_filter_delay_ms
-            estimator = self._estimates = EstimatorProcess(None if delay is None else 1e-3 * delay)
+            estimator = self._estimates = EstimatorProcess(s.imu_filter_delay)
         self.worker = Worker(self.store, s, estimator=estimator, metrics=metrics, remote=remote)
         self.worker.start()
         log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
@@ -133,8 +132,8 @@ class Daemon:
         if s.dask_scheduler:
             self.cluster.start()  # an external scheduler: connect now, so /readyz can report it
         options = self.training or TrainingOptions()
-        if s.imu_filter_delay_ms is not None and "imu_delay" not in dict(options.estimator_options):
-            extra = (("imu_delay", 1e-3 * s.imu_filter_delay_ms),)
+        if s.imu_filter_delay is not None and "imu_delay" not in dict(options.estimator_options):
+            extra = (("imu_delay", s.imu_filter_delay),)
             options = replace(options, estimator_options=options.estimator_options + extra)
         return RemoteRetrains(self.cluster, self.store, s.window_seconds, options=options, metrics=metrics)
 

@@ -8,8 +8,8 @@ and of the answer. The child is started on the first estimate (``spawn``: the se
 threads by then, which ``fork`` would copy half-way) and serves one estimate at a time, in order.
 
 A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
-robot, and the next cycle tries again. The network methods do not come here: they train on the
-training cluster (:mod:`service.training`), or in the worker thread when there is none.
+robot, and the next cycle tries again. The network methods come here only when the service runs
+without a training cluster (:mod:`service.training`); with one, they train there.
 
 >>> import numpy as np
 >>> from bodyschema.recording import Recording

@@ -233,6 +233,11 @@ class Settings(BaseSettings):
             raise ValueError(f"api_token_file {str(self.api_token_file)!r} is empty")
         return token
 
+    @property
+    def imu_filter_delay(self) -> float | None:
+        """``imu_filter_delay_ms`` in seconds, as the estimators take it (None: not stated)."""
+        return None if self.imu_filter_delay_ms is None else 1e-3 * self.imu_filter_delay_ms
+
     def read_token(self) -> str | None:
         """The extra token GET routes accept (they accept the write token too); None when unset."""
         return self.api_read_token.get_secret_value() if self.api_read_token is not None else None

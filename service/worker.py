@@ -111,9 +111,8 @@ class Worker:
         self.store = store
         self.remote = remote
         self.settings = settings or get_settings()
-        delay = self.settings.imu_filter_delay_ms
         self.estimator = estimator or functools.partial(
-            default_estimator, imu_delay=None if delay is None else 1e-3 * delay
+            default_estimator, imu_delay=self.settings.imu_filter_delay
         )
         self.metrics = metrics or Metrics()
         self.clock = clock

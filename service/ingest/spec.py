@@ -148,8 +148,9 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
         body, _, query = rest.partition("?")
         p = _params(query, {"seed", "rate", "imu_model", "excitation", "step", "sensing", "process"}, "farm")
         robots, speed = parse_speed_suffix(body)
-        if p.get("process", "1") not in ("0", "1"):
-            raise SpecError(f"farm option process must be 0 or 1, got {p['process']!r}")
+        in_child = p.get("process", "1")
+        if in_child not in ("0", "1"):
+            raise SpecError(f"farm option process must be 0 or 1, got {in_child!r}")
         kwargs = {
             "robots": farm_robot_names(farm_catalog(robots)),
             "seed": int(p.get("seed", settings.farm_seed)),
@@ -158,7 +159,7 @@ def open_source(spec: str, settings: Settings | None = None) -> Source:
             "rate": float(p.get("rate", 100.0)),
             "sensing": p.get("sensing", settings.sensing),
         }
-        if p.get("process", "1") == "1":
+        if in_child == "1":
             from service.ingest.farm import FarmProcess
 
             farm: Any = FarmProcess(**kwargs)
