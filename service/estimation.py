@@ -4,8 +4,8 @@ The API, the ingest writer and the worker share one process (:mod:`service.daemo
 of one robot's window is 0.1 to 1 CPU s of numpy and Python; in the worker thread it holds the
 interpreter lock for most of that, and every request that arrives meanwhile waits for it: the latency
 tail of docs/bench/load.md. In a child process it costs the service only the pickling of the window
-and of the answer. The child is started on the first estimate (``spawn``: the service process has
-threads by then, which ``fork`` would copy half-way) and serves one estimate at a time, in order.
+and of the answer. The child is started on the first estimate (:mod:`service.children`: ``spawn``,
+and it ends with its parent) and serves one estimate at a time, in order.
 
 A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
 robot, and the next cycle tries again. The network methods come here only when the service runs
@@ -28,7 +28,6 @@ without a training cluster (:mod:`service.training`); with one, they train there
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import threading
 import time
@@ -38,6 +37,7 @@ from types import TracebackType
 
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
+from service.children import SPAWN, exit_with_parent
 
 __all__ = ["EstimatorProcess"]
 
@@ -71,9 +71,8 @@ class EstimatorProcess:
     def _ensure(self) -> ProcessPoolExecutor:
         with self._lock:
             if self._pool is None:
-                ctx = multiprocessing.get_context("spawn")
                 self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=ctx, initializer=_exit_with_parent, initargs=(os.getpid(),)
+                    max_workers=1, mp_context=SPAWN, initializer=exit_with_parent, initargs=(os.getpid(),)
                 )
             return self._pool
 
@@ -91,15 +90,3 @@ class EstimatorProcess:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
-
-
-def _exit_with_parent(parent: int, poll: float = 1.0) -> None:
-    """In the child: end when the service process is gone (a SIGKILL leaves the pool's children
-    running otherwise; they are reparented and nothing tells them)."""
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(poll)
-        os._exit(0)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()

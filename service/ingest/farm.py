@@ -29,13 +29,13 @@ Example (any object with the farm's ``advance``/``robot_names``/``catalog_name``
 from __future__ import annotations
 
 import math
-import multiprocessing
 import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+from service.children import SPAWN, exit_with_parent
 from service.frames import FrameBatch
 from service.ingest.base import Source
 from service.ingest.replay import recording_batch
@@ -174,9 +174,9 @@ class FarmProcess:
     interpreter lock in runs of milliseconds, every request that came meanwhile waited for it, and
     that was a large part of the API's latency tail (docs/bench/load.md). Here the service's reader
     thread waits on a pipe, which leaves the lock free, and pays only for unpickling each step's
-    recordings. The child is started with ``spawn`` (the service has threads by the time sources
-    open) and ends with its parent: on :meth:`close`, when the pipe breaks, or within a second of a
-    SIGKILL of the service. Errors raised in the child (an unknown damage part) are raised here.
+    recordings. The child is started as every child of the service is (:mod:`service.children`) and
+    ends with it: on :meth:`close`, when the pipe breaks, or within a second of a SIGKILL of the
+    service. Errors raised in the child (an unknown damage part) are raised here.
 
     >>> farm = FarmProcess(robots={"p": "paper-1"}, seed=0, imu_model="ideal")
     >>> farm.robot_names, farm.catalog_name("p"), sorted(farm.advance(0.2)["p"].t.shape)
@@ -189,9 +189,8 @@ class FarmProcess:
     """
 
     def __init__(self, **farm_kwargs: Any) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(
+        self._conn, child = SPAWN.Pipe()
+        self._proc = SPAWN.Process(
             target=_serve_farm, args=(child, farm_kwargs, os.getpid()), name="farm", daemon=True
         )
         self._proc.start()
@@ -246,11 +245,8 @@ def _serve_farm(conn: Any, farm_kwargs: dict[str, Any], parent: int) -> None:
     except Exception as err:  # a bad spec: said to the parent, which raises it
         conn.send((False, err))
         return
+    exit_with_parent(parent)
     while True:
-        if not conn.poll(1.0):
-            if os.getppid() != parent:
-                return
-            continue
         try:
             msg = conn.recv()
         except EOFError:
