@@ -213,18 +213,19 @@ def estimate_lag(
     """
     yc = y - y.mean(axis=0)
     total = float(np.sum(yc * yc))
-
-    def score(d: float) -> float:
-        X = x_at(d)
-        X = X - X.mean(axis=0)
-        G = X.T @ X
-        G += (1e-9 * np.trace(G) / max(len(G), 1) + 1e-300) * np.eye(len(G))
-        B = X.T @ yc
-        return float(np.sum(B * np.linalg.solve(G, B))) / max(total, 1e-300)
-
     lags = np.arange(-max_lag, max_lag + step / 2, step)
-    s = np.array([score(float(d)) for d in lags])
+    s = np.array([float(np.sum(_explained(x_at(float(d)), yc))) for d in lags]) / max(total, 1e-300)
     return _parabola_peak(lags, s, int(np.argmax(s))), lags, s
+
+
+def _explained(x: np.ndarray, yc: np.ndarray) -> np.ndarray:
+    """Per column of the centred ``yc``, the variance a least-squares fit on the columns of ``x``
+    (centred here, with a tiny ridge so a silent column cannot make it singular) explains."""
+    X = x - x.mean(axis=0)
+    G = X.T @ X
+    G += (1e-9 * np.trace(G) / max(len(G), 1) + 1e-300) * np.eye(len(G))
+    B = X.T @ yc
+    return np.sum(B * np.linalg.solve(G, B), axis=0)
 
 
 def _parabola_peak(lags: np.ndarray, s: np.ndarray, i: int) -> float:
@@ -271,21 +272,15 @@ def robust_lag(
     yc = y - y.mean(axis=0)
     total = np.sum((yc * yc).reshape(T, G, width), axis=(0, 2))
     lags = np.arange(-max_lag, max_lag + step / 2, step)
-    s = np.empty((len(lags), G))
-    for i, d in enumerate(lags):
-        X = x_at(float(d))
-        X = X - X.mean(axis=0)
-        Gm = X.T @ X
-        Gm += (1e-9 * np.trace(Gm) / max(len(Gm), 1) + 1e-300) * np.eye(len(Gm))
-        B = X.T @ yc
-        s[i] = np.sum((B * np.linalg.solve(Gm, B)).reshape(len(Gm), G, width), axis=(0, 2))
-    s /= np.maximum(total, 1e-300)
+    explained = np.array([_explained(x_at(float(d)), yc).reshape(G, width).sum(axis=1) for d in lags])
+    s = explained / np.maximum(total, 1e-300)
     best_i = np.argmax(s, axis=0)
     per = np.array([_parabola_peak(lags, s[:, g], int(best_i[g])) for g in range(G)])
     score = s[best_i, np.arange(G)]
     inside = (best_i > 0) & (best_i < len(lags) - 1) & (score > 0)
-    if not inside.any():
-        return estimate_lag(y, x_at, max_lag=max_lag, step=step)[0], per, score
+    if not inside.any():  # the pooled search (estimate_lag's), from the same fits
+        pooled = explained.sum(axis=1) / max(float(total.sum()), 1e-300)
+        return _parabola_peak(lags, pooled, int(np.argmax(pooled))), per, score
     order = np.argsort(per[inside])
     w = score[inside][order]
     cum = np.cumsum(w)
