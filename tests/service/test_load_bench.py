@@ -14,6 +14,18 @@ from tests.bench.args import bench_args
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 
+def _locust_bin(ms: float) -> float:
+    """The value locust files a response time under: its percentiles come from these bins (whole
+    milliseconds below 100 ms, tens below 1 s, ...) while its maximum is the exact time, so a p99 of
+    22 ms beside a maximum of 21.95 ms is one response in the 22 ms bin, not a disorder."""
+    digits = 0 if ms < 100 else -1 if ms < 1000 else -2 if ms < 10000 else -3
+    return float(round(ms, digits))
+
+
+def test_locust_bins_match_the_percentiles_it_reports() -> None:
+    assert (_locust_bin(21.945), _locust_bin(99.4), _locust_bin(104.9), _locust_bin(1260.0)) == (22, 99, 100, 1300)
+
+
 def test_bench_load_measures_latency_while_the_farm_ingests(tmp_path: Path) -> None:
     args = bench_args(bench, *["--rps", "20", "--seconds", "6", "--warmup", "2", "--out", str(tmp_path)])
     assert bench.run(args) == tmp_path / "load.md"
@@ -24,7 +36,7 @@ def test_bench_load_measures_latency_while_the_farm_ingests(tmp_path: Path) -> N
     assert row["offered_rps"] == 20.0 and row["failures"] == 0
     # locust paces 2 users at 10 rps each: about 120 requests in 6 s
     assert 60 <= row["requests"] <= 180 and 10.0 <= row["achieved_rps"] <= 30.0
-    assert 0 < row["p50_ms"] <= row["p95_ms"] <= row["p99_ms"] <= row["max_ms"]
+    assert 0 < row["p50_ms"] <= row["p95_ms"] <= row["p99_ms"] <= _locust_bin(row["max_ms"])
     # the farm kept ingesting meanwhile: three robots at 100 Hz, nothing dropped
     assert row["frames_stored_per_s"] > 50 and row["frames_dropped"] == 0
     assert row["service_cpu_per_s"] > 0
