@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "format_gravity_case",
+    "format_not_named",
     "format_summary",
     "plot_gravity_case",
     "plot_residuals",
@@ -274,8 +275,47 @@ def format_summary(report: DiscrepancyReport) -> str:
     for i, c in enumerate(report.causes, 1):
         gain = f"gain {c.gain:.3f} (p={c.p_value:.2g})" if c.effect != "noise" else "no gain (white)"
         lines.append(f"  {i}. {c.effect}: {_fmt_params(c.effect, c.params)} — {gain}")
+        if c.interval:
+            lines.append("     95 % interval: " + ", ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in c.interval))
         lines.append(f"     signature: {c.signature}")
+    lines += format_not_named(report)
     return "\n".join(lines)
+
+
+def format_not_named(report: DiscrepancyReport) -> list[str]:
+    """One line per library effect the analysis did not name: the smallest change this recording
+    would reveal, and whether the data nonetheless ask for one (evidence above that limit that the
+    held-out selection did not accept).
+
+    >>> rep = DiscrepancyReport({}, [], {}, {}, evidence=[
+    ...     {"effect": "gyro_bias", "channel": "gyro", "estimate": [0.001, 0.0, 0.0], "p_value": 0.4,
+    ...      "detection_limit": 0.004}])
+    >>> format_not_named(rep)
+    ['not named:', '  gyro_bias: below 0.004 here (gyro; estimate 0.001, p=0.4)']
+    """
+    named = set(report.names)
+    best: dict[str, dict[str, object]] = {}
+    for ev in report.evidence:
+        if ev["effect"] in named or ev["channel"] == "both":
+            continue
+        if ev["effect"] not in best or ev["detection_limit"] < best[ev["effect"]]["detection_limit"]:
+            best[ev["effect"]] = ev
+    if not best:
+        return []
+    lines = ["not named:"]
+    for effect, ev in best.items():
+        ask = float(np.linalg.norm(ev["estimate"]))
+        # the change from the effect's null (a gain of 1, the standard gravity), in its own units
+        limit, p = float(ev["detection_limit"]), float(ev["p_value"])
+        if p >= float(ev.get("alpha", 0.01)):
+            line = f"below {limit:.3g} here ({ev['channel']}; estimate {ask:.3g}, p={p:.2g})"
+            lines.append(f"  {effect}: {line}")
+        else:
+            lines.append(
+                f"  {effect}: the {ev['channel']} asks for {ask:.3g} (p={p:.2g}; limit {limit:.3g} here), "
+                "too little held-out gain to name"
+            )
+    return lines
 
 
 # ---------------------------------------------------------------------------------------- plots

@@ -46,6 +46,8 @@ class Cause:
     signature: str
     explained: float
     block_gains: list[float] = field(default_factory=list)
+    #: 95 % interval of each parameter (the effect's vector layout), from the block-robust evidence.
+    interval: list[list[float]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -57,6 +59,7 @@ class Cause:
             "signature": self.signature,
             "explained": round(float(self.explained), 4),
             "block_gains": [round(float(g), 6) for g in self.block_gains],
+            "interval": [[float(f"{lo:.6g}"), float(f"{hi:.6g}")] for lo, hi in self.interval],
         }
 
 
@@ -72,6 +75,9 @@ class DiscrepancyReport:
     structure_before: dict[str, object] = field(default_factory=dict)
     structure_after: dict[str, object] = field(default_factory=dict)
     screening: list[dict[str, float]] = field(default_factory=list)
+    #: Every effect's test on every channel in the final model (:class:`~bodyschema.discrepancy.
+    #: evidence.Evidence` as JSON): the named ones given the others, the rest as candidates.
+    evidence: list[dict[str, object]] = field(default_factory=list)
     settings: dict[str, object] = field(default_factory=dict)
     meta: dict[str, object] = field(default_factory=dict)
     #: The prepared data the analysis ran on (for plots; not part of the JSON).
@@ -86,6 +92,16 @@ class DiscrepancyReport:
         """The cause for ``effect``, or None when it was not named."""
         return next((c for c in self.causes if c.effect == effect), None)
 
+    def detection_limit(self, effect: str) -> float | None:
+        """The smallest change of ``effect`` this recording reveals (its most sensitive channel), or
+        None when the effect was not tested (not in the library analysed, or touching no channel)."""
+        limits = [
+            float(e["detection_limit"])
+            for e in self.evidence
+            if e["effect"] == effect and e["channel"] != "both"
+        ]
+        return min(limits) if limits else None
+
     def to_json(self) -> dict[str, object]:
         """The docs/design.md §2 discrepancy JSON (plus residual structure, screening and settings)."""
         return {
@@ -97,6 +113,7 @@ class DiscrepancyReport:
             "structure_before": self.structure_before,
             "structure_after": self.structure_after,
             "screening": self.screening,
+            "evidence": self.evidence,
             "settings": self.settings,
             "meta": self.meta,
         }

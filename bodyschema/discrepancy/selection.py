@@ -45,6 +45,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import ttest_1samp
 
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, pack, predict, unpack
+from bodyschema.discrepancy.evidence import CHANNELS, Evidence, effect_evidence
 from bodyschema.discrepancy.fit import (
     Problem,
     block_folds,
@@ -65,6 +66,9 @@ from bodyschema.threads import blas_threads
 __all__ = ["AnalyzerOptions", "DiscrepancyAnalyzer", "analyze", "analyze_recording", "reference_of"]
 
 log = logging.getLogger(__name__)
+
+#: Two-sided 95 % normal quantile (the intervals of the fitted parameters).
+_Z95 = 1.959963984540054
 
 
 @dataclass
@@ -177,6 +181,9 @@ class AnalyzerOptions:
     scale_floor: tuple[float, float] = (0.002, 0.02)
     #: Ranked candidates tried in confirmation per round before the selection stops.
     max_tries: int = 2
+    #: Seconds per time block of the evidence tests (blocks are taken as independent, samples within
+    #: one are not; see :mod:`bodyschema.discrepancy.evidence`).
+    block_s: float = 2.0
     #: Show a progress bar over the effects (:func:`bodyschema.progress.progress`); changes no result.
     progress: bool = False
 
@@ -225,11 +232,17 @@ def _analyze(
     held_before = float(np.mean([f.held for f in folds]))
     selected, causes, screening = _select(prob, folds, opts, held_before)
     params, causes = _final_fit(prob, folds, selected, causes, opts.n_blocks)
+    # The evidence of every effect in the final model: the named ones given the others (their
+    # intervals), the rest as candidates (their detection limits).
+    final = effect_evidence(
+        prob, params, selected, opts.effects, alpha=opts.alpha, block_s=opts.block_s, channels=tuple(CHANNELS)
+    )
+    causes = _with_intervals(causes, params, final)
     # Noise, from the full-rate measured readings above the motion band.
     causes += _noise_cause(ref, gyro, acc, valid, prob, opts.margin, opts.noise_floor)
     if any(c.effect == "noise" for c in causes):
         params["noise"] = causes[-1].params
-    return _report(prob, folds, causes, params, screening, held_before, opts)
+    return _report(prob, folds, causes, params, screening, held_before, opts, final)
 
 
 def _make_folds(prob: Problem, n_blocks: int) -> list[_Fold]:
@@ -375,6 +388,25 @@ def _final_fit(
     return params, causes
 
 
+def _with_intervals(causes: list[Cause], params: Params, evidence: list[Evidence]) -> list[Cause]:
+    """The causes with the 95 % interval of each fitted parameter, from the block-robust evidence of
+    the effect in the final model (all the channels it moves, stacked)."""
+    combined = {ev.effect: ev for ev in evidence if ev.channel == "both"}
+    single = {ev.effect: ev for ev in evidence if ev.channel != "both"}
+    out = []
+    for c in causes:
+        ev = combined.get(c.effect, single.get(c.effect))
+        if ev is None:
+            out.append(c)
+            continue
+        value = pack(params, [c.effect])
+        half = _Z95 * np.asarray(ev.stderr)
+        out.append(
+            replace(c, interval=[[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)])
+        )
+    return out
+
+
 def _report(
     prob: Problem,
     folds: list[_Fold],
@@ -383,8 +415,10 @@ def _report(
     screening: list[dict[str, float]],
     held_before: float,
     opts: AnalyzerOptions,
+    evidence: list[Evidence],
 ) -> DiscrepancyReport:
-    """The report: residuals and their structure before and after, held-out scores, settings."""
+    """The report: residuals and their structure before and after, held-out scores, the evidence of
+    every effect, settings."""
     fitted = {k: v for k, v in params.items() if k != "noise"}
     held_after = float(np.mean([f.held for f in folds]))
     res_b, pred_b = residual(prob, {})
@@ -405,9 +439,11 @@ def _report(
         structure_before=residual_structure(prob.ref, res_b, pred_b, prob.index, prob.rate),
         structure_after=residual_structure(prob.ref, res_a, pred_a, prob.index, prob.rate),
         screening=screening,
+        evidence=[ev.to_json() for ev in evidence],
         settings={
             "n_blocks": opts.n_blocks,
             "alpha": opts.alpha,
+            "block_s": opts.block_s,
             "min_gain": opts.min_gain,
             "cutoff_hz": opts.cutoff,
             "analysis_rate_hz": prob.rate,
