@@ -854,10 +854,11 @@ def _sim2real_doc(b: _Bench) -> str:
             f"at {s['rate']:.1f} Hz; held-out gain {_span(s['offset_gain'])} of the ideal model's residual "
             f"energy on its own), and {len(c['lever_arm'])} of {n} a **lever arm** of "
             f"{_span(s['lever_mm'], '.1f')} mm, largest along the sensor's z axis in {s['lever_z']} of "
-            f"{len(c['lever_arm'])}. A few trials add a small gyro bias "
+            f"{len(c['lever_arm'])}. Beside them: a small gyro bias "
             f"({_span(s['gyro_bias'], '.3f')} rad/s, "
-            f"{len(c['gyro_bias'])} trials, {_sessions(s['gyro_bias_sessions'])}) or accelerometer bias "
-            f"({_span(s['acc_bias'], '.2f')} m/s², {len(c['acc_bias'])} trials).",
+            f"{len(c['gyro_bias'])} trials, {_sessions(s['gyro_bias_sessions'])}), an accelerometer bias "
+            f"({_span(s['acc_bias'], '.2f')} m/s², {len(c['acc_bias'])} trials) and, in "
+            f"{len(c.get('gyro_scale', []))} trials, a gyro scale error.",
             f"* Total held-out gain {_span(s['held_gain'])} per trial (best: trial {trial}, gyro RMS "
             f"{h['gyro_rms_before']:.3f} → {h['gyro_rms_after']:.3f} rad/s). What remains is mostly "
             "accelerometer residual above a few Hz, where differentiating the motion capture twice is itself "

@@ -46,7 +46,8 @@ def _short(name: str, params: dict) -> str:
     if name.endswith("_scale"):
         return "[" + ", ".join(f"{(x - 1) * 100:+.2f}%" for x in v) + "]"
     if name == "gravity":
-        return f"|g| {np.linalg.norm(v):.3f}, tilt {np.degrees(np.arccos(-v[2] / np.linalg.norm(v))):.2f}°"
+        # not "|g|": the cell sits in a markdown table
+        return f"‖g‖ {np.linalg.norm(v):.3f}, tilt {np.degrees(np.arccos(-v[2] / np.linalg.norm(v))):.2f}°"
     return "[" + ", ".join(f"{x:.3g}" for x in v) + "]"
 
 

@@ -111,6 +111,8 @@ def effect_evidence(
     *,
     alpha: float = 0.01,
     block_s: float = 2.0,
+    min_gain: float = 0.0,
+    energy_floor: tuple[float, float] = (0.0, 0.0),
     channels: Sequence[str] = ("gyro", "acc"),
 ) -> list[Evidence]:
     """Test every effect of ``candidates`` on every channel it touches, given the effects ``model``.
@@ -118,10 +120,14 @@ def effect_evidence(
     ``params``: the current fit (of ``model``). A candidate that is itself in ``model`` is tested
     given the others, with its own fitted contribution added back to the residual (linearised), so
     its estimate is its fitted change from null and the test its evidence in the final model.
-    ``alpha``: the level the detection limits refer to. ``block_s``: the length of the time blocks
-    taken as independent. ``channels``: of :data:`CHANNELS`. Returns one :class:`Evidence` per effect
-    and channel, in library order; a channel the effect does not move (a gyro bias on the
-    accelerometer) is left out.
+    ``alpha``: the family level; the detection limits refer to it split over the single-channel
+    tests made (Bonferroni), the level at which the selection names an effect. ``min_gain``: the
+    least share of what the model leaves of the channel's residual energy (at least
+    ``energy_floor``, gyro and acc, in the normalised units) an effect must explain to be named; the
+    detection limit is also at least the change that explains that much. ``block_s``: the length of
+    the time blocks taken as independent. ``channels``: of :data:`CHANNELS`. Returns one
+    :class:`Evidence` per effect and channel, in library order; a channel the effect does not move (a
+    gyro bias on the accelerometer) is left out.
     """
     idx = prob.index
     names = [n for n in EFFECTS if n in set(model) | set(candidates)]
@@ -131,7 +137,7 @@ def effect_evidence(
         J[:, :, cols["time_offset"][0]] = _offset_signature(prob, params)
     n_blocks = max(2, round(idx.size / prob.rate / block_s))
     blocks = np.array_split(np.arange(idx.size), n_blocks)
-    out: list[Evidence] = []
+    cases = []
     for ch in channels:
         sl = CHANNELS[ch]
         rows = sl.stop - sl.start
@@ -141,15 +147,19 @@ def effect_evidence(
             X = Jc[:, cols[c]]
             if not _moves(X, rows):
                 continue
-            others = [n for n in names if n in model and n != c]
             y = y_all
             if c in model:
-                y = y_all + X @ (pack(params, [c], prob.ref) - nominal(c, prob.ref))
+                y = y + X @ (pack(params, [c], prob.ref) - nominal(c, prob.ref))
+            floor = float(np.mean(np.asarray(energy_floor)[[i // 3 for i in range(sl.start, sl.stop, 3)]]))
+            least = min_gain * max(float(np.mean(y**2)), floor)
+            others = [n for n in names if n in model and n != c]
             if others:
                 q, _ = np.linalg.qr(Jc[:, np.concatenate([cols[n] for n in others])])
-                y = y_all - q @ (q.T @ y_all)
+                y = y - q @ (q.T @ y)
                 X = X - q @ (q.T @ X)
-            out.append(_wald(c, ch, X, y, rows, blocks, alpha))
+            cases.append((c, ch, X, y, rows, least))
+    level = alpha / max(1, sum(ch != "both" for _, ch, *_ in cases))
+    out = [_wald(c, ch, X, y, rows, blocks, level, least) for c, ch, X, y, rows, least in cases]
     order = {n: i for i, n in enumerate(EFFECTS)}
     return sorted(out, key=lambda e: (order[e.effect], list(CHANNELS).index(e.channel)))
 
@@ -178,9 +188,19 @@ def _moves(X: np.ndarray, rows: int) -> bool:
 
 
 def _wald(
-    effect: str, channel: str, X: np.ndarray, y: np.ndarray, rows: int, blocks: list[np.ndarray], alpha: float
+    effect: str,
+    channel: str,
+    X: np.ndarray,
+    y: np.ndarray,
+    rows: int,
+    blocks: list[np.ndarray],
+    alpha: float,
+    least_energy: float,
 ) -> Evidence:
-    """Regression of ``y`` on ``X`` (``rows`` rows per sample) with the block-robust Wald F test."""
+    """Regression of ``y`` on ``X`` (``rows`` rows per sample) with the block-robust Wald F test.
+
+    The detection limit is the larger of the change the test reveals at ``alpha`` and the change that
+    explains ``least_energy`` (mean squared normalised residual), both in the weakest direction."""
     k = X.shape[1]
     G = len(blocks)
     inv = np.linalg.pinv(X.T @ X)
@@ -196,6 +216,8 @@ def _wald(
     p = float(f_dist.sf(F, k, dof))
     w_crit = float(f_dist.isf(alpha, k, dof)) * k * max(G - 1, 1) / dof
     limit = float(np.sqrt(w_crit * max(float(np.linalg.eigvalsh(V)[-1]), 0.0)))
+    weakest = max(float(np.linalg.eigvalsh(X.T @ X)[0]), 1e-300)
+    limit = max(limit, float(np.sqrt(least_energy * X.shape[0] / weakest)))
     se = np.sqrt(np.clip(np.diag(V), 0.0, None))
     return Evidence(
         effect, channel, tuple(float(x) for x in b), tuple(float(x) for x in se), W, p, limit, G, alpha

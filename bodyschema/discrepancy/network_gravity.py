@@ -297,7 +297,7 @@ def gravity_case(
     cutoff: float | None = 10.0,
     n_blocks: int = 8,
     alpha: float = 0.01,
-    min_gain: float = 0.0005,
+    min_gain: float = 0.005,
     **train_kw: Any,
 ) -> GravityCase:
     """Train Eq. 11 and Eq. 24 networks on ``rec`` (same seed), compare residuals, name the cause of the

@@ -48,8 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--transfer", type=Path, nargs="*", default=(), help="recordings to test the fit on")
     p.add_argument("--cutoff", type=float, default=10.0, help="common low-pass of both sides, Hz")
     p.add_argument("--blocks", type=int, default=8, help="held-out time blocks")
-    p.add_argument("--alpha", type=float, default=0.01, help="significance level of a new effect")
-    p.add_argument("--min-gain", type=float, default=0.0005, help="smallest held-out gain to accept")
+    p.add_argument("--alpha", type=float, default=0.01, help="family significance level of a round's tests")
+    p.add_argument(
+        "--min-gain", type=float, default=0.005, help="least held-out gain to accept (share of the channel)"
+    )
     p.add_argument(
         "--gravity-case",
         action="store_true",

