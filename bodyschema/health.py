@@ -121,6 +121,11 @@ class HealthThresholds:
     of docs/design.md §4 (12 bits per turn), so quantization flicker of a held joint stays inside it.
     A link turning against its parent at ``motion_rad_s`` covers 0.05 rad in a second, sixteen times
     ``still_rad``: an encoder that stays still that long while the gyros see such motion contradicts them.
+    ``stop_margin_s``: how long after an encoder stops, on the IMU's clock, its gyros may still show the
+    motion: the IMU's low-pass settles within about four group delays (a 44 Hz DLPF: 4.8 ms each,
+    about 20 ms), and the estimated lag it is mapped with is good to a few ms; 50 ms covers both
+    twice. Without it the last few ms of a joint stopping at 1 rad/s read, over a still second, as a
+    link turning against a still encoder.
     """
 
     excitation_rad_s: float = 0.05
@@ -137,6 +142,7 @@ class HealthThresholds:
     still_seconds: float = 1.0
     lock_seconds: float = 5.0
     loose_false_alarm: float = 1e-9
+    stop_margin_s: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -665,7 +671,7 @@ def signal_health(
     joints: dict[str, JointHealth] = {}
     if rec.q is None or rec.n_joints == 0 or not enough:
         return SignalHealth(imus, joints)
-    still_since = _still_since(rec, th)
+    still_since = _on_imu_clock(_still_since(rec, th), rec, current)
     rec = d = one_clock(rec, current)  # IMUs were judged on their own stream above
     if d.n_samples < th.min_samples:
         return SignalHealth(imus, joints)
@@ -739,6 +745,17 @@ def _still_since(rec: Recording, th: HealthThresholds) -> np.ndarray:
     return out
 
 
+def _on_imu_clock(times: np.ndarray, rec: Recording, current: Topology | None) -> np.ndarray:
+    """Encoder-clock ``times`` on the IMU's clock, as :func:`one_clock` maps the encoder stream: the
+    IMU reports what the encoders saw at ``t`` at ``t + lag + drift (t - at)``."""
+    if rec.t_q is None or current is None:
+        return times
+    timing = current.timing or {}
+    lag = float(timing.get("lag_ms", 0.0)) * 1e-3
+    drift = float(timing.get("drift_ppm", 0.0)) * 1e-6
+    return times + lag + drift * (times - float(timing.get("at_s", 0.0)))
+
+
 def _still_lately(
     rec: Recording,
     d: Recording,
@@ -749,7 +766,8 @@ def _still_lately(
     present: dict[str, int],
     th: HealthThresholds,
 ) -> tuple[str, float, float, float | None] | None:
-    """Judge joint ``k`` on its encoder's trailing still stretch (from ``since``): ``(state,
+    """Judge joint ``k`` on its encoder's trailing still stretch (from ``since``, on the IMU's clock,
+    plus ``stop_margin_s``): ``(state,
     excitation, relative motion, explained)`` when that stretch decides, else None.
 
     A window that straddles a change is a mix of the body before and after it, and over the whole
@@ -769,6 +787,7 @@ def _still_lately(
     Anything in between (some IMUs turn, some do not: a moved or loose IMU on the link) is left to the
     whole-window judgement.
     """
+    since = since + th.stop_margin_s  # the IMU's view of the stop settles (HealthThresholds)
     stretch = float(d.t[-1]) - since
     if not np.isfinite(since) or stretch < th.still_seconds:
         return None

@@ -328,3 +328,45 @@ def test_multirate_fingerprint_catches_a_constant_encoder_offset(rng: np.random.
 def test_drop_impacts_leaves_multirate_windows_to_their_estimators(rng: np.random.Generator) -> None:
     rec = _robot_sensed(rng, seconds=2.0)
     assert drop_impacts(rec) is rec
+
+
+def _stopping_knee(lag: float) -> tuple[Recording, Topology]:
+    """Two joints about z; j2 swings (1 rad/s peak) and stops dead at full speed 2.1 s before the end;
+    the IMUs (100 Hz) report ``lag`` seconds after the encoders (100 Hz, their own stamps)."""
+    t_q = np.arange(0.0, 10.0, 0.01)
+    stop = 2.5 * np.pi  # q2' = cos(2 t) = 1 there
+    q1 = 0.5 * np.sin(t_q)
+    q2 = 0.5 * np.sin(2.0 * np.minimum(t_q, stop))
+    t = t_q + lag
+    gyro = np.zeros((t.size, 2, 3))
+    gyro[:, 0, 2] = 0.5 * np.cos(t_q)  # what the encoders saw at t_q, reported at t_q + lag
+    gyro[:, 1, 2] = gyro[:, 0, 2] + np.where(t_q < stop, np.cos(2.0 * t_q), 0.0)
+    acc = np.tile([0.0, 0.0, 9.81], (t.size, 2, 1))
+    rec = Recording(
+        t=t,
+        t_q=t_q,
+        joint_names=("j1", "j2"),
+        q=np.c_[q1, q2],
+        imu_names=("imu1", "imu2"),
+        acc=acc,
+        gyro=gyro,
+    )
+    return rec, Topology({"j1": None, "j2": "j1"}, {"imu1": "j1", "imu2": "j2"})
+
+
+def test_a_joint_that_stops_dead_is_not_a_frozen_encoder_on_the_imus_late_clock() -> None:
+    """The still stretch starts when the encoder stopped, on the encoders' clock; the IMUs show the
+    stop a lag later. Judged from the encoder's instant, the last 30 ms of motion at 1 rad/s made
+    0.12 rad/s RMS over the 2.1 s still stretch, above ``motion_rad_s``: a healthy joint read as a
+    frozen encoder. Mapped onto the IMU's clock, and past the settling margin, the stretch is still."""
+    rec, layout = _stopping_knee(lag=0.03)
+    timed = Topology(
+        layout.joint_parent, layout.imu_joint, timing={"lag_ms": 30.0, "drift_ppm": 0.0, "at_s": 0.0}
+    )
+    assert signal_health(rec, layout, current=timed).joints["j2"].state != "frozen_encoder"
+    # what it was: the stretch taken on the encoders' clock and with no margin
+    old = HealthThresholds(stop_margin_s=0.0)
+    assert signal_health(rec, layout, thresholds=old).joints["j2"].state == "frozen_encoder"
+    # and a real frozen encoder still reads as one: the link keeps turning, the encoder does not
+    rec.gyro[:, 1, 2] = rec.gyro[:, 0, 2] + np.cos(2.0 * rec.t)
+    assert signal_health(rec, layout, current=timed).joints["j2"].state == "frozen_encoder"
