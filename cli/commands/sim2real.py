@@ -44,6 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imu", default=None, help="IMU name (default: every IMU of the recording)")
     p.add_argument("--json", action="store_true", help="print the discrepancy JSON")
     p.add_argument("--out", type=Path, default=None, help="write the fitted IMU model (simulator JSON)")
+    p.add_argument(
+        "--kalibr",
+        type=Path,
+        default=None,
+        help="write the IMU's noise densities, bias random walks and rate as a Kalibr imu.yaml",
+    )
     p.add_argument("--report", type=Path, default=None, help="write report.md, JSON and PNG plots here")
     p.add_argument("--transfer", type=Path, nargs="*", default=(), help="recordings to test the fit on")
     p.add_argument("--cutoff", type=float, default=10.0, help="common low-pass of both sides, Hz")
@@ -79,6 +85,8 @@ def _run(args: argparse.Namespace) -> int:
         write_gravity_case(case, args.report, title=args.recording.stem)
     if args.out and imus:
         _save_models(args, imus, results)
+    if args.kalibr and imus:
+        _save_kalibr(args, imus, results)
     if args.json:
         _print_json(imus, results, case)
     else:
@@ -181,6 +189,16 @@ def _save_models(args: argparse.Namespace, imus: list[str], results: dict[str, _
             save_imu_model(model, args.out.with_name(f"{args.out.stem}_{imu}{args.out.suffix}"))
     else:
         save_imu_model(results[imus[0]][1], args.out)
+
+
+def _save_kalibr(args: argparse.Namespace, imus: list[str], results: dict[str, _Result]) -> None:
+    """``--kalibr`` itself for one IMU; one file per IMU (``STEM_IMU.SUFFIX``) for several."""
+    from sim2real.kalibr import write_kalibr_imu
+
+    for imu, (rep, _, _) in results.items():
+        one = len(imus) == 1
+        path = args.kalibr if one else args.kalibr.with_name(f"{args.kalibr.stem}_{imu}{args.kalibr.suffix}")
+        write_kalibr_imu(rep, path, rostopic=f"/{imu}")
 
 
 def _print_json(imus: list[str], results: dict[str, _Result], case: GravityCase | None) -> None:
