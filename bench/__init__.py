@@ -25,6 +25,7 @@ BENCHMARKS: tuple[str, ...] = (
     "load",
     "ingest",
     "sim2real",
+    "sim2real_detect",
     "gravity",
     "realism",
     "import_",

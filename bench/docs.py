@@ -892,6 +892,13 @@ def _sim2real_example(b: _Bench) -> str:
     )
 
 
+def _sim2real_detect_doc(b: _Bench) -> str:
+    from bench.sim2real_detect import summary
+
+    d = b.json("sim2real-detect.json")
+    return "\n".join([f"Measured with `{d['command']}` on {d['machine']}:", "", *summary(d)])
+
+
 def _gravity_runs(b: _Bench) -> list[dict]:
     return b.json("gravity.json")  # type: ignore[return-value]
 

@@ -222,16 +222,25 @@ def unpack(vec: np.ndarray, names: tuple[str, ...] | list[str]) -> Params:
 
 _MEMO: dict[tuple[str, bytes], tuple[ReferenceMotion, np.ndarray]] = {}
 
+#: Values the memo keeps: a fit's finite-difference steps revisit a handful of gravity vectors and
+#: rotations; every other value (each step of a gravity or rotation fit) would otherwise stay, with
+#: its reference motion, for the life of the process (gigabytes over a benchmark's analyses).
+_MEMO_SIZE = 16
+
 
 def _memo(key: tuple[str, bytes], ref: ReferenceMotion, compute) -> np.ndarray:
-    """The last value of ``compute()`` for ``key`` on this very ``ref`` (fits re-evaluate the model
+    """The value of ``compute()`` for ``key`` on this very ``ref`` (fits re-evaluate the model
     hundreds of times with most effects unchanged; the specific force and the angular acceleration
-    only change with gravity and the mounting rotation). Returned arrays must not be modified."""
+    only change with gravity and the mounting rotation), from the :data:`_MEMO_SIZE` latest. Returned
+    arrays must not be modified."""
     hit = _MEMO.get(key)
     if hit is not None and hit[0] is ref:
         return hit[1]
     value = compute()
+    _MEMO.pop(key, None)
     _MEMO[key] = (ref, value)
+    while len(_MEMO) > _MEMO_SIZE:
+        del _MEMO[next(iter(_MEMO))]  # the oldest (dicts keep insertion order)
     return value
 
 
