@@ -1187,6 +1187,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/transports.md", "ingest", "ingest.json", _ingest_doc),
     _f("docs/sim2real.md", "example", "sim2real/02_undisturbed_slow_rotation_B/report.md", _sim2real_example),
     _f("docs/sim2real.md", "results", "sim2real", _sim2real_doc),
+    _f("docs/sim2real.md", "detect", "sim2real-detect.json", _sim2real_detect_doc),
     _f("docs/sim2real.md", "gravity", "gravity.json", _gravity_doc),
     _f("docs/sim2real.md", "gravity-networks", "gravity.json", _gravity_networks),
     _f("docs/topology.md", "realism", "realism.json", _realism),
