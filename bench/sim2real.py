@@ -21,7 +21,7 @@ from bench import RESULTS_DIR, machine_note
 from bodyschema.progress import progress
 from sim2real.broad import broad_data_dir
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["add_arguments", "run", "trial_paths"]
 
 log = logging.getLogger(__name__)
 
@@ -51,16 +51,22 @@ def _short(name: str, params: dict) -> str:
     return "[" + ", ".join(f"{x:.3g}" for x in v) + "]"
 
 
+def trial_paths(data: Path, prefixes: list[str] | None) -> list[Path]:
+    """The BROAD trials in ``data`` whose names start with one of ``prefixes`` (all when None)."""
+    paths = sorted(Path(data).glob("*.hdf5"))
+    if prefixes:
+        paths = [p for p in paths if any(p.stem.startswith(t) for t in prefixes)]
+    if not paths:
+        raise ValueError(f"no BROAD trials (*.hdf5) in {data}")
+    return paths
+
+
 def run(args: argparse.Namespace) -> Path:
     from bodyschema.discrepancy import analyze_recording
     from sim2real.broad import BROAD_ATTRIBUTION, load_broad, session_of
     from sim2real.report import to_imu_model, transfer, transfer_problem, write_report
 
-    paths = sorted(args.data.glob("*.hdf5"))
-    if args.trials:
-        paths = [p for p in paths if any(p.stem.startswith(t) for t in args.trials)]
-    if not paths:
-        raise ValueError(f"no BROAD trials (*.hdf5) in {args.data}")
+    paths = trial_paths(args.data, args.trials)
     out = Path(args.out)
     rows, models, probs = [], {}, {}
     for path in progress(paths, desc="sim2real: analyse", unit="trial"):

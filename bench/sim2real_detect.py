@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bench import RESULTS_DIR, machine_note
+from bench.sim2real import trial_paths
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, nominal
 from bodyschema.progress import progress
 from sim2real.broad import broad_data_dir
@@ -305,11 +306,7 @@ def _plot(data: dict, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> Path:
-    paths = sorted(args.data.glob("*.hdf5"))
-    if args.trials:
-        paths = [p for p in paths if any(p.stem.startswith(t) for t in args.trials)]
-    if not paths:
-        raise FileNotFoundError(f"no BROAD trials in {args.data}")
+    paths = trial_paths(args.data, args.trials)
     effects = [e for e in FITTED_EFFECTS if e in args.effects]
     jobs = [(str(p), effects, list(args.factors), args.pairs, args.triples, args.seed) for p in paths]
     trials: list[dict] = []
