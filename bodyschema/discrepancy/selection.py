@@ -343,20 +343,19 @@ def _confirm(
         r = normalized_residual(prob, p)
         new_params.append(p)
         new_held.append(score(r, f.test))
-        new_ch.append(_channel_scores(r, f.test)[ch])
+        new_ch.append(_channel_scores(r, f.test))
     # The gain is a share of what the model leaves of this channel's residual (floored, so that a
     # near-perfect channel's round-off is not blown up): a small gyro effect is measured neither
     # against the accelerometer's residual nor against a large one the model already explains.
     old_ch = np.array([f.held_ch[ch] for f in folds])
     remaining = max(float(np.mean(old_ch)), _energy_floor(prob, opts)[ch])
-    gain_ch = float(np.mean(old_ch - np.array(new_ch))) / remaining
+    gain_ch = float(np.mean(old_ch - np.array(new_ch)[:, ch])) / remaining
     log.info("candidate %s (%s): p=%.2g, held-out gain %.4f", c, ev.channel, ev.p_value, gain_ch)
     if gain_ch < opts.min_gain:
         return None
     d = np.array([f.held for f in folds]) - np.array(new_held)
-    for f, p, h in zip(folds, new_params, new_held, strict=True):
-        f.params, f.held = p, h
-        f.held_ch = _channel_scores(normalized_residual(prob, p), f.test)
+    for f, p, h, hc in zip(folds, new_params, new_held, new_ch, strict=True):
+        f.params, f.held, f.held_ch = p, h, hc
     return Cause(
         effect=c,
         params={},
