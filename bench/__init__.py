@@ -28,6 +28,7 @@ BENCHMARKS: tuple[str, ...] = (
     "sim2real_detect",
     "gravity",
     "realism",
+    "warmstart",
     "import_",
     "kinematics",
     "docs",

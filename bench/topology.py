@@ -176,7 +176,7 @@ def _run_networks(
             with np.load(path) as z:
                 return z["jbar"], float(z["seconds"])
         t0 = time.process_time()
-        jbar, _ = network_jacobian(rec, kind=kind, epochs=epochs, seed=seed)
+        jbar = network_jacobian(rec, kind=kind, epochs=epochs, seed=seed).jbar
         secs = time.process_time() - t0
         np.savez_compressed(path, jbar=jbar.astype(np.float32), seconds=secs)
         return jbar, secs

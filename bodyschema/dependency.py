@@ -33,20 +33,25 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 from sklearn.mixture import BayesianGaussianMixture
 
+from bodyschema.network_weights import NetworkWeights
 from bodyschema.recording import Recording
 
 __all__ = [
     "STATISTICS",
+    "JacobianFit",
     "NetworkDependency",
+    "StableDependency",
     "choose_delta",
     "cluster_vote",
     "dependency_feature",
@@ -233,6 +238,20 @@ class NetworkDependency:
     joint_confidence: np.ndarray
     loss: list[float]
     evidence: np.ndarray
+    #: the trained sensor networks' weights (method ``network``/``network-paper``), for a warm start
+    weights: NetworkWeights | None = None
+    #: True when the networks' training began from a warm start's weights
+    warm: bool = False
+
+
+class JacobianFit(NamedTuple):
+    """What :func:`network_jacobian` returns: the Jacobian norms (K, S, rows, N), the loss per epoch,
+    and the trained sensor networks' weights (None for the MLP baseline)."""
+
+    jbar: np.ndarray
+    loss: list[float]
+    weights: NetworkWeights | None
+    warm: bool = False
 
 
 def network_jacobian(
@@ -244,10 +263,16 @@ def network_jacobian(
     seed: int = 0,
     gravity: bool | None = None,
     progress: bool = False,
+    warm_start: NetworkWeights | None = None,
+    watch: Callable[[np.ndarray, int], bool] | None = None,
     **train_kw: Any,
-) -> tuple[np.ndarray, list[float]]:
+) -> JacobianFit:
     """Train ``kind`` ("network": SE(3) sensor networks, "mlp": the IV-D baseline) on ``rec`` and return
-    the per-sample Jacobian norms (K, S, rows, N) at ``samples`` recorded configurations, and the loss.
+    the per-sample Jacobian norms (K, S, rows, N) at ``samples`` recorded configurations, the loss and
+    the networks' weights. ``warm_start`` (sensor networks only) starts from an earlier training's
+    weights (:func:`bodyschema.networks.train_sensor_networks`); ``watch(jbar, epoch)``, when given,
+    sees the Jacobian norms at the same configurations after every epoch of the sensor networks and
+    stops training by returning True (:class:`StableDependency`).
 
     ``gravity`` None: the gravity-aware loss (Eq. 24) whenever the recording has gravity. ``seed``
     drives initialization, batches and the choice of θ samples.
@@ -258,6 +283,7 @@ def network_jacobian(
     S = min(samples, rec.n_samples)
     pick = np.sort(rng.choice(rec.n_samples, size=S, replace=False))
     theta = torch.as_tensor(rec.q[pick], dtype=torch.float32)
+    weights, warm = None, False
     if kind == "mlp":
         from bodyschema.mlp_baseline import mlp_jacobian, train_mlp
 
@@ -283,6 +309,13 @@ def network_jacobian(
         from bodyschema.networks import train_sensor_networks
 
         use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
+        on_epoch = None
+        if watch is not None:
+
+            def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
+                with torch.no_grad():
+                    return watch(invariant_jacobian(net, theta).numpy().astype(np.float64), epoch)
+
         net, loss = train_sensor_networks(
             rec.q,
             rec.qd,
@@ -294,12 +327,15 @@ def network_jacobian(
             epochs=epochs,
             seed=seed,
             progress=progress,
+            warm_start=warm_start,
+            on_epoch=on_epoch,
             **train_kw,
         )
         jbar = invariant_jacobian(net, theta)
+        weights, warm = NetworkWeights.from_model(net), net.warm
     else:
         raise ValueError(f"unknown network kind {kind!r}")
-    return jbar.numpy().astype(np.float64), loss
+    return JacobianFit(jbar.numpy().astype(np.float64), loss, weights, warm)
 
 
 def cluster_vote(
@@ -380,6 +416,45 @@ def dependency_from_jacobian(
     )
 
 
+class StableDependency:
+    """Stops a warm-started training once the dependency matrix has not changed for ``epochs`` epochs.
+
+    The networks' loss is the wrong yardstick for a warm start: weights fitted to an earlier window
+    fit a new window of the same body 2-3x worse at first (other configurations), and the loss takes
+    about as many epochs to come back down as a cold run takes, while what the networks are for, the
+    dependency matrix read from their Jacobian, is right from the first epoch. Measured on paper-3
+    (robot sensing, two 30 s windows, the Jacobian checked after every epoch): the warm run's matrix
+    equals the cold run's after every one of its 20 epochs; with an IMU moved to another link between
+    the windows, it differs after the first epoch and equals the cold run's from the second on. So a
+    warm start stops when the matrix read after each epoch (the same statistic, configurations and
+    clustering seed as the final one) has stayed the same for ``epochs`` epochs in a row; the warm
+    plateau schedule (:func:`bodyschema.training.warm_plateau`) still bounds it. Each check costs
+    about half an epoch. ``bodyhealth bench warmstart`` compares the answers with cold runs, healthy
+    and damaged.
+    """
+
+    def __init__(
+        self, statistic: str, undetermined: np.ndarray, lam: float, seed: int, epochs: int = 3
+    ) -> None:
+        self.statistic, self.undetermined, self.lam, self.seed = statistic, undetermined, lam, seed
+        self.epochs = epochs
+        self._last: np.ndarray | None = None
+        self._same = 0
+        #: the epoch (0-based) after which it stopped training, None while it has not
+        self.stopped_at: int | None = None
+
+    def __call__(self, jbar: np.ndarray, epoch: int) -> bool:
+        dep = dependency_from_jacobian(
+            jbar, self.statistic, self.undetermined, lam=self.lam, rng=np.random.default_rng(self.seed + 1)
+        ).dependency
+        self._same = self._same + 1 if self._last is not None and np.array_equal(dep, self._last) else 0
+        self._last = dep
+        if self._same >= self.epochs:
+            self.stopped_at = epoch
+            return True
+        return False
+
+
 def network_dependency(
     rec: Recording,
     method: str = "network",
@@ -402,10 +477,13 @@ def network_dependency(
     if method not in kinds:
         raise ValueError(f"unknown network method {method!r}; choose one of {sorted(kinds)}")
     kind, statistic = kinds[method]
-    jbar, loss = network_jacobian(rec, kind=kind, seed=seed, **kw)
-    rec = rec.derived()
-    assert rec.qd is not None
-    und = insufficient_excitation(rec.qd, rec.gyro)
-    return dependency_from_jacobian(
-        jbar, statistic, und, lam=lam, rng=np.random.default_rng(seed + 1), loss=loss
+    derived = rec.derived()
+    assert derived.qd is not None
+    und = insufficient_excitation(derived.qd, derived.gyro)
+    if kind == "network" and kw.get("warm_start") is not None and kw.get("epochs") is None:
+        kw.setdefault("watch", StableDependency(statistic, und, lam, seed))
+    fit = network_jacobian(rec, kind=kind, seed=seed, **kw)
+    dep = dependency_from_jacobian(
+        fit.jbar, statistic, und, lam=lam, rng=np.random.default_rng(seed + 1), loss=fit.loss
     )
+    return dataclasses.replace(dep, weights=fit.weights, warm=fit.warm)

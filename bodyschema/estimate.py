@@ -32,7 +32,7 @@ Example
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -44,12 +44,23 @@ from bodyschema.outtree import OutTree
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
-__all__ = ["METHODS", "estimate_topology", "topology_from_dependency"]
+if TYPE_CHECKING:
+    from bodyschema.network_weights import NetworkWeights
+
+__all__ = ["METHODS", "TopologyFit", "estimate_topology", "fit_topology", "topology_from_dependency"]
 
 METHODS: tuple[str, ...] = ("fast", "network", "network-paper", "mlp")
 
 #: At most this many alternative answers are listed for a robot whose answer is not unique.
 MAX_CANDIDATES = 24
+
+
+class TopologyFit(NamedTuple):
+    """What :func:`fit_topology` returns: the topology and, for the sensor-network methods, the trained
+    networks' weights (to start the next training of the same robot from)."""
+
+    topology: Topology
+    weights: NetworkWeights | None
 
 
 def estimate_topology(
@@ -74,6 +85,25 @@ def estimate_topology(
     (:func:`bodyschema.timing.aligned_recording`). ``imu_delay`` (s) is the stated group delay of the
     IMU's on-chip filter: ``timing["skew_ms"]`` is the lag less it, for every method (a recording
     that states its filter, ``extra["sensing"]``, gives it itself).
+
+    The sensor-network methods take ``warm_start=`` (:class:`bodyschema.networks.NetworkWeights`);
+    :func:`fit_topology` also returns the weights trained.
+    """
+    return fit_topology(rec, method, timer=timer, imu_delay=imu_delay, **kw).topology
+
+
+def fit_topology(
+    rec: Recording,
+    method: str = "fast",
+    *,
+    timer: Callable[[], float] | None = None,
+    imu_delay: float | None = None,
+    **kw: Any,
+) -> TopologyFit:
+    """:func:`estimate_topology`, and the trained networks' weights (None for ``fast`` and ``mlp``).
+
+    The sensor-network methods record in ``training["warm"]`` whether training began from the
+    ``warm_start=`` weights (1) or from random ones (0: none given, or of another shape).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -84,6 +114,7 @@ def estimate_topology(
     start = timer() if timer is not None else 0.0
     timing: dict[str, float] = {}
     training: dict[str, float] = {}
+    weights = None
     timed = None
     if rec.is_multirate:
         # encoders on their own clock: the fast estimator finds the IMU's lag behind them (and answers
@@ -123,14 +154,18 @@ def estimate_topology(
     else:
         from bodyschema.dependency import network_dependency
 
+        if method == "mlp":
+            kw.pop("warm_start", None)
         res = network_dependency(rec, method=method, **kw)
-        dep, evidence = res.dependency, res.evidence
+        dep, evidence, weights = res.dependency, res.evidence, res.weights
         bound = kw.get("epochs") or kw.get("max_epochs", 200)
         training = {"epochs": float(len(res.loss))}
         training |= {
             # the MLP baseline trains a fixed budget (the paper's); the sensor networks to a flat loss
             "converged": float(method != "mlp" and kw.get("epochs") is None and len(res.loss) < bound),
         }
+        if method != "mlp":
+            training["warm"] = float(res.warm)
         if res.loss and np.isfinite(res.loss[-1]):  # JSON (and PostgreSQL's JSON) has no NaN
             training["loss"] = float(res.loss[-1])
         undetermined = [rec.joint_names[j] for j in res.undetermined]
@@ -147,9 +182,10 @@ def estimate_topology(
         excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
         evidence=evidence,
     )
-    return _with(
+    topo = _with(
         topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=training
     )
+    return TopologyFit(topo, weights)
 
 
 def _with(topo: Topology, **changes: Any) -> Topology:

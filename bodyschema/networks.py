@@ -36,16 +36,18 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
 from torch import nn
 
+from bodyschema.network_weights import NetworkWeights
 from bodyschema.threads import set_torch_threads
-from bodyschema.training import epoch_schedule, train_epochs
+from bodyschema.training import WARM_LR_FACTOR, Schedule, epoch_schedule, train_epochs, warm_plateau
 
 __all__ = [
+    "NetworkWeights",  # re-exported: the weights of these networks
     "SensorNetworks",
     "batched_layers",
     "mean_pose_gravity",
@@ -94,6 +96,8 @@ class SensorNetworks(nn.Module):
         self.acc_bias = nn.Parameter(torch.zeros(n_imus, 1, 3))
         self.n_imus = n_imus
         self.n_joints = n_joints
+        #: True when training began from an earlier training's weights (:class:`NetworkWeights`)
+        self.warm = False
 
     def set_input_scaling(self, mean: torch.Tensor, std: torch.Tensor) -> None:
         """Standardize joint angles inside the model (sigmoid layers train badly on raw radians)."""
@@ -168,6 +172,20 @@ class SensorNetworks(nn.Module):
         return omega + self.gyro_bias, acc + self.acc_bias
 
 
+class _Watched:
+    """A schedule whose epochs are also shown to ``watch(epoch, loss)``, which may stop training."""
+
+    def __init__(self, inner: Schedule, watch: Callable[[int, float], bool]) -> None:
+        self._inner, self._watch = inner, watch
+
+    def after_step(self, epoch: int) -> None:
+        self._inner.after_step(epoch)
+
+    def after_epoch(self, epoch: int, loss: float) -> bool:
+        stop = self._inner.after_epoch(epoch, loss)
+        return self._watch(epoch, loss) or stop
+
+
 def robot_scale(meas: torch.Tensor, floor: float) -> torch.Tensor:
     """One spread for a sensor type over the whole robot: the median over IMUs of each IMU's spread.
 
@@ -219,6 +237,8 @@ def train_sensor_networks(
     progress: bool = False,
     max_epochs: int = 200,
     plateau_tol: float = 0.01,
+    warm_start: NetworkWeights | None = None,
+    on_epoch: Callable[[SensorNetworks, int, float], bool] | None = None,
 ) -> tuple[SensorNetworks, list[float]]:
     """Fit one pose network per IMU on a recording's arrays; returns the model and the loss per epoch.
 
@@ -237,6 +257,12 @@ def train_sensor_networks(
     joints, 54 IMUs, 60 s, 40 epochs): the final loss falls from 0.116 at 512 to 0.017 at 64 for 14 %
     more CPU time, the weakest true dependency feature rises from 0.04 to 0.12 and the strongest false
     one falls from 0.125 to 0.065, which is what makes the extracted tree exact there.
+
+    ``warm_start``: the weights of an earlier training of the same robot (same IMUs, joints and
+    layers; otherwise it starts cold and logs why). Training to convergence then begins from them on
+    :func:`bodyschema.training.warm_plateau`: no warm-up, two rate cuts instead of three. The
+    networks already describe the body, so what is left is to follow the new window. ``net.warm``
+    says which start was taken.
     Threads follow :func:`set_torch_threads`; a bar (:func:`bodyschema.progress.progress`) is shown
     when ``progress``, and the loss is logged every 10 epochs either way.
     """
@@ -253,14 +279,34 @@ def train_sensor_networks(
     g = None if gravity is None else torch.as_tensor(gravity, dtype=f32)
     w_scale, a_scale = robot_scale(w_meas, 1e-3), robot_scale(a_meas, 1e-2)
     net = SensorNetworks(K, N, hidden=hidden, seed=seed)
-    net.set_input_scaling(th.mean(0), th.std(0))
-    with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
-        net.gyro_bias.copy_(w_meas.mean(dim=1, keepdim=True))
-        if g is not None:
-            net.gravity_dir.copy_(mean_pose_gravity(a_meas))
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    warm = warm_start is not None and epochs is None and warm_start.fits(K, N, hidden)
+    if warm_start is not None and not warm:
+        log.info(
+            "sensor networks: cold start, the stored weights do not fit (%s IMUs x %s joints, %s; "
+            "now %d x %d, %s%s)",
+            warm_start.n_imus,
+            warm_start.n_joints,
+            warm_start.hidden,
+            K,
+            N,
+            tuple(hidden),
+            ", fixed epochs" if epochs is not None else "",
+        )
     per_epoch = max(1, math.ceil(T / batch_size))
-    schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
+    if warm:
+        assert warm_start is not None
+        warm_start.load_into(net)
+        opt = torch.optim.Adam(net.parameters(), lr=lr * WARM_LR_FACTOR)
+        schedule = warm_plateau(opt, lr, per_epoch, plateau_tol)
+    else:
+        net.set_input_scaling(th.mean(0), th.std(0))
+        with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
+            net.gyro_bias.copy_(w_meas.mean(dim=1, keepdim=True))
+            if g is not None:
+                net.gravity_dir.copy_(mean_pose_gravity(a_meas))
+        opt = torch.optim.Adam(net.parameters(), lr=lr)
+        schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
+    net.warm = warm
 
     def batch_loss(idx: torch.Tensor) -> torch.Tensor:
         w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)
@@ -280,7 +326,7 @@ def train_sensor_networks(
         seed=seed,
         name="sensor networks",
         desc=f"sensor networks ({K} IMUs)",
-        schedule=schedule,
+        schedule=schedule if on_epoch is None else _Watched(schedule, lambda e, loss: on_epoch(net, e, loss)),
         show_progress=progress,
         logger=log,
     )

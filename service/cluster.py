@@ -7,7 +7,8 @@ and the API for the interpreter. The service therefore hands it to Dask distribu
 * **embedded** (default): a :class:`distributed.LocalCluster` of worker *processes* (one thread
   each: torch trains on one thread, :func:`bodyschema.threads.set_torch_threads`), ``workers`` of them
   (default: CPU count - 1, at least 1), no dashboard. Started on the first retrain, not with the
-  service: most services never run one (``network_interval_cycles`` is 0 by default).
+  service: startup never waits for it, and a service with ``network_interval_cycles`` 0 that is
+  never asked for a retrain never starts one.
 * **external**: ``scheduler`` names an existing scheduler (``tcp://host:port``); connected at start.
 
 Connecting never blocks the caller: it happens on a background thread, retried every

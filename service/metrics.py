@@ -104,6 +104,13 @@ class Metrics:
             ["method"],
             registry=self.registry,
         )
+        self.retrains = Counter(
+            "bodyhealth_retrains",
+            "network retrains stored, by how their training started (warm: from the robot's stored "
+            "weights; cold: from random ones)",
+            ["method", "start"],
+            registry=self.registry,
+        )
         self.retrains_in_flight = Gauge(
             "bodyhealth_retrains_in_flight",
             "retrains submitted to the cluster, not yet collected",

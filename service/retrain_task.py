@@ -27,7 +27,19 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["RetrainJob", "RetrainResult", "WindowGone", "job_key", "run_retrain", "shareable_url"]
+__all__ = [
+    "WARM_METHODS",
+    "RetrainJob",
+    "RetrainResult",
+    "WindowGone",
+    "job_key",
+    "run_retrain",
+    "shareable_url",
+]
+
+#: The methods whose training can start from stored weights (the sensor networks; the MLP baseline
+#: keeps the paper's fixed budget from random weights).
+WARM_METHODS: tuple[str, ...] = ("network", "network-paper")
 
 
 class WindowGone(LookupError):
@@ -51,6 +63,9 @@ class RetrainJob:
     seed: int = 0
     options: tuple[tuple[str, Any], ...] = ()
     min_samples: int = 50
+    #: the baseline current at submission: the task starts from the robot's weights trained under it
+    baseline_id: int | None = None
+    warm_start: bool = True
 
 
 @dataclass(frozen=True)
@@ -69,6 +84,13 @@ class RetrainResult:
     pid: int
     host: str
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the trained networks (:func:`service.store.weights.pack_weights`), for the next warm start
+    weights: bytes | None = None
+    #: the version of the robot's stored weights training began from (None: a cold start)
+    warm_from: int | None = None
+    baseline_id: int | None = None
+    imus: tuple[str, ...] = ()
+    joints: tuple[str, ...] = ()
 
 
 def shareable_url(url: str) -> str | None:
@@ -104,24 +126,36 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
 
     Raises :class:`WindowGone` when the window no longer holds ``min_samples`` samples with encoder
     positions (retention pruned it, or the robot's clock went back to a new epoch long ago).
+
+    The sensor networks start from the robot's newest stored weights trained under the job's
+    baseline, on the same IMUs and joints (:mod:`service.store.weights`), when ``job.warm_start``;
+    the weights trained come back in the result, for the service to store.
     """
-    from bodyschema.estimate import estimate_topology
+    from bodyschema.estimate import fit_topology
     from bodyschema.health import drop_impacts
     from service.store import Store
+    from service.store.weights import pack_weights
 
     wall0, cpu0 = time.monotonic(), time.process_time()
     store = Store(job.database_url)
+    stored = None
     try:
         rec = store.read_window(job.robot, job.window_seconds, end=job.window_end, epoch=job.epoch)
+        if rec is not None and job.warm_start and job.method in WARM_METHODS:
+            stored = store.network_weights(
+                job.robot, job.method, baseline_id=job.baseline_id, imus=rec.imu_names, joints=rec.joint_names
+            )
     finally:
         store.close()
     if rec is None or rec.q is None or rec.n_samples < job.min_samples:
         raise WindowGone(
             f"window of {job.robot!r} ending at {job.window_end:g} (epoch {job.epoch}) holds too little data"
         )
-    topo = estimate_topology(
-        drop_impacts(rec), method=job.method, timer=time.process_time, seed=job.seed, **dict(job.options)
-    )
+    kw = dict(job.options)
+    if job.method in WARM_METHODS:
+        kw["warm_start"] = stored.weights if stored is not None else None
+    fit = fit_topology(drop_impacts(rec), method=job.method, timer=time.process_time, seed=job.seed, **kw)
+    topo = fit.topology
     training = topo.training or {}
     converged = training.get("converged")
     return RetrainResult(
@@ -136,4 +170,9 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
         converged=None if converged is None else bool(converged),
         pid=os.getpid(),
         host=socket.gethostname(),
+        weights=None if fit.weights is None else pack_weights(fit.weights),
+        warm_from=stored.version if stored is not None and training.get("warm") else None,
+        baseline_id=job.baseline_id,
+        imus=tuple(rec.imu_names),
+        joints=tuple(rec.joint_names),
     )

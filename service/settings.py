@@ -92,7 +92,15 @@ class Settings(BaseSettings):
     # ----------------------------------------------------------------- worker
     worker_interval_seconds: float = Field(5.0, gt=0)
     network_interval_cycles: int = Field(
-        0, ge=0, description="0 = never run the networks; N = every N cycles"
+        12,
+        ge=0,
+        description="retrain every robot's sensor networks every N worker cycles (12 at the default "
+        "5 s interval: once a minute); 0 = never, unless asked",
+    )
+    network_on_change: bool = Field(
+        True,
+        description="retrain a robot's sensor networks at once when the fast method's diff against the "
+        "baseline shows a new finding (needs network_interval_cycles > 0)",
     )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")

@@ -35,6 +35,7 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -75,7 +76,8 @@ class RobotStatus:
     other fitting trees (at most :data:`MAX_ALTERNATIVES`). ``decide_by`` names the joints whose motion,
     each on its own with the others still, would decide between the trees or place an unplaced joint.
     ``topology`` is the estimate judged; ``current`` and ``baseline`` are the store's records when the
-    answer was read from a store.
+    answer was read from a store. ``network`` is the robot's newest sensor-network topology (when
+    another method is judged): what the last retrain learned, and how it trained.
     """
 
     robot: str
@@ -91,6 +93,7 @@ class RobotStatus:
     topology: Topology | None = None
     current: TopologyRecord | None = None
     baseline: TopologyRecord | None = None
+    network: TopologyRecord | None = None
 
     @property
     def timing(self) -> dict[str, float | None]:
@@ -234,10 +237,12 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
     cur = store.latest_topology(robot, method=method or "fast")
     if cur is None and method is None:
         cur = store.latest_topology(robot)
-    return judge(
+    st = judge(
         robot,
         cur,
         store.baseline(robot),
         store.alerts(robot, active=True),
         store.alerts(robot, state="pending"),
     )
+    net = store.latest_topology(robot, method="network")
+    return dataclasses.replace(st, network=net) if net is not None else st

@@ -3,7 +3,9 @@
 The worker never waits on a retrain. Each cycle it
 
 1. **collects** the futures that finished since the last cycle (:meth:`RemoteRetrains.collect`): a
-   result becomes one stored topology (wall time of collection, the job's window end); a task that
+   result becomes one stored topology (wall time of collection, the job's window end) and, for the
+   sensor networks, a new version of the robot's weights (:mod:`service.store.weights`), which the
+   next retrain of the robot starts from while the baseline stays the same; a task that
    raised is logged and counted (``bodyhealth_retrain_failures_total{method}``); a task cancelled
    because the client lost its scheduler is wanted again, so it runs once the cluster is back;
 2. marks the network methods the cycle asked for as **wanted** (:meth:`RemoteRetrains.want`);
@@ -49,6 +51,8 @@ class TrainingOptions:
 
     seed: int = 0
     estimator_options: tuple[tuple[str, Any], ...] = ()
+    #: start the sensor networks from the robot's stored weights (:mod:`service.store.weights`)
+    warm_start: bool = True
 
 
 @dataclass(frozen=True)
@@ -177,7 +181,21 @@ class RemoteRetrains:
     def _store(self, res: RetrainResult, now: float) -> None:
         topo = Topology.from_json(res.topology)
         self.store.save_topology(res.robot, topo, now, res.window_end)
+        version = None
+        if res.weights is not None:
+            version = self.store.save_network_weights(
+                res.robot,
+                res.method,
+                res.weights,
+                res.imus,
+                res.joints,
+                baseline_id=res.baseline_id,
+                wall_time=now,
+                window_end_t=res.window_end,
+            )
         self.metrics.retrain_seconds.labels(method=res.method).observe(res.cpu_seconds)
+        start = "warm" if res.warm_from is not None else "cold"
+        self.metrics.retrains.labels(method=res.method, start=start).inc()
         log.info(
             "retrain stored",
             extra={
@@ -187,6 +205,8 @@ class RemoteRetrains:
                 "cpu_seconds": round(res.cpu_seconds, 3),
                 "epochs": res.epochs,
                 "converged": res.converged,
+                "warm_from": res.warm_from,
+                "weights_version": version,
                 "pid": res.pid,
                 "host": res.host,
             },
@@ -207,6 +227,7 @@ class RemoteRetrains:
             return None
         if info.last_frame_t is None:
             return None
+        base = self.store.baseline(robot) if self.options.warm_start else None
         return RetrainJob(
             database_url=self.database_url,
             robot=robot,
@@ -217,4 +238,6 @@ class RemoteRetrains:
             seed=self.options.seed,
             options=self.options.estimator_options,
             min_samples=self.min_samples,
+            baseline_id=base.id if base is not None else None,
+            warm_start=self.options.warm_start,
         )

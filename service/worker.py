@@ -7,7 +7,9 @@ One cycle, for every robot the store knows:
    longer than ``window_seconds`` of wall time: see :meth:`Worker._idle`);
 2. judge signal health (:func:`bodyschema.health.signal_health`, the baseline as layout);
 3. learn the topology with the fast estimator (and with the sensor networks every
-   ``network_interval_cycles`` cycles or when asked), store each result with time and method;
+   ``network_interval_cycles`` cycles, when asked, and at once when the fast estimate's diff
+   against the baseline shows a finding the previous cycle did not: ``network_on_change``), store
+   each result with time and method;
 4. without a baseline: adopt the fast topology once it has come out the same ``baseline_repeat_k``
    cycles in a row (an operator may also approve one, :meth:`Worker.approve_baseline`);
 5. with a baseline: :func:`bodyschema.diff.diff_bodies` → :class:`service.alerts.AlertTracker`
@@ -126,6 +128,8 @@ class Worker:
         #: that matches the baseline.
         self.fingerprints_: dict[str, BaselineFingerprints] = {}
         self._requests: dict[str, set[str]] = {}
+        #: Per robot: the (kind, part) of the previous cycle's findings (see :meth:`_on_change`).
+        self._findings: dict[str, frozenset[tuple[str, str]]] = {}
         #: Per (robot, IMU): window end of the first cycle of the current run of cycles whose diff
         #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
         #: recorded after the change.
@@ -347,6 +351,7 @@ class Worker:
             res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
+        self._on_change(robot, res.diff)
         if robot not in self.fingerprints_ and not res.diff.findings:
             self.fingerprints_[robot] = baseline_fingerprints(rec, base.topology, current=fast)
         hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
@@ -369,6 +374,26 @@ class Worker:
                 },
             )
         return res
+
+    def _on_change(self, robot: str, diff: Diff) -> None:
+        """Ask for a network retrain of ``robot`` when the fast screen's diff holds a finding the
+        previous cycle's did not (``Settings.network_on_change``): the fast method is the screen, the
+        networks learn the body the finding is about. Once per new finding, not per cycle it lasts:
+        a retrain costs tens of CPU seconds, the screen one."""
+        seen = frozenset((f.kind, f.part) for f in diff.findings)
+        new = seen - self._findings.get(robot, frozenset())
+        self._findings[robot] = seen
+        if not new or not self.settings.network_on_change or self.settings.network_interval_cycles == 0:
+            return
+        log.info(
+            "network retrain asked: the fast screen found a change",
+            extra={"robot": robot, "findings": sorted(f"{k} {p}" for k, p in new)},
+        )
+        if self.remote is not None:
+            self.remote.want(robot, "network")
+        else:
+            with self._lock:
+                self._requests.setdefault(robot, set()).add("network")
 
     def _after_onset(
         self, robot: str, rec: Recording, diff: Diff, baseline: Topology

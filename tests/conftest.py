@@ -25,10 +25,21 @@ import numpy as np
 import pytest
 from hypothesis import settings as hypothesis_settings
 
-__all__ = ["node_seed"]
+__all__ = ["NETWORK_SCHEDULE_ENV", "node_seed"]
 
 CI_ENV = "BODYHEALTH_CI"
 SEED_ENV = "BODYHEALTH_TEST_SEED"
+
+#: The sensor-network schedule is on in the product (``Settings.network_interval_cycles``: once a
+#: minute per robot). The suite's worker, API and serve tests judge the fast screen, its alerts and
+#: their latency in worker cycles, with scripted estimators whose calls they count; a network retrain
+#: every twelfth cycle would add tens of CPU seconds to them on a 2-core machine and change what they
+#: count. So the suite turns the schedule off unless a test sets it: the schedule, the trigger on a
+#: new finding and the warm starts are tested where they are the subject (tests/service/
+#: test_worker.py, tests/service/test_dask_training.py, tests/bodyschema/test_network_warm_start.py),
+#: and the default itself in tests/service/test_settings.py.
+NETWORK_SCHEDULE_ENV = "BODYHEALTH_NETWORK_INTERVAL_CYCLES"
+os.environ.setdefault(NETWORK_SCHEDULE_ENV, "0")
 
 hypothesis_settings.register_profile("bodyhealth", derandomize=True, database=None, print_blob=True)
 hypothesis_settings.load_profile("bodyhealth")

@@ -6,11 +6,13 @@ contract, and a second model of it here would drift.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bodyschema.findings import DAMAGE_KINDS
+from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
 from service.frames import NAME_PATTERN, NAME_RULE
 from service.status import MAX_ALTERNATIVES, RobotStatus
@@ -26,6 +28,7 @@ __all__ = [
     "DiagnosticStatusOut",
     "FramesIn",
     "KeyValueOut",
+    "RetrainOut",
     "RobotOut",
     "StatusOut",
     "TimingOut",
@@ -65,6 +68,8 @@ class TopologyOut(BaseModel):
     window_end_t: float | None
     method: str
     source: str | None = None
+    cpu_seconds: float | None = Field(None, description="CPU seconds the estimate took")
+    training: TrainingOut | None = Field(None, description="network methods: how training went")
     topology: dict[str, Any] = Field(description="docs/design.md §2 topology JSON")
 
     @classmethod
@@ -75,6 +80,8 @@ class TopologyOut(BaseModel):
             window_end_t=r.window_end_t,
             method=r.method,
             source=r.source,
+            cpu_seconds=float(r.topology.seconds),
+            training=TrainingOut.of(dict(r.topology.training)),
             topology=r.topology.to_json(),
         )
 
@@ -148,17 +155,51 @@ class TrainingOut(BaseModel):
         None, description="training stopped on a flat loss rather than at its epoch bound"
     )
     loss: float | None = Field(None, description="last epoch's loss (null when it was not finite)")
+    warm: bool | None = Field(
+        None,
+        description="sensor networks: training began from the robot's stored weights (true) or from "
+        "random ones (false)",
+    )
 
     @classmethod
     def of(cls, training: dict[str, float | None]) -> TrainingOut | None:
         """None for estimators that do not train (the fast one); the stored floats typed back."""
         if not training:
             return None
-        epochs, converged = training.get("epochs"), training.get("converged")
+        epochs, converged, warm = training.get("epochs"), training.get("converged"), training.get("warm")
+        loss = training.get("loss")
         return cls(
             epochs=None if epochs is None else int(epochs),
             converged=None if converged is None else bool(converged),
-            loss=training.get("loss"),
+            loss=None if loss is None or not math.isfinite(loss) else float(loss),
+            warm=None if warm is None else bool(warm),
+        )
+
+
+class RetrainOut(BaseModel):
+    """The newest sensor-network topology of a robot: when, what it cost, how it trained, and whether
+    it learned the same body as the estimate judged."""
+
+    topology_id: int
+    method: str
+    wall_time: float = Field(description="when it was stored (wall clock, s)")
+    window_end_t: float | None = Field(None, description="device time its window ended, s")
+    cpu_seconds: float = Field(description="CPU seconds the retrain took where it ran")
+    training: TrainingOut | None = None
+    same_as_judged: bool | None = Field(
+        None, description="it learned the same structure as the estimate judged (null: nothing judged)"
+    )
+
+    @classmethod
+    def of(cls, r: TopologyRecord, judged: Topology | None) -> RetrainOut:
+        return cls(
+            topology_id=r.id,
+            method=r.method,
+            wall_time=r.wall_time,
+            window_end_t=r.window_end_t,
+            cpu_seconds=float(r.topology.seconds),
+            training=TrainingOut.of(dict(r.topology.training)),
+            same_as_judged=None if judged is None else r.topology.same_structure(judged),
         )
 
 
@@ -202,6 +243,9 @@ class StatusOut(BaseModel):
     wall_time: float | None = Field(None, description="when it was learned (wall clock, s)")
     timing: TimingOut | None = Field(None, description="multi-rate robots: IMU-to-encoder timing")
     training: TrainingOut | None = Field(None, description="network methods: how training went")
+    network: RetrainOut | None = Field(
+        None, description="the newest sensor-network retrain (the schedule's, or one asked for)"
+    )
 
     @classmethod
     def of(cls, st: RobotStatus) -> StatusOut:
@@ -226,6 +270,7 @@ class StatusOut(BaseModel):
             wall_time=cur.wall_time if cur else None,
             timing=TimingOut.of(st.timing),
             training=TrainingOut.of(st.training),
+            network=RetrainOut.of(st.network, st.topology) if st.network is not None else None,
         )
 
 

@@ -318,6 +318,18 @@ function renderStatus(card, st) {
         t.loss === null ? "loss not finite" : `loss ${t.loss.toPrecision(3)}`].filter(Boolean);
       extra.push(el("span", { class: "training" }, `${st.method} training: ${parts.join(", ")}`));
     }
+    if (st.network) {
+      const n = st.network, t = n.training || {};
+      const when = new Date(n.wall_time * 1000).toLocaleTimeString();
+      const parts = [t.warm === null || t.warm === undefined ? null : (t.warm ? "warm start" : "cold start"),
+        t.epochs === null || t.epochs === undefined ? null : plural(t.epochs, "epoch", "epochs"),
+        t.converged === null || t.converged === undefined ? null : (t.converged ? "converged" : "not converged"),
+        `${n.cpu_seconds.toFixed(1)} CPU s`,
+        n.same_as_judged === null ? null : (n.same_as_judged ? "same body as the screen" : "a body other than the screen's")]
+        .filter(Boolean);
+      extra.push(el("span", { class: "network", "data-topology": String(n.topology_id) },
+        `${n.method} retrain ${when}: ${parts.join(", ")}`));
+    }
     if (extra.length) {
       const row = el("div", { class: "timing" });
       extra.forEach((e, i) => { if (i) row.append(" · "); row.append(e); });

@@ -35,7 +35,18 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-__all__ = ["Alert", "Base", "Baseline", "Chunk", "Heartbeat", "Imu", "Joint", "Robot", "TopologyRow"]
+__all__ = [
+    "Alert",
+    "Base",
+    "Baseline",
+    "Chunk",
+    "Heartbeat",
+    "Imu",
+    "Joint",
+    "NetworkWeightsRow",
+    "Robot",
+    "TopologyRow",
+]
 
 #: Constraint names are spelled out so migrations can refer to them on every backend.
 NAMING_CONVENTION = {
@@ -154,6 +165,27 @@ class Baseline(Base):
     method: Mapped[str] = mapped_column(String(64))
     source: Mapped[str] = mapped_column(String(16))
     topology: Mapped[dict[str, Any]]
+
+
+class NetworkWeightsRow(Base):
+    """A robot's trained sensor networks (``data``: an ``.npz`` of the arrays), to start the next
+    training of the same method from. ``version`` counts per robot and method; ``baseline_id`` is the
+    baseline that was current when they were trained (NULL: none yet): weights are only reused while
+    it is (:mod:`service.store.weights`)."""
+
+    __tablename__ = "network_weights"
+    __table_args__ = (Index("ix_network_weights_robot_method", "robot_id", "method", "version"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    method: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    baseline_id: Mapped[int | None] = mapped_column(BigId)
+    wall_time: Mapped[float]
+    window_end_t: Mapped[float | None]
+    imus: Mapped[list[str]]
+    joints: Mapped[list[str]]
+    data: Mapped[bytes] = mapped_column(LargeBinary)
 
 
 class Alert(Base):

@@ -55,6 +55,7 @@ from service.store.retention import RetentionMixin
 from service.store.robots import RobotInfo, RobotLimitReached, UnknownRobot
 from service.store.schema import SchemaMismatch
 from service.store.topologies import BASELINE_SOURCES, TopologiesMixin, TopologyRecord
+from service.store.weights import StoredWeights, WeightsMixin
 
 __all__ = [
     "ALERT_STATES",
@@ -64,6 +65,7 @@ __all__ = [
     "RobotLimitReached",
     "SchemaMismatch",
     "Store",
+    "StoredWeights",
     "TopologyRecord",
     "UnknownAlert",
     "UnknownRobot",
@@ -72,7 +74,7 @@ __all__ = [
 ]
 
 
-class Store(FramesMixin, RetentionMixin, TopologiesMixin, AlertsMixin, HeartbeatsMixin):
+class Store(FramesMixin, RetentionMixin, TopologiesMixin, AlertsMixin, HeartbeatsMixin, WeightsMixin):
     """The service's data layer on one database (SQLite file, in-memory SQLite or PostgreSQL).
 
     Constructing a store opens the engine and nothing more: it does not migrate. Its first use checks

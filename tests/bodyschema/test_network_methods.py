@@ -112,7 +112,7 @@ def trained() -> dict[str, tuple[Recording, np.ndarray]]:
     out = {}
     for robot, seconds in CATALOG_CASES:
         rec = _catalog(robot, seconds)
-        jbar, _ = network_jacobian(rec, kind="network", epochs=40, seed=NET_SEED)
+        jbar = network_jacobian(rec, kind="network", epochs=40, seed=NET_SEED).jbar
         out[robot] = (rec, jbar)
     return out
 

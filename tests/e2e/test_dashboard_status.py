@@ -74,6 +74,13 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store]]:
         store.save_topology(robot, FULL, now - 10, 0.49)
         store.set_baseline(robot, FULL, "auto")
         store.save_topology(robot, FULL, now, 0.49)
+    trained = dataclasses.replace(
+        FULL,
+        method="network",
+        training={"epochs": 24.0, "converged": 1.0, "loss": 0.011, "warm": 1.0},
+        seconds=21.5,
+    )
+    store.save_topology("full-arm", trained, now - 5, 0.49)
     store.upsert_alert(
         "broken-arm",
         "imu_dead",
@@ -129,6 +136,12 @@ def test_status_shown_per_robot(browser: Any, served: tuple[str, Store], tmp_pat
         "one tree fits the data, every joint is placed, and it matches the baseline"
     ]
     assert full.locator(".skew").count() == 0 and full.locator(".decide").count() == 0
+    # the newest network retrain: how it started and trained, its cost, and whether it agrees
+    net = full.locator(".network").inner_text()
+    assert net.startswith("network retrain ") and net.endswith(
+        ": warm start, 24 epochs, converged, 21.5 CPU s, same body as the screen"
+    ), net
+    assert card("broken-arm").locator(".network").count() == 0
     # an active alert: damaged, red
     broken = card("broken-arm")
     assert broken.locator(".verdict").inner_text() == "damaged"

@@ -204,9 +204,12 @@ def test_timing_and_training_of_the_judged_topology(store: Store) -> None:
     store.save_topology("arm", timed, 100.0, 0.19)
     store.set_baseline("arm", FULL, "auto")
     trained = dataclasses.replace(
-        FULL, method="network", training={"epochs": 137.0, "converged": 1.0, "loss": 0.0125}
+        FULL,
+        method="network",
+        training={"epochs": 137.0, "converged": 1.0, "loss": 0.0125, "warm": 1.0},
+        seconds=21.5,
     )
-    store.save_topology("arm", trained, 99.0, 0.19)  # older than the fast one
+    net_id = store.save_topology("arm", trained, 99.0, 0.19)  # older than the fast one
     c = TestClient(create_app(store, settings=SETTINGS))
     body = status(c, "arm")
     assert (body["status"], body["method"]) == ("healthy", "fast")
@@ -218,9 +221,19 @@ def test_timing_and_training_of_the_judged_topology(store: Store) -> None:
         "at_s": 5.0,
     }
     assert body["training"] is None
+    # the newest network retrain is reported next to the judged fast estimate
+    assert body["network"] == {
+        "topology_id": net_id,
+        "method": "network",
+        "wall_time": 99.0,
+        "window_end_t": 0.19,
+        "cpu_seconds": 21.5,
+        "training": {"epochs": 137, "converged": True, "loss": 0.0125, "warm": True},
+        "same_as_judged": True,
+    }
     net = status(c, "arm", method="network")
     assert (net["status"], net["method"], net["timing"]) == ("healthy", "network", None)
-    assert net["training"] == {"epochs": 137, "converged": True, "loss": 0.0125}
+    assert net["training"] == {"epochs": 137, "converged": True, "loss": 0.0125, "warm": True}
     # a method never run: nothing learned with it
     body = status(c, "arm", method="mlp")
     assert body["status"] == "undetermined" and body["reasons"][0].startswith("nothing learned yet")
@@ -232,7 +245,7 @@ def test_a_loss_that_is_not_finite_is_null() -> None:
         FULL, method="network", training={"epochs": 3.0, "converged": 0.0, "loss": np.nan}
     )
     out = json.loads(StatusOut.of(judge("arm", trained, FULL)).model_dump_json())
-    assert out["training"] == {"epochs": 3, "converged": False, "loss": None}
+    assert out["training"] == {"epochs": 3, "converged": False, "loss": None, "warm": None}
     assert out["status"] == "healthy"
 
 

@@ -6,7 +6,9 @@
 * a task that raises: counted in ``bodyhealth_retrain_failures_total``, nothing stored;
 * a scheduler nobody listens on: the cycle's fast estimate, the API and ``/readyz`` (200, the cluster
   named under ``degraded``) go on; once a scheduler listens there, the waiting retrain runs;
-* the daemon's embedded cluster: startup does not wait for it, and stopping ends its processes.
+* the daemon's embedded cluster: startup does not wait for it, and stopping ends its processes;
+* warm starts: a retrain starts from the robot's newest stored weights trained under the current
+  baseline (the same answer as a direct call from those weights), and cold after a new baseline.
 
 The fast method is scripted (:class:`tests.service.test_worker.Scripted`): what is under test is where
 the networks train, not the fast estimator.
@@ -28,13 +30,13 @@ import pytest
 from distributed import Client, LocalCluster
 from fastapi.testclient import TestClient
 
-from bodyschema.estimate import estimate_topology
+from bodyschema.estimate import estimate_topology, fit_topology
 from bodyschema.health import drop_impacts
 from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
 from service.daemon import Daemon
 from service.metrics import Metrics
-from service.retrain_task import RetrainJob, job_key, run_retrain
+from service.retrain_task import RetrainJob, RetrainResult, job_key, run_retrain
 from service.settings import Settings
 from service.store import Store, open_store
 from service.training import RemoteRetrains, TrainingOptions
@@ -358,3 +360,63 @@ def test_task_reads_only_what_its_job_names(tmp_path: Path) -> None:
     gone = RetrainJob(url, "arm", "network", window_end=end + 1000.0, window_seconds=1.0)
     with pytest.raises(LookupError, match="too little data"):
         run_retrain(gone)
+
+
+def test_retrains_start_warm_from_the_weights_of_the_current_baseline(
+    db_url: str, dask_cluster: LocalCluster, dask_client: Client
+) -> None:
+    store = open_store(db_url)
+    cluster = TrainingCluster(ClusterOptions(scheduler=dask_cluster.scheduler_address))
+    try:
+        rec = synth(np.random.default_rng(6), seconds=24)  # one body; three windows of it
+        options = TrainingOptions(seed=SEED, estimator_options=(("max_epochs", 40),))  # to convergence
+        metrics = Metrics()
+        remote = RemoteRetrains(cluster, store, WINDOW, options=options, metrics=metrics)
+        settings = _settings(db_url, baseline_repeat_k=1000)  # no baseline unless set here
+        w = Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics)
+
+        def retrain(until: float) -> tuple[RetrainResult, Any]:
+            feed(store, rec.select((rec.t >= until - 8.0) & (rec.t < until)))
+            n = len(remote.results)
+            w.request("arm", "network")
+            _cycle_until(w, lambda: len(remote.results) > n, 90, "the retrain stored")
+            return remote.results[-1], _network_rows(store)[0]
+
+        first, row1 = retrain(8.0)
+        assert first.warm_from is None and row1.topology.training["warm"] == 0.0
+        stored = store.network_weights("arm", "network", baseline_id=None)
+        assert stored is not None and stored.version == 1 and stored.imus == tuple(rec.imu_names)
+
+        second, row2 = retrain(16.0)
+        assert second.warm_from == 1 and row2.topology.training["warm"] == 1.0
+        assert row2.topology.training["epochs"] < row1.topology.training["epochs"]
+        window = store.read_window("arm", WINDOW, end=second.window_end)
+        direct = fit_topology(
+            drop_impacts(window), "network", seed=SEED, max_epochs=40, warm_start=stored.weights
+        ).topology
+        assert (row2.topology.joint_parent, row2.topology.imu_joint) == (
+            direct.joint_parent,
+            direct.imu_joint,
+        )
+        assert row2.topology.training["epochs"] == direct.training["epochs"]
+
+        # a new baseline is a new reference body: the next retrain starts cold, its weights belong to it
+        store.set_baseline("arm", row2.topology, "operator")
+        base = store.baseline("arm")
+        assert base is not None
+        third, row3 = retrain(24.0)
+        assert third.warm_from is None and third.baseline_id == base.id
+        assert row3.topology.training["warm"] == 0.0
+        now = store.network_weights("arm", "network", baseline_id=base.id)
+        assert now is not None and now.version == 3
+        samples = {
+            s.labels["start"]: s.value
+            for m in metrics.registry.collect()
+            if m.name == "bodyhealth_retrains"
+            for s in m.samples
+            if s.name.endswith("_total")
+        }
+        assert samples == {"cold": 2.0, "warm": 1.0}
+    finally:
+        cluster.close()
+        store.close()

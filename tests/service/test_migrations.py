@@ -17,7 +17,17 @@ from sqlalchemy import inspect
 from service.db import Base, current_revision, downgrade, head_revision, make_engine, upgrade
 
 REPO = Path(__file__).resolve().parents[2]
-TABLES = {"robots", "joints", "imus", "chunks", "topologies", "baselines", "alerts", "heartbeats"}
+TABLES = {
+    "robots",
+    "joints",
+    "imus",
+    "chunks",
+    "topologies",
+    "baselines",
+    "alerts",
+    "heartbeats",
+    "network_weights",
+}
 
 
 @pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])

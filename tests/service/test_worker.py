@@ -182,6 +182,33 @@ def test_network_schedule_and_requests(sqlite_store: Store, rng: np.random.Gener
     assert est.calls[0][1] == 500  # 5 s window at 100 Hz
 
 
+def test_a_new_finding_of_the_fast_screen_asks_for_a_network_retrain_once(
+    sqlite_store: Store, rng: np.random.Generator
+) -> None:
+    """The fast method is the screen: a finding it did not report the cycle before asks for a network
+    retrain in the next cycle (in-process here: no cluster), once, not in every cycle it lasts."""
+    feed(sqlite_store, synth(rng, seconds=12))
+    s = Settings(database_url="sqlite://", window_seconds=5.0, network_interval_cycles=1000)
+    est = Scripted(GOOD)
+    w = Worker(sqlite_store, s, estimator=est)
+    for _ in range(4):  # cycle 0 is a scheduled one; three more make the baseline
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is not None
+    calls = len(est.calls)
+    est.next = MOVED
+    w.run_cycle()  # the screen sees the move
+    w.run_cycle()  # ... and the network retrain runs in this cycle
+    w.run_cycle()  # the same finding again: no new retrain
+    methods = [m for m, _ in est.calls[calls:]]
+    assert methods == ["fast", "fast", "network", "fast"]
+    off = Worker(sqlite_store, s.model_copy(update={"network_on_change": False}), estimator=Scripted(GOOD))
+    off.run_cycle()
+    off.estimator.next = MOVED
+    off.run_cycle()
+    off.run_cycle()
+    assert "network" not in [m for m, _ in off.estimator.calls[1:]]
+
+
 def test_restart_keeps_active_alerts_without_raising_twice(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
