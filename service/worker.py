@@ -11,13 +11,21 @@ One cycle, for every robot the store knows:
    against the baseline shows a finding the previous cycle did not: ``network_on_change``), store
    each result with time and method;
 4. without a baseline: adopt the fast topology once it has come out the same ``baseline_repeat_k``
-   cycles in a row (an operator may also approve one, :meth:`Worker.approve_baseline`);
+   cycles in a row (an operator may also approve one, :meth:`Worker.approve_baseline`). With the
+   sensor networks on (``network_interval_cycles`` > 0) they are the authority: the baseline adopted
+   is the newest network topology, once it has the structure of the fast streak; until one does, the
+   streak waits and a network retrain is asked for;
 5. with a baseline: :func:`bodyschema.diff.diff_bodies` → :class:`service.alerts.AlertTracker`
    (hysteresis) → alerts in the store. An IMU moved to another link while the window straddles
    the move fits neither link and reads as ``imu_detached``; such a finding is judged again on the
    part of the window after the cycle that first saw the IMU displaced (all of it after the change,
    see :meth:`Worker._after_onset`), so a move raises ``imu_moved`` and a detachment
-   ``imu_detached``, and never the one before the other;
+   ``imu_detached``, and never the one before the other. With the sensor networks on, a structural
+   finding (:data:`~bodyschema.diff.STRUCTURAL_KINDS`) of the fast screen is only counted once the
+   newest network topology, learned from a window that ended at or after the cycle that first saw it,
+   also shows a structural change of that part; until then its kind is held (neither raised nor
+   cleared) and a network retrain is asked for; a network topology that shows no change there drops
+   it (:meth:`Worker._confirmed`);
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The sensor-network methods run in another process when the worker is given a
@@ -130,6 +138,15 @@ class Worker:
         self._requests: dict[str, set[str]] = {}
         #: Per robot: the (kind, part) of the previous cycle's findings (see :meth:`_on_change`).
         self._findings: dict[str, frozenset[tuple[str, str]]] = {}
+        #: Per (robot, kind, part): window end of the first cycle of the current run of cycles whose
+        #: fast screen showed that structural finding (see :meth:`_confirmed`).
+        self._first_seen: dict[tuple[str, str, str], float] = {}
+        #: Per robot: wall time (``clock``) of the last network retrain asked for by the worker itself
+        #: (confirmations, baselines); asked again only once a network topology newer than it is stored.
+        self._network_asked: dict[str, float] = {}
+        #: Per robot: window end of the cycle that first completed the current baseline streak while
+        #: the networks did not agree with it (see :meth:`_maybe_baseline`).
+        self._streak_since: dict[str, float] = {}
         #: Per (robot, IMU): window end of the first cycle of the current run of cycles whose diff
         #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
         #: recorded after the change.
@@ -358,6 +375,9 @@ class Worker:
         if not hold:
             res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)
             hold = held
+        if self.networks_on:
+            res.diff, unconfirmed = self._confirmed(robot, res.diff, base.topology, window_end)
+            hold = tuple(sorted({*hold, *unconfirmed}))
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
         for tr in res.transitions:
@@ -374,6 +394,73 @@ class Worker:
                 },
             )
         return res
+
+    @property
+    def networks_on(self) -> bool:
+        """True when the sensor networks run on a schedule: they are then the authority for baselines
+        and structural alerts, and the fast method the screen."""
+        return self.settings.network_interval_cycles > 0
+
+    def _ask_network(self, robot: str, since: float, why: str) -> None:
+        """Ask for a network retrain of ``robot``, unless the networks have already learned a window
+        that ended at or after ``since`` (device time; their answer stands until the schedule's next
+        retrain) or one the worker asked for is still to come (no network topology stored since)."""
+        net = self.store.latest_topology(robot, method="network")
+        if net is not None and net.window_end_t is not None and net.window_end_t >= since:
+            return
+        asked = self._network_asked.get(robot)
+        if asked is not None and (net is None or net.wall_time < asked):
+            return
+        self._network_asked[robot] = self.clock()
+        log.info("network retrain asked: %s", why, extra={"robot": robot})
+        if self.remote is not None:
+            self.remote.want(robot, "network")
+        else:
+            with self._lock:
+                self._requests.setdefault(robot, set()).add("network")
+
+    def _confirmed(
+        self, robot: str, diff: Diff, baseline: Topology, window_end: float
+    ) -> tuple[Diff, tuple[str, ...]]:
+        """The diff with its structural findings confirmed by the sensor networks (module doc, 5).
+
+        A structural finding of the fast screen on a part is kept when the newest network topology,
+        from a window that ended at or after the end of the first window that showed the finding,
+        also differs from the baseline structurally on that part (the kind the screen gives is
+        kept: its post-onset judgement, :meth:`_after_onset`, tells a move from a detachment, which
+        a network window straddling the change cannot); dropped when that topology shows the part
+        as in the baseline; and held (its kind returned) while there is no such topology yet, with
+        a retrain asked for.
+        """
+        structural = [f for f in diff.findings if f.kind in STRUCTURAL_KINDS]
+        seen = {(f.kind, f.part) for f in structural}
+        for key in [k for k in self._first_seen if k[0] == robot and (k[1], k[2]) not in seen]:
+            del self._first_seen[key]
+        if not structural:
+            return diff, ()
+        net = self.store.latest_topology(robot, method="network")
+        net_parts: set[str] | None = None
+        if net is not None and not is_ambiguous(net.topology):
+            net_diff = diff_bodies(baseline, net.topology)
+            net_parts = {f.part for f in net_diff.findings if f.kind in STRUCTURAL_KINDS}
+        keep: list[Finding] = []
+        held: set[str] = set()
+        for f in diff.findings:
+            if f.kind not in STRUCTURAL_KINDS:
+                keep.append(f)
+                continue
+            since = self._first_seen.setdefault((robot, f.kind, f.part), window_end)
+            if net is None or net_parts is None or net.window_end_t is None or net.window_end_t < since:
+                held.add(f.kind)
+                self._ask_network(robot, since, f"to confirm {f.kind} {f.part}")
+            elif f.part in net_parts:
+                keep.append(f)
+            else:
+                log.info(
+                    "finding dropped: the sensor networks see no change there",
+                    extra={"robot": robot, "kind": f.kind, "part": f.part, "network_topology": net.id},
+                )
+        return Diff(findings=tuple(keep), reasons=diff.reasons), tuple(sorted(held))
 
     def _on_change(self, robot: str, diff: Diff) -> None:
         """Ask for a network retrain of ``robot`` when the fast screen's diff holds a finding the
@@ -478,11 +565,22 @@ class Worker:
             return False
         if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):
             recent.clear()
+            self._streak_since.pop(robot, None)
         recent.append(topo)
         if len(recent) < k:
             return False
+        if self.networks_on:
+            net = self.store.latest_topology(robot, method="network")
+            if net is None or is_ambiguous(net.topology) or not net.topology.same_structure(topo):
+                # the networks are the authority: the streak waits (it stays complete) for a network
+                # topology of the same body; asked for once per streak, then the schedule's retrains
+                since = self._streak_since.setdefault(robot, window_end)
+                self._ask_network(robot, since, "a baseline needs the sensor networks' agreement")
+                return False
+            topo = net.topology
         self.store.set_baseline(robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end)
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
         recent.clear()
+        self._streak_since.pop(robot, None)
         log.info("baseline learned", extra={"robot": robot, "source": "auto", "repeats": k})
         return True

@@ -209,6 +209,82 @@ def test_a_new_finding_of_the_fast_screen_asks_for_a_network_retrain_once(
     assert "network" not in [m for m, _ in off.estimator.calls[1:]]
 
 
+class ByMethod(Scripted):
+    """Returns ``self.by_method[method]`` (default ``self.next``) and records every call."""
+
+    def __init__(self, topo: Topology) -> None:
+        super().__init__(topo)
+        self.by_method: dict[str, Topology] = {}
+
+    def __call__(self, rec: Recording, method: str) -> Topology:
+        self.calls.append((method, rec.n_samples))
+        t = self.by_method.get(method, self.next)
+        return dataclasses.replace(
+            t, imu_joint={k: v for k, v in t.imu_joint.items() if k in rec.imu_names}, method=method
+        )
+
+
+def _networks_on(settings: Settings) -> Settings:
+    return settings.model_copy(update={"network_interval_cycles": 1000})  # on, never due in a test
+
+
+def test_with_networks_on_the_baseline_is_the_network_topology_once_it_agrees(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """The networks are the authority for baselines: a complete fast streak waits for a network
+    topology of the same body, asks for one, and the baseline adopted is the network's."""
+    feed(sqlite_store, synth(rng, seconds=12))
+    est = ByMethod(GOOD)
+    est.by_method["network"] = MOVED  # the networks disagree with the screen
+    w = Worker(sqlite_store, _networks_on(settings), estimator=est)
+    for _ in range(5):
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is None
+    methods = [m for m, _ in est.calls]
+    # asked for once, when the streak was complete (third cycle, run in the fourth); the networks'
+    # answer on that window stands: not asked again in the fifth
+    assert methods == ["fast"] * 4 + ["network", "fast"], methods
+    est.by_method["network"] = GOOD
+    w.request("arm", "network")  # the next retrain (the schedule's, or one asked for) agrees
+    w.run_cycle()
+    base = sqlite_store.baseline("arm")
+    assert base is not None and base.method == "network"
+    assert base.topology.imu_joint == GOOD.imu_joint
+
+
+def test_with_networks_on_a_structural_finding_needs_the_networks_to_alert(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """The fast method is the screen: its structural finding is held until a network topology from
+    a window that ended after it was first seen shows a change there too; one that does not drops it."""
+    rec = synth(rng, seconds=24)
+    feed(sqlite_store, rec.select(rec.t < 12.0))
+    est = ByMethod(GOOD)
+    est.by_method["network"] = GOOD
+    w = Worker(sqlite_store, _networks_on(settings), estimator=est)
+    for _ in range(4):  # three make the streak, the fourth runs the networks it asked for
+        w.run_cycle()
+    assert sqlite_store.baseline("arm") is not None
+    feed(sqlite_store, rec.select(rec.t >= 12.0))  # newer frames: the old network window is too early
+    est.next = MOVED  # the screen sees c1 on j2; the networks still see the baseline body
+    first = w.run_cycle()["arm"]  # held: no network topology since the finding; one asked for
+    assert first.transitions == [] and [f.kind for f in first.diff.findings] == []
+    assert w.tracker.pending("arm") == []
+    assert [m for m, _ in est.calls[-1:]] == ["fast"]
+    second = w.run_cycle()["arm"]  # the retrain runs in this cycle and shows no change: dropped
+    assert [m for m, _ in est.calls[-2:]] == ["fast", "network"]
+    assert second.transitions == [] and second.diff.findings == ()
+    for _ in range(2):
+        assert w.run_cycle()["arm"].transitions == []
+    assert sqlite_store.alerts("arm") == [] and w.tracker.pending("arm") == []
+    est.by_method["network"] = MOVED  # the networks now see it too
+    w.request("arm", "network")
+    transitions = []
+    for _ in range(3):
+        transitions += w.run_cycle()["arm"].transitions
+    assert [(t.kind, t.part, t.state) for t in transitions] == [("imu_moved", "imu:c1", "active")]
+
+
 def test_restart_keeps_active_alerts_without_raising_twice(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
