@@ -413,6 +413,10 @@ class Worker:
             return
         self._network_asked[robot] = self.clock()
         log.info("network retrain asked: %s", why, extra={"robot": robot})
+        self._want_network(robot)
+
+    def _want_network(self, robot: str) -> None:
+        """A network retrain of ``robot``: on the cluster when there is one, else in the next cycle."""
         if self.remote is not None:
             self.remote.want(robot, "network")
         else:
@@ -476,11 +480,7 @@ class Worker:
             "network retrain asked: the fast screen found a change",
             extra={"robot": robot, "findings": sorted(f"{k} {p}" for k, p in new)},
         )
-        if self.remote is not None:
-            self.remote.want(robot, "network")
-        else:
-            with self._lock:
-                self._requests.setdefault(robot, set()).add("network")
+        self._want_network(robot)
 
     def _after_onset(
         self, robot: str, rec: Recording, diff: Diff, baseline: Topology
@@ -569,6 +569,7 @@ class Worker:
         recent.append(topo)
         if len(recent) < k:
             return False
+        net = None
         if self.networks_on:
             net = self.store.latest_topology(robot, method="network")
             if net is None or is_ambiguous(net.topology) or not net.topology.same_structure(topo):
@@ -579,6 +580,12 @@ class Worker:
                 return False
             topo = net.topology
         self.store.set_baseline(robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end)
+        if net is not None:
+            base = self.store.baseline(robot)
+            if base is not None:  # the weights that learned this baseline are its weights
+                self.store.adopt_network_weights(
+                    robot, "network", window_end_t=net.window_end_t, baseline_id=base.id
+                )
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
         recent.clear()
         self._streak_since.pop(robot, None)

@@ -2,7 +2,18 @@
 
 from service.db.engine import is_sqlite, make_engine, normalize_url, session_scope
 from service.db.migrate import current_revision, downgrade, head_revision, known_revisions, upgrade
-from service.db.models import Alert, Base, Baseline, Chunk, Heartbeat, Imu, Joint, Robot, TopologyRow
+from service.db.models import (
+    Alert,
+    Base,
+    Baseline,
+    Chunk,
+    Heartbeat,
+    Imu,
+    Joint,
+    NetworkWeightsRow,
+    Robot,
+    TopologyRow,
+)
 
 __all__ = [
     "Alert",
@@ -12,6 +23,7 @@ __all__ = [
     "Heartbeat",
     "Imu",
     "Joint",
+    "NetworkWeightsRow",
     "Robot",
     "TopologyRow",
     "current_revision",

@@ -7,7 +7,9 @@ they were trained on and the baseline that was current then.
 
 They are reused only while that baseline is still the current one (weights trained before any baseline
 only while there is none): a new baseline is a body an operator or the worker declared the reference,
-and the networks learn it from scratch. Weights of other IMUs or joints (a robot that came back with
+and the networks learn it from scratch. Except the weights that learned the baseline itself: when the
+worker adopts a network topology as the baseline, the weights of that retrain are tied to it
+(:meth:`WeightsMixin.adopt_network_weights`). Weights of other IMUs or joints (a robot that came back with
 another layout) are not offered either. The newest :data:`KEEP` versions per robot and method stay.
 The arrays travel as one ``.npz`` blob (numpy's own format, no pickle).
 
@@ -30,6 +32,13 @@ Example
 (1, (4,), True)
 >>> store.network_weights("arm", "network", baseline_id=7, imus=["i1"], joints=["j1"]) is None
 True
+>>> store.save_network_weights("arm", "network", w, ["i1"], ["j1"], baseline_id=None, wall_time=2.0,
+...                            window_end_t=2.5)
+2
+>>> store.adopt_network_weights("arm", "network", window_end_t=2.5, baseline_id=7)
+1
+>>> store.network_weights("arm", "network", baseline_id=7).version
+2
 >>> store.close()
 """
 
@@ -40,7 +49,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from sqlalchemy import delete, func, insert, select
+from sqlalchemy import delete, func, insert, select, update
 
 from bodyschema.network_weights import NetworkWeights
 from service.db.models import NetworkWeightsRow
@@ -131,6 +140,28 @@ class WeightsMixin(StoreBase):
             )
             s.execute(delete(NetworkWeightsRow).where(*where, NetworkWeightsRow.version <= version - KEEP))
             return version
+
+    def adopt_network_weights(
+        self, robot: str, method: str, *, window_end_t: float | None, baseline_id: int
+    ) -> int:
+        """Tie the weights trained before any baseline on the window ending at ``window_end_t`` to the
+        baseline ``baseline_id``: the worker made that baseline from the topology those weights
+        learned, so they are that baseline's weights. Returns the rows changed."""
+        if window_end_t is None:
+            return 0
+        with self._session() as s, s.begin():
+            rid = robot_id(s, robot)
+            res = s.execute(
+                update(NetworkWeightsRow)
+                .where(
+                    NetworkWeightsRow.robot_id == rid,
+                    NetworkWeightsRow.method == method,
+                    NetworkWeightsRow.baseline_id.is_(None),
+                    NetworkWeightsRow.window_end_t == float(window_end_t),
+                )
+                .values(baseline_id=baseline_id)
+            )
+            return int(res.rowcount or 0)
 
     def network_weights(
         self,
