@@ -36,7 +36,7 @@ TARGET_RATIO = 0.2
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--robots", default="paper-1,paper-3,quadruped", help="catalog robots, comma-separated"
+        "--robots", default="paper-1,paper-3,ur5e,quadruped", help="catalog robots, comma-separated"
     )
     parser.add_argument("--window", type=float, default=30.0, help="seconds per window")
     parser.add_argument(
