@@ -313,8 +313,7 @@ def network_jacobian(
         if watch is not None:
 
             def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
-                with torch.no_grad():
-                    return watch(invariant_jacobian(net, theta).numpy().astype(np.float64), epoch)
+                return watch(invariant_jacobian(net, theta).numpy().astype(np.float64), epoch)
 
         net, loss = train_sensor_networks(
             rec.q,
@@ -482,7 +481,7 @@ def network_dependency(
     und = insufficient_excitation(derived.qd, derived.gyro)
     if kind == "network" and kw.get("warm_start") is not None and kw.get("epochs") is None:
         kw.setdefault("watch", StableDependency(statistic, und, lam, seed))
-    fit = network_jacobian(rec, kind=kind, seed=seed, **kw)
+    fit = network_jacobian(derived, kind=kind, seed=seed, **kw)
     dep = dependency_from_jacobian(
         fit.jbar, statistic, und, lam=lam, rng=np.random.default_rng(seed + 1), loss=fit.loss
     )

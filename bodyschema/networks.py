@@ -44,7 +44,7 @@ from torch import nn
 
 from bodyschema.network_weights import NetworkWeights
 from bodyschema.threads import set_torch_threads
-from bodyschema.training import WARM_LR_FACTOR, Schedule, epoch_schedule, train_epochs, warm_plateau
+from bodyschema.training import Schedule, epoch_schedule, train_epochs, warm_plateau
 
 __all__ = [
     "NetworkWeights",  # re-exported: the weights of these networks
@@ -296,15 +296,16 @@ def train_sensor_networks(
     if warm:
         assert warm_start is not None
         warm_start.load_into(net)
-        opt = torch.optim.Adam(net.parameters(), lr=lr * WARM_LR_FACTOR)
-        schedule = warm_plateau(opt, lr, per_epoch, plateau_tol)
     else:
         net.set_input_scaling(th.mean(0), th.std(0))
         with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
             net.gyro_bias.copy_(w_meas.mean(dim=1, keepdim=True))
             if g is not None:
                 net.gravity_dir.copy_(mean_pose_gravity(a_meas))
-        opt = torch.optim.Adam(net.parameters(), lr=lr)
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    if warm:
+        schedule = warm_plateau(opt, lr, per_epoch, plateau_tol)
+    else:
         schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
     net.warm = warm
 

@@ -32,7 +32,6 @@ import torch
 from bodyschema.progress import progress
 
 __all__ = [
-    "WARM_LR_FACTOR",
     "ConstantRate",
     "OneCycle",
     "Plateau",
@@ -130,14 +129,10 @@ class Plateau:
         return self._optimizer.param_groups[0]["lr"] < self._lr * 0.3**self._cuts * 1.001
 
 
-#: The rate a warm start begins at, relative to a cold start's ``lr`` (:class:`Plateau`).
-WARM_LR_FACTOR = 1.0
-
-
 def warm_plateau(optimizer: torch.optim.Optimizer, lr: float, steps_per_epoch: int, tol: float) -> Plateau:
-    """The schedule of a warm start: ``optimizer`` must run at ``lr`` x :data:`WARM_LR_FACTOR`; no
-    warm-up, two cuts (:class:`Plateau`)."""
-    return Plateau(optimizer, lr * WARM_LR_FACTOR, steps_per_epoch, tol, warmup_epochs=0, cuts=2)
+    """The schedule of a warm start: ``optimizer`` runs at ``lr`` from the first step (no warm-up),
+    two cuts (:class:`Plateau`)."""
+    return Plateau(optimizer, lr, steps_per_epoch, tol, warmup_epochs=0, cuts=2)
 
 
 def epoch_schedule(

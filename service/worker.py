@@ -401,11 +401,11 @@ class Worker:
         and structural alerts, and the fast method the screen."""
         return self.settings.network_interval_cycles > 0
 
-    def _ask_network(self, robot: str, since: float, why: str) -> None:
+    def _ask_network(self, robot: str, net: TopologyRecord | None, since: float, why: str) -> None:
         """Ask for a network retrain of ``robot``, unless the networks have already learned a window
         that ended at or after ``since`` (device time; their answer stands until the schedule's next
-        retrain) or one the worker asked for is still to come (no network topology stored since)."""
-        net = self.store.latest_topology(robot, method="network")
+        retrain) or one the worker asked for is still to come (no network topology stored since).
+        ``net`` is the robot's newest network topology, as the caller read it."""
         if net is not None and net.window_end_t is not None and net.window_end_t >= since:
             return
         asked = self._network_asked.get(robot)
@@ -456,7 +456,7 @@ class Worker:
             since = self._first_seen.setdefault((robot, f.kind, f.part), window_end)
             if net is None or net_parts is None or net.window_end_t is None or net.window_end_t < since:
                 held.add(f.kind)
-                self._ask_network(robot, since, f"to confirm {f.kind} {f.part}")
+                self._ask_network(robot, net, since, f"to confirm {f.kind} {f.part}")
             elif f.part in net_parts:
                 keep.append(f)
             else:
@@ -474,7 +474,7 @@ class Worker:
         seen = frozenset((f.kind, f.part) for f in diff.findings)
         new = seen - self._findings.get(robot, frozenset())
         self._findings[robot] = seen
-        if not new or not self.settings.network_on_change or self.settings.network_interval_cycles == 0:
+        if not new or not self.settings.network_on_change or not self.networks_on:
             return
         log.info(
             "network retrain asked: the fast screen found a change",
@@ -576,16 +576,16 @@ class Worker:
                 # the networks are the authority: the streak waits (it stays complete) for a network
                 # topology of the same body; asked for once per streak, then the schedule's retrains
                 since = self._streak_since.setdefault(robot, window_end)
-                self._ask_network(robot, since, "a baseline needs the sensor networks' agreement")
+                self._ask_network(robot, net, since, "a baseline needs the sensor networks' agreement")
                 return False
             topo = net.topology
-        self.store.set_baseline(robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end)
-        if net is not None:
-            base = self.store.baseline(robot)
-            if base is not None:  # the weights that learned this baseline are its weights
-                self.store.adopt_network_weights(
-                    robot, "network", window_end_t=net.window_end_t, baseline_id=base.id
-                )
+        base_id = self.store.set_baseline(
+            robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end
+        )
+        if net is not None:  # the weights that learned this baseline are its weights
+            self.store.adopt_network_weights(
+                robot, "network", window_end_t=net.window_end_t, baseline_id=base_id
+            )
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
         recent.clear()
         self._streak_since.pop(robot, None)

@@ -98,12 +98,12 @@ class TopologiesMixin(StoreBase):
         *,
         wall_time: float | None = None,
         window_end_t: float | None = None,
-    ) -> None:
-        """Make ``topo`` the robot's baseline (the previous ones stay as history)."""
+    ) -> int:
+        """Make ``topo`` the robot's baseline (the previous ones stay as history); returns its id."""
         _check_source(source)
         with self._session() as s, s.begin():
             rid = robot_id(s, robot)
-            _insert_baseline(s, rid, topo, source, wall_time, window_end_t)
+            return _insert_baseline(s, rid, topo, source, wall_time, window_end_t)
 
     def baseline(self, robot: str) -> TopologyRecord | None:
         """The current baseline, or None when the robot has none yet."""
