@@ -550,6 +550,11 @@ class Worker:
             return None
         return self.estimator(after, "fast")
 
+    def _break_streak(self, robot: str) -> None:
+        """End ``robot``'s baseline streak: its topologies, and when it first waited for the networks."""
+        self._recent.get(robot, deque()).clear()
+        self._streak_since.pop(robot, None)
+
     def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:
         """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""
         k = self.settings.baseline_repeat_k
@@ -561,11 +566,10 @@ class Worker:
         if is_ambiguous(topo):
             return False  # no information either way: the streak neither grows nor breaks
         if health.dead_imus or topo.undetermined or still or not topo.joint_parent:
-            recent.clear()
+            self._break_streak(robot)
             return False
         if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):
-            recent.clear()
-            self._streak_since.pop(robot, None)
+            self._break_streak(robot)
         recent.append(topo)
         if len(recent) < k:
             return False
@@ -587,7 +591,6 @@ class Worker:
                 robot, "network", window_end_t=net.window_end_t, baseline_id=base_id
             )
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
-        recent.clear()
-        self._streak_since.pop(robot, None)
+        self._break_streak(robot)
         log.info("baseline learned", extra={"robot": robot, "source": "auto", "repeats": k})
         return True

@@ -252,6 +252,29 @@ def test_with_networks_on_the_baseline_is_the_network_topology_once_it_agrees(
     assert base.topology.imu_joint == GOOD.imu_joint
 
 
+def test_a_broken_streak_asks_the_networks_again_for_the_next_one(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """A streak the networks disagreed with, broken by a window that places no joint j2: the next
+    complete streak, on newer frames, asks for a network retrain of its own."""
+    rec = synth(rng, seconds=24)
+    feed(sqlite_store, rec.select(rec.t < 12.0))
+    est = ByMethod(GOOD)
+    est.by_method["network"] = MOVED
+    w = Worker(sqlite_store, _networks_on(settings), estimator=est)
+    for _ in range(5):  # the streak completes, asks once, the networks disagree
+        w.run_cycle()
+    assert [m for m, _ in est.calls].count("network") == 1
+    est.next = dataclasses.replace(GOOD, undetermined=("j2",))
+    w.run_cycle()  # breaks the streak
+    feed(sqlite_store, rec.select(rec.t >= 12.0))
+    est.next = GOOD
+    for _ in range(4):  # a new streak on newer frames completes, asks, and the retrain runs
+        w.run_cycle()
+    assert [m for m, _ in est.calls].count("network") == 2
+    assert sqlite_store.baseline("arm") is None
+
+
 def test_with_networks_on_a_structural_finding_needs_the_networks_to_alert(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
