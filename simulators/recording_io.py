@@ -21,13 +21,16 @@ from __future__ import annotations
 
 import logging
 import os
+import zipfile
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bodyschema.recording import Recording, RecordingError, find_gaps
 
-__all__ = ["drop_duplicate_stamps", "load_recording", "save_recording"]
+__all__ = ["Blocks", "drop_duplicate_stamps", "load_recording", "save_recording"]
 
 log = logging.getLogger(__name__)
 
@@ -37,13 +40,35 @@ _ENC_SERIES = ("q", "qd", "qdd")
 _NAMES = ("joint_names", "imu_names", "truth_joint_parent", "truth_imu_joint")
 
 
-def save_recording(rec: Recording, path: str | os.PathLike[str]) -> None:
-    """Write ``rec`` to ``path`` (compressed npz; names stored as unicode arrays, never pickled)."""
-    data: dict[str, np.ndarray] = {}
+@dataclass(frozen=True)
+class Blocks:
+    """The content of one array, written block by block (float64 rows in C order, first axis split):
+    what :func:`save_recording` writes instead of the array of the same name when it is given, so a
+    recording larger than memory can be written. ``blocks()`` starts a new pass over the rows."""
+
+    blocks: Callable[[], Iterable[np.ndarray]]
+
+
+def save_recording(
+    rec: Recording, path: str | os.PathLike[str], *, blocks: Mapping[str, Blocks] | None = None
+) -> None:
+    """Write ``rec`` to ``path`` (compressed npz; names stored as unicode arrays, never pickled).
+
+    ``blocks`` replaces the content of named arrays (``acc``, ``q``, ...) by rows produced block by
+    block; the recording then only needs arrays of the right shape there (``np.broadcast_to`` views
+    cost nothing), and the blocks must fill that shape exactly.
+    """
+    blocks = dict(blocks or {})
+    unknown = set(blocks) - set(_ARRAYS)
+    if unknown:
+        raise RecordingError(f"blocks for unknown arrays: {sorted(unknown)}")
+    data: dict[str, np.ndarray | tuple[tuple[int, ...], Blocks]] = {}
     for k in _ARRAYS:
         v = getattr(rec, k)
         if v is not None:
-            data[k] = np.asarray(v, dtype=np.float64)
+            data[k] = (np.shape(v), blocks.pop(k)) if k in blocks else np.asarray(v, dtype=np.float64)
+    if blocks:
+        raise RecordingError(f"blocks for arrays the recording lacks: {sorted(blocks)}")
     for k in _NAMES:
         v = getattr(rec, k)
         if v is not None:
@@ -53,7 +78,36 @@ def save_recording(rec: Recording, path: str | os.PathLike[str]) -> None:
             raise RecordingError(f"extra key {k!r} collides with a standard field")
         data[k] = np.asarray(v)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **data)
+    _write_npz(Path(path), data)
+
+
+def _write_npz(path: Path, data: Mapping[str, np.ndarray | tuple[tuple[int, ...], Blocks]]) -> None:
+    """``np.savez_compressed``, written here because it needs every array in memory: the same zip of
+    ``.npy`` members, where a member given as (shape, :class:`Blocks`) gets the ``.npy`` header of a
+    float64 array of that shape and then its rows as they come. A failure removes the partial file."""
+    try:
+        with zipfile.ZipFile(path, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+            for key, val in data.items():
+                with zf.open(key + ".npy", "w", force_zip64=True) as f:
+                    if isinstance(val, np.ndarray):
+                        np.lib.format.write_array(f, val, allow_pickle=False)
+                        continue
+                    shape, src = val
+                    descr = np.lib.format.dtype_to_descr(np.dtype(np.float64))
+                    header = {"descr": descr, "fortran_order": False, "shape": shape}
+                    np.lib.format.write_array_header_1_0(f, header)
+                    rows = 0
+                    for b in src.blocks():
+                        b = np.ascontiguousarray(b, dtype=np.float64)
+                        if b.shape[1:] != shape[1:]:
+                            raise RecordingError(f"{key}: a block of shape {b.shape} in an array {shape}")
+                        rows += b.shape[0]
+                        f.write(b.tobytes())
+                    if rows != shape[0]:
+                        raise RecordingError(f"{key}: blocks gave {rows} rows for an array {shape}")
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
 
 
 def drop_duplicate_stamps(

@@ -63,12 +63,10 @@ def _import_broad(args: argparse.Namespace) -> int:
 
 
 def _import_rosbag(args: argparse.Namespace) -> int:
-    from service.ingest.rosbag import RosbagOptions, read_rosbag
-    from simulators.recording_io import save_recording
+    from service.ingest.rosbag import RosbagOptions, import_rosbag
 
     opts = RosbagOptions(imu_topics=tuple(args.imu_topic), joint_topics=tuple(args.joint_topic))
-    rec, summary = read_rosbag(args.bag, opts)
-    save_recording(rec, args.out)
+    rec, summary = import_rosbag(args.bag, args.out, opts)
     clocks = (
         f"encoders on their own stamps ({len(rec.encoder_t)} at {rec.encoder_rate:.1f} Hz)"
         if rec.is_multirate

@@ -47,21 +47,27 @@ import os
 import re
 import sqlite3
 import struct
-from collections.abc import Iterator, Sequence
+import tempfile
+from collections import Counter
+from collections.abc import Collection, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
+from rosbags.rosbag1 import Reader as Ros1Reader
 from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag1.reader import Header, RecordType, read_bytes, read_uint32
 from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
 from bodyschema.recording import Recording, RecordingError, check_stamps
+from simulators.recording_io import Blocks, save_recording
 
 __all__ = [
     "IMU_TYPE",
@@ -70,6 +76,7 @@ __all__ = [
     "RosbagError",
     "RosbagOptions",
     "bag_topics",
+    "import_rosbag",
     "part_name",
     "read_rosbag",
 ]
@@ -136,12 +143,18 @@ def part_name(text: str) -> str:
 
 
 class _Series:
-    """Stamps (int64 ns) and ``width`` float64 values per sample, gathered in fixed-size blocks."""
+    """Stamps (int64 ns) and ``width`` float64 values per sample, gathered in fixed-size blocks.
 
-    def __init__(self, width: int, rows: int) -> None:
-        self.width, self.rows = width, rows
+    The stamps stay in memory (8 bytes a sample, a few percent of a bag). The values do too, or, given
+    a ``spool`` file, each full block is written there: then the values of any number of samples cost
+    one block of memory, and :meth:`values` reads rows back.
+    """
+
+    def __init__(self, width: int, rows: int, spool: BinaryIO | None = None) -> None:
+        self.width, self.rows, self._spool = width, rows, spool
         self._stamps: list[np.ndarray] = []
         self._values: list[np.ndarray] = []
+        self._joined = np.empty((0, width))
         self._new_block()
 
     def _new_block(self) -> None:
@@ -154,20 +167,41 @@ class _Series:
         self._va[self._n] = values
         self._n += 1
         if self._n == self.rows:
-            self._stamps.append(self._st)
-            self._values.append(self._va)
-            self._new_block()
+            self._flush()
+
+    def _flush(self) -> None:
+        self._stamps.append(self._st[: self._n])
+        if self._spool is None:
+            self._values.append(self._va[: self._n])
+        else:
+            self._spool.write(self._va[: self._n].tobytes())
+        self._new_block()
 
     def __len__(self) -> int:
-        return self.rows * len(self._stamps) + self._n
+        return sum(s.shape[0] for s in self._stamps) + self._n
 
-    def take(self) -> tuple[np.ndarray, np.ndarray]:
-        """Stamps and values as two arrays; the blocks are released (the series is empty after)."""
-        st = np.concatenate([*self._stamps, self._st[: self._n]])
-        va = np.concatenate([*self._values, self._va[: self._n]])
-        self._stamps, self._values = [], []
-        self._new_block()
-        return st, va
+    def finish(self) -> np.ndarray:
+        """Every stamp, in arrival order; the values stay for :meth:`values`. Ends the appending."""
+        if self._n:
+            self._flush()
+        stamps = np.concatenate(self._stamps) if self._stamps else np.empty(0, dtype=np.int64)
+        self._stamps = []
+        if self._spool is None:
+            if self._values:
+                self._joined = np.concatenate(self._values)
+            self._values = []
+        else:
+            self._spool.flush()
+        return stamps
+
+    def values(self, lo: int, hi: int) -> np.ndarray:
+        """Rows ``lo:hi`` of the values (after :meth:`finish`)."""
+        if self._spool is None:
+            return self._joined[lo:hi]
+        size = self.width * 8
+        self._spool.seek(lo * size)
+        raw = self._spool.read((hi - lo) * size)
+        return np.frombuffer(raw, dtype=np.float64).reshape(hi - lo, self.width)
 
 
 @dataclass(eq=False)
@@ -215,16 +249,32 @@ def _pick(
 
 
 class _Collector:
-    """Decoded messages in, numeric groups out; counts what it drops."""
+    """Decoded messages in, numeric groups out; counts what it drops. Given a ``spool`` folder, the
+    values go to unnamed temporary files there (gone when closed, or when the process dies)."""
 
-    def __init__(self, rows: int) -> None:
-        self.rows = rows
+    def __init__(self, rows: int, spool: Path | None = None) -> None:
+        self.rows, self.spool = rows, spool
+        self._files: list[BinaryIO] = []
         self.imus: dict[tuple[str, str], _Group] = {}
         self.joints: dict[tuple[str, tuple[str, ...]], _Group] = {}
         self.dropped: dict[str, int] = {}
         self.messages = 0
         #: topic -> its place in the bag's connection list (the order parts are listed in)
         self.rank: dict[str, int] = {}
+
+    def __enter__(self) -> _Collector:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for f in self._files:
+            f.close()
+        self._files = []
+
+    def _series(self, width: int) -> _Series:
+        if self.spool is None:
+            return _Series(width, self.rows)
+        self._files.append(tempfile.TemporaryFile(dir=self.spool, prefix=".bodyhealth-import-"))
+        return _Series(width, self.rows, self._files[-1])
 
     def _drop(self, reason: str) -> None:
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
@@ -233,7 +283,7 @@ class _Collector:
         key = (topic, str(msg.header.frame_id))
         g = self.imus.get(key)
         if g is None:
-            g = self.imus[key] = _Group(topic, (key[1],), _Series(6, self.rows))
+            g = self.imus[key] = _Group(topic, (key[1],), self._series(6))
         a, w = msg.linear_acceleration, msg.angular_velocity
         g.series.append(_stamp(msg), (a.x, a.y, a.z, w.x, w.y, w.z))
 
@@ -251,7 +301,7 @@ class _Collector:
         key = (topic, names)
         g = self.joints.get(key)
         if g is None:
-            g = self.joints[key] = _Group(topic, names, _Series(2 * len(names), self.rows))
+            g = self.joints[key] = _Group(topic, names, self._series(2 * len(names)))
         g.series.append(_stamp(msg), np.concatenate([pos, vel]))
 
 
@@ -272,11 +322,64 @@ def _listed_topics(path: Path) -> str:
     return "; metadata.yaml lists " + ", ".join(f"{t} ({m}, {n} messages)" for t, m, n in topics)
 
 
+class _Ros1InFileOrder(Ros1Reader):
+    """rosbags' ROS 1 reader, reading the messages in the order they are stored, without its index.
+
+    rosbags keeps an index entry per message (a Python tuple, about 160 bytes: some 450 MB for a 1 GB
+    bag) to merge the connections by receive time. A recording needs each stream in its own order
+    only, which is the order a bag's chunks store them in, so this reader skips the per-message
+    index and decompresses one chunk at a time: memory stays one chunk whatever the bag's size.
+    """
+
+    def read_index_data(self, pos: int, indexes: dict[int, list[Any]]) -> None:
+        # an index data record: a 47-byte header (length at 0), then its data length at byte 51
+        assert self.bio
+        buf = read_bytes(self.bio, 55)
+        (size,) = struct.unpack_from("<I", buf, 51)
+        self.bio.seek(size, os.SEEK_CUR)
+
+    def open(self) -> None:
+        super().open()
+        counts: Counter[int] = Counter()
+        for info in self.chunk_infos:
+            counts.update(info.connection_counts)
+        self.connections = [Connection(*c[0:5], counts[c.id], *c[6:]) for c in self.connections]
+
+    def messages(
+        self, connections: Collection[Connection] = (), start: int | None = None, stop: int | None = None
+    ) -> Generator[tuple[Connection, int, bytes], None, None]:
+        self._check_open()
+        assert self.bio
+        by_id = {c.id: c for c in self.connections}
+        wanted = {c.id for c in connections} if connections else set(by_id)
+        for info in sorted(self.chunk_infos, key=lambda i: i.pos):
+            if not wanted & info.connection_counts.keys():
+                continue
+            chunk = self.chunks[info.pos]
+            self.bio.seek(chunk.datapos)
+            raw = chunk.decompressor(read_bytes(self.bio, chunk.datasize))
+            data, end = BytesIO(raw), len(raw)
+            while data.tell() < end:
+                header = Header.read(data)
+                size = read_uint32(data)
+                conn = header.get_uint32("conn") if header.get_uint8("op") == RecordType.MSGDATA else -1
+                if conn not in wanted:
+                    data.seek(size, os.SEEK_CUR)
+                    continue
+                time = header.get_time("time")
+                if (start is not None and time < start) or (stop is not None and time >= stop):
+                    data.seek(size, os.SEEK_CUR)
+                    continue
+                yield by_id[conn], time, read_bytes(data, size)
+
+
 def _open(path: Path) -> AnyReader:
     if not path.exists():
         raise RosbagError(f"{path}: no such bag (a ROS 1 .bag file, or a ROS 2 bag directory or file)")
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        if not reader.is2:
+            reader.readers = [_Ros1InFileOrder(path)]
         reader.open()
     except _OPEN_ERRORS as err:
         raise RosbagError(
@@ -316,10 +419,11 @@ def _decoded(
         yield conn, msg
 
 
-def _collect(path: Path, options: RosbagOptions) -> tuple[_Collector, list[Connection], list[Connection]]:
-    """Read the picked topics of the bag into numeric groups, one message at a time."""
+def _collect(
+    path: Path, options: RosbagOptions, out: _Collector
+) -> tuple[list[Connection], list[Connection]]:
+    """Read the picked topics of the bag into ``out``'s numeric groups, one message at a time."""
     reader = _open(path)
-    out = _Collector(options.chunk_rows)
     try:
         conns = list(reader.connections)
         imu_c = _pick(conns, options.imu_topics, IMU_TYPE, "IMUs")
@@ -334,53 +438,122 @@ def _collect(path: Path, options: RosbagOptions) -> tuple[_Collector, list[Conne
             out.messages += 1
     finally:
         reader.close()
-    return out, imu_c, joint_c
+    return imu_c, joint_c
 
 
-def _clean(
-    topic: str, stamps: np.ndarray, values: np.ndarray, dropped: dict[str, int]
-) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(eq=False)
+class _Stream:
+    """One stream after cleaning: its stamps, and its rows read back through the raw rows kept."""
+
+    topic: str
+    series: _Series
+    stamps: np.ndarray
+    #: the raw row of each stamp; None when no sample was dropped
+    kept: np.ndarray | None
+
+    def rows(self, lo: int, hi: int) -> np.ndarray:
+        if self.kept is None:
+            return self.series.values(lo, hi)
+        raw = self.kept[lo:hi]
+        if raw.size == 0:
+            return np.empty((0, self.series.width))
+        return self.series.values(int(raw[0]), int(raw[-1]) + 1)[raw - raw[0]]
+
+
+def _clean(group: _Group, dropped: dict[str, int]) -> _Stream:
     """Drop exact duplicate stamps (the first is kept); refuse stamps that go backwards."""
+    stamps = group.series.finish()
+    kept = None
     dup = np.flatnonzero(np.diff(stamps) == 0) + 1
     if dup.size:
         dropped["duplicate_stamps"] = dropped.get("duplicate_stamps", 0) + int(dup.size)
-        log.warning("%s: dropped %d message(s) whose stamp repeats the previous one", topic, dup.size)
+        log.warning("%s: dropped %d message(s) whose stamp repeats the previous one", group.topic, dup.size)
         keep = np.ones(stamps.shape[0], dtype=bool)
         keep[dup] = False
-        stamps, values = stamps[keep], values[keep]
+        kept, stamps = np.flatnonzero(keep), stamps[keep]
     try:
         check_stamps(stamps.astype(np.float64) / _NS, "header.stamp")
     except RecordingError as err:
-        raise RosbagError(f"topic {topic}: {err}") from None
-    return stamps, values
+        raise RosbagError(f"topic {group.topic}: {err}") from None
+    return _Stream(group.topic, group.series, stamps, kept)
 
 
-def _on_common_stamps(
-    streams: list[tuple[np.ndarray, np.ndarray]], what: str
-) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Stamps shared by every stream and each stream's values on them: the stamps as they are when all
-    streams have the same, else those of the longest stream within the span all cover, others
-    interpolated linearly."""
-    ref_st = max(streams, key=lambda s: s[0].shape[0])[0]
-    if all(np.array_equal(st, ref_st) for st, _ in streams):
-        return ref_st, [va for _, va in streams]
-    lo, hi = max(int(st[0]) for st, _ in streams), min(int(st[-1]) for st, _ in streams)
-    st = ref_st[(ref_st >= lo) & (ref_st <= hi)]
+@dataclass(eq=False)
+class _Aligned:
+    """Streams on common stamps (:func:`_align`), their values produced block by block."""
+
+    stamps: np.ndarray
+    streams: list[_Stream]
+    #: every stream has exactly these stamps (no interpolation)
+    exact: bool
+    #: the stamp the interpolation measures time from
+    lo: int
+
+    def rows(self, i0: int, i1: int) -> list[np.ndarray]:
+        """Each stream's values on ``stamps[i0:i1]`` (``i0 < i1``): the same numbers whatever the
+        blocks, since each is interpolated between the same two samples."""
+        if self.exact:
+            return [s.rows(i0, i1) for s in self.streams]
+        x = (self.stamps[i0:i1] - self.lo).astype(np.float64)
+        out = []
+        for s in self.streams:
+            a = max(int(np.searchsorted(s.stamps, self.stamps[i0], "right")) - 1, 0)
+            b = min(int(np.searchsorted(s.stamps, self.stamps[i1 - 1], "left")) + 1, s.stamps.shape[0])
+            xs = (s.stamps[a:b] - self.lo).astype(np.float64)
+            va = s.rows(a, b)
+            out.append(np.column_stack([np.interp(x, xs, va[:, j]) for j in range(va.shape[1])]))
+        return out
+
+
+def _align(streams: list[_Stream], what: str) -> _Aligned:
+    """Stamps shared by every stream: the stamps as they are when all streams have the same, else
+    those of the longest stream within the span all cover, the others interpolated linearly."""
+    ref = max(streams, key=lambda s: s.stamps.shape[0]).stamps
+    if all(np.array_equal(s.stamps, ref) for s in streams):
+        return _Aligned(ref, streams, exact=True, lo=int(ref[0]))
+    lo, hi = max(int(s.stamps[0]) for s in streams), min(int(s.stamps[-1]) for s in streams)
+    st = ref[(ref >= lo) & (ref <= hi)]
     if st.shape[0] < 2:
         raise RosbagError(f"the {what} topics do not overlap in time")
     log.info("%s on different stamps: resampled onto %d common stamps", what, st.shape[0])
-    x = (st - lo).astype(np.float64)
-    out = []
-    for s, va in streams:
-        xs = (s - lo).astype(np.float64)
-        out.append(np.column_stack([np.interp(x, xs, va[:, j]) for j in range(va.shape[1])]))
-    return st, out
+    return _Aligned(st, streams, exact=False, lo=lo)
 
 
-def _imu_arrays(c: _Collector) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray, dict[str, str]]:
-    """IMU stamps (ns), names, (T, K, 3) specific force and angular rate, and name -> topic, in the bag's
-    topic order (frame ids on one topic as first seen). Each group's blocks are released as soon as
-    they are joined, so the peak stays near twice the numbers the recording holds."""
+@dataclass(eq=False)
+class _Assembly:
+    """What a bag holds, arranged as a recording: stamps, names and topics in memory, the numbers
+    produced block by block."""
+
+    imu_names: list[str]
+    imu_topics: dict[str, str]
+    imus: _Aligned
+    joint_names: list[str]
+    joint_topics: dict[str, str]
+    joints: _Aligned
+    #: per joint: (its stream, position column, velocity column)
+    joint_cols: list[tuple[int, int, int]]
+
+    def imu_blocks(self, rows: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(specific force, angular rate), (n, K, 3) each, ``rows`` stamps at a time."""
+        n = self.imus.stamps.shape[0]
+        for i0 in range(0, n, rows):
+            vals = self.imus.rows(i0, min(i0 + rows, n))
+            yield np.stack([v[:, :3] for v in vals], axis=1), np.stack([v[:, 3:] for v in vals], axis=1)
+
+    def joint_blocks(self, rows: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(positions, velocities), (n, N) each (NaN where a velocity is absent), ``rows`` at a time."""
+        n = self.joints.stamps.shape[0]
+        for i0 in range(0, n, rows):
+            vals = self.joints.rows(i0, min(i0 + rows, n))
+            yield (
+                np.column_stack([vals[s][:, p] for s, p, _ in self.joint_cols]),
+                np.column_stack([vals[s][:, v] for s, _, v in self.joint_cols]),
+            )
+
+
+def _imu_side(c: _Collector) -> tuple[list[str], dict[str, str], _Aligned]:
+    """IMU names, name -> topic and the aligned streams, in the bag's topic order (frame ids on one
+    topic as first seen)."""
     groups = sorted(c.imus.values(), key=lambda g: c.rank[g.topic])
     frames = [g.names[0] for g in groups]
     names: list[str] = []
@@ -390,45 +563,93 @@ def _imu_arrays(c: _Collector) -> tuple[np.ndarray, list[str], np.ndarray, np.nd
         names.append(part_name(frame if unique_frame else f"{g.topic}/{frame}" if frame else g.topic))
     if len(set(names)) != len(names):
         raise RosbagError(f"IMU names collide after cleaning: {names}")
-    streams = [_clean(g.topic, *g.series.take(), c.dropped) for g in groups]
-    st, vals = _on_common_stamps(streams, "IMU")
-    del streams
-    acc = np.stack([v[:, :3] for v in vals], axis=1)
-    gyro = np.stack([v[:, 3:] for v in vals], axis=1)
-    return st, names, acc, gyro, {n: g.topic for n, g in zip(names, groups, strict=True)}
+    aligned = _align([_clean(g, c.dropped) for g in groups], "IMU")
+    return names, {n: g.topic for n, g in zip(names, groups, strict=True)}, aligned
 
 
-def _joint_arrays(c: _Collector) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray, dict[str, str]]:
-    """Encoder stamps (ns), joint names, (T, N) positions and velocities (NaN where absent), name ->
-    topic. Joints come in the order of their groups (most samples first), each group's in message order;
-    a joint in several groups is taken from the one with the most samples."""
+def _joint_side(c: _Collector) -> tuple[list[str], dict[str, str], _Aligned, list[tuple[int, int, int]]]:
+    """Joint names, name -> topic, the aligned streams and each joint's columns. Joints come in the
+    order of their groups (most samples first), each group's in message order; a joint in several
+    groups is taken from the one with the most samples."""
     owner: dict[str, _Group] = {}
     for g in sorted(c.joints.values(), key=lambda g: -len(g.series)):
         for n in g.names:
             owner.setdefault(n, g)
     used = list(dict.fromkeys(owner.values()))
-    streams = [_clean(g.topic, *g.series.take(), c.dropped) for g in used]
-    st, vals = _on_common_stamps(streams, "joint state")
+    aligned = _align([_clean(g, c.dropped) for g in used], "joint state")
     names: list[str] = []
-    pos: list[np.ndarray] = []
-    vel: list[np.ndarray] = []
-    for g, va in zip(used, vals, strict=True):
+    cols: list[tuple[int, int, int]] = []
+    for s, g in enumerate(used):
         k = len(g.names)
         for i, n in enumerate(g.names):
             if owner[n] is g:
                 names.append(n)
-                pos.append(va[:, i])
-                vel.append(va[:, k + i])
+                cols.append((s, i, k + i))
     clean = [part_name(n) for n in names]
     if len(set(clean)) != len(clean):
         raise RosbagError(f"joint names collide after cleaning: {names}")
     topics = {c: owner[n].topic for c, n in zip(clean, names, strict=True)}
-    return st, clean, np.column_stack(pos), np.column_stack(vel), topics
+    return clean, topics, aligned, cols
 
 
 def _origin(*stamps: np.ndarray) -> int:
     first = min(int(s[0]) for s in stamps)
     return 0 if first < WALL_CLOCK_NS else (first // _NS) * _NS
+
+
+def _assemble(path: Path, options: RosbagOptions, c: _Collector) -> tuple[_Assembly, BagSummary]:
+    imu_c, joint_c = _collect(path, options, c)
+    if not c.imus or not c.joints:
+        what = "IMU" if not c.imus else "joint-state"
+        topics = imu_c if not c.imus else joint_c
+        raise RosbagError(
+            f"{path}: no usable {what} message on {', '.join(sorted({x.topic for x in topics}))} "
+            f"(dropped: {c.dropped or 'none'})"
+        )
+    asm = _Assembly(*_imu_side(c), *_joint_side(c))
+    summary = BagSummary(
+        imu_topics=dict(sorted({x.topic: x.msgtype for x in imu_c}.items())),
+        joint_topics=dict(sorted({x.topic: x.msgtype for x in joint_c}.items())),
+        messages=c.messages,
+        dropped=dict(c.dropped),
+    )
+    return asm, summary
+
+
+def _velocity(path: Path, blocks: Iterator[tuple[np.ndarray, np.ndarray]]) -> bool:
+    """Whether every velocity is present; refuses positions that are not finite."""
+    velocity = True
+    for q, qd in blocks:
+        if not np.all(np.isfinite(q)):
+            raise RosbagError(f"{path}: q contains NaN or Inf")
+        velocity = velocity and bool(np.all(np.isfinite(qd)))
+    return velocity
+
+
+def _recording(
+    path: Path, asm: _Assembly, acc: np.ndarray, gyro: np.ndarray, q: np.ndarray, qd: np.ndarray | None
+) -> Recording:
+    t_ns, tq_ns = asm.imus.stamps, asm.joints.stamps
+    origin = _origin(t_ns, tq_ns)
+    same = np.array_equal(t_ns, tq_ns)
+    topics = {"imus": asm.imu_topics, "joints": asm.joint_topics}
+    try:
+        return Recording(
+            t=(t_ns - origin).astype(np.float64) / _NS,
+            t_q=None if same else (tq_ns - origin).astype(np.float64) / _NS,
+            joint_names=tuple(asm.joint_names),
+            q=q,
+            qd=qd,
+            imu_names=tuple(asm.imu_names),
+            acc=acc,
+            gyro=gyro,
+            extra={
+                "stamp_origin_ns": np.array(origin, dtype=np.int64),
+                "ros_topics": np.array(json.dumps(topics)),
+            },
+        )
+    except RecordingError as err:
+        raise RosbagError(f"{path}: {err}") from None
 
 
 def read_rosbag(
@@ -437,41 +658,48 @@ def read_rosbag(
     """The recording held by the bag at ``path`` (see the module docstring) and what was read."""
     options = options or RosbagOptions()
     path = Path(path)
-    c, imu_c, joint_c = _collect(path, options)
-    if not c.imus or not c.joints:
-        what = "IMU" if not c.imus else "joint-state"
-        topics = imu_c if not c.imus else joint_c
-        raise RosbagError(
-            f"{path}: no usable {what} message on {', '.join(sorted({x.topic for x in topics}))} "
-            f"(dropped: {c.dropped or 'none'})"
+    asm, summary = _assemble(path, options, _Collector(options.chunk_rows))
+    q, qd = next(asm.joint_blocks(asm.joints.stamps.shape[0]))
+    velocity = _velocity(path, iter([(q, qd)]))
+    acc, gyro = next(asm.imu_blocks(asm.imus.stamps.shape[0]))
+    return _recording(path, asm, acc, gyro, q, qd if velocity else None), summary
+
+
+def import_rosbag(
+    path: str | os.PathLike[str], out: str | os.PathLike[str], options: RosbagOptions | None = None
+) -> tuple[Recording, BagSummary]:
+    """Write the recording held by the bag at ``path`` to ``out`` (.npz), in bounded memory.
+
+    The same recording as :func:`read_rosbag` gives, byte for byte once loaded, but its numbers never
+    sit in memory at once: they are spooled to unnamed temporary files beside ``out`` while the bag
+    is read, and written to ``out`` block by block. What stays in memory are the stamps (8 bytes a
+    sample). Returns the recording with its stamps and names, its sample arrays only placeholders of
+    the right shape (read the file for the numbers), and what was read.
+    """
+    options = options or RosbagOptions()
+    path, out = Path(path), Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows = options.chunk_rows
+    with _Collector(rows, spool=out.parent) as c:
+        asm, summary = _assemble(path, options, c)
+        velocity = _velocity(path, asm.joint_blocks(rows))
+        T, K = asm.imus.stamps.shape[0], len(asm.imu_names)
+        imu_shape, joint_shape = (T, K, 3), (asm.joints.stamps.shape[0], len(asm.joint_names))
+        zero = np.zeros(())
+        rec = _recording(
+            path,
+            asm,
+            np.broadcast_to(zero, imu_shape),
+            np.broadcast_to(zero, imu_shape),
+            np.broadcast_to(zero, joint_shape),
+            np.broadcast_to(zero, joint_shape) if velocity else None,
         )
-    t_ns, imu_names, acc, gyro, imu_topics = _imu_arrays(c)
-    tq_ns, joint_names, q, qd, joint_topics = _joint_arrays(c)
-    origin = _origin(t_ns, tq_ns)
-    t = (t_ns - origin).astype(np.float64) / _NS
-    same = np.array_equal(t_ns, tq_ns)
-    extra = {
-        "stamp_origin_ns": np.array(origin, dtype=np.int64),
-        "ros_topics": np.array(json.dumps({"imus": imu_topics, "joints": joint_topics})),
-    }
-    try:
-        rec = Recording(
-            t=t,
-            t_q=None if same else (tq_ns - origin).astype(np.float64) / _NS,
-            joint_names=tuple(joint_names),
-            q=q,
-            qd=qd if np.all(np.isfinite(qd)) else None,
-            imu_names=tuple(imu_names),
-            acc=acc,
-            gyro=gyro,
-            extra=extra,
-        )
-    except RecordingError as err:
-        raise RosbagError(f"{path}: {err}") from None
-    summary = BagSummary(
-        imu_topics=dict(sorted({x.topic: x.msgtype for x in imu_c}.items())),
-        joint_topics=dict(sorted({x.topic: x.msgtype for x in joint_c}.items())),
-        messages=c.messages,
-        dropped=dict(c.dropped),
-    )
+        blocks = {
+            "acc": Blocks(lambda: (a for a, _ in asm.imu_blocks(rows))),
+            "gyro": Blocks(lambda: (g for _, g in asm.imu_blocks(rows))),
+            "q": Blocks(lambda: (q for q, _ in asm.joint_blocks(rows))),
+        }
+        if velocity:
+            blocks["qd"] = Blocks(lambda: (qd for _, qd in asm.joint_blocks(rows)))
+        save_recording(rec, out, blocks=blocks)
     return rec, summary

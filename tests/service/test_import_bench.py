@@ -45,7 +45,9 @@ def test_bench_import_writes_results(tmp_path: Path) -> None:
         (f, 2.0) for f in ("ros1", "sqlite3", "mcap")
     ]
     for m in data["memory"]:
-        assert m["heap_peak_mb"] >= m["recording_arrays_mb"] > 0 and m["rss_growth_mb"] >= 0
+        assert m["messages"] == 900 and m["recording_arrays_mb"] > 0
+        assert m["rss_peak_mb"] == pytest.approx(m["rss_before_mb"] + m["rss_growth_mb"], abs=0.11)
+        assert m["rss_growth_mb"] >= 0 and m["import_s"] >= 0
     assert "| ROS 2 MCAP |" in md.read_text()
 
 

@@ -18,7 +18,7 @@ from bodyschema.recording import Recording
 from cli.main import main
 from emulators.rosbag import MessageFactory, RosbagWriteOptions, stamps_ns, write_rosbag
 from service.ingest.replay import ReplaySource
-from service.ingest.rosbag import RosbagError, RosbagOptions, bag_topics, read_rosbag
+from service.ingest.rosbag import RosbagError, RosbagOptions, bag_topics, import_rosbag, read_rosbag
 from service.ingest.spec import SpecError, open_source
 from simulators.recording_io import load_recording, save_recording
 from simulators.simulation import simulate
@@ -184,6 +184,73 @@ def test_stamps_that_go_backwards_are_refused_naming_the_topic(tmp_path: Path) -
     _hand_bag(tmp_path / "b", [0, 10 * ms, 20 * ms], [0, 8 * ms, 4 * ms, 12 * ms])
     with pytest.raises(RosbagError, match=r"topic /joint_states: header.stamp goes backwards at index 2"):
         read_rosbag(tmp_path / "b")
+
+
+# ------------------------------------------------------------------------------- import in bounded memory
+def _same_file_as_read(bag: Path, out: Path, rows: int) -> Recording:
+    """``import_rosbag`` with blocks of ``rows`` writes exactly what ``read_rosbag`` gives, saved, and
+    leaves nothing beside the file."""
+    rec, _ = read_rosbag(bag)
+    save_recording(rec, out.parent / "expected.npz")
+    before = set(out.parent.iterdir())
+    layout, summary = import_rosbag(bag, out, RosbagOptions(chunk_rows=rows))
+    assert set(out.parent.iterdir()) == before | {out}  # the spool files are gone
+    with np.load(out) as got, np.load(out.parent / "expected.npz") as want:
+        assert sorted(got.files) == sorted(want.files)
+        for k in want.files:
+            np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+    assert (layout.n_samples, layout.imu_names, layout.joint_names) == (
+        rec.n_samples,
+        rec.imu_names,
+        rec.joint_names,
+    )
+    assert (layout.qd is None) == (rec.qd is None) and summary.messages > 0
+    return load_recording(out)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_import_writes_the_recording_block_by_block(
+    fmt: str, robot_bags: dict[str, Path], robot_rec: Recording, tmp_path: Path
+) -> None:
+    back = _same_file_as_read(robot_bags[fmt], tmp_path / "rec.npz", rows=97)  # blocks cut mid-stream
+    np.testing.assert_array_equal(back.acc, robot_rec.acc)
+    np.testing.assert_array_equal(back.q, robot_rec.q)
+
+
+def test_import_of_resampled_and_repeated_stamps_matches_the_read(tmp_path: Path) -> None:
+    """Interpolated IMUs and dropped duplicates come out the same whatever the block size."""
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    msgs = MessageFactory(ts, ts.serialize_cdr)
+    ta = np.arange(0, 101) * 10_000_000
+    tb = 5_000_000 + np.arange(0, 50) * 20_000_000
+    rng = np.random.default_rng(5)
+    with Writer2(tmp_path / "b", version=9) as w:
+        ca = w.add_connection("/a/imu", "sensor_msgs/msg/Imu", typestore=ts)
+        cb = w.add_connection("/b/imu", "sensor_msgs/msg/Imu", typestore=ts)
+        cj = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        for k, s in enumerate(ta):
+            w.write(ca, k, msgs.imu("/a/imu", int(s), "a", rng.normal(size=3), rng.normal(size=3)))
+            for _ in range(1 + (k % 7 == 3)):  # every 7th joint state sent twice
+                w.write(cj, k, msgs.joints("/joint_states", int(s), ["j1", "j2"], rng.normal(size=2), None))
+        for k, s in enumerate(tb):
+            w.write(cb, k, msgs.imu("/b/imu", int(s), "b", rng.normal(size=3), rng.normal(size=3)))
+    for rows in (1, 4, 33):
+        out = tmp_path / f"r{rows}" / "rec.npz"
+        out.parent.mkdir()
+        back = _same_file_as_read(tmp_path / "b", out, rows)
+        assert back.n_samples == 98 and back.t_q.shape == (101,)
+
+
+def test_failed_import_leaves_no_file(robot_bags: dict[str, Path], tmp_path: Path) -> None:
+    dst = storage = tmp_path / "bad.bag"
+    shutil.copy(robot_bags["ros1"], dst)
+    with storage.open("r+b") as f:
+        f.seek(storage.stat().st_size // 3)
+        f.write(b"\xff" * 20_000)
+    out = tmp_path / "out" / "rec.npz"
+    with pytest.raises(RosbagError, match="truncated or corrupt after"):
+        import_rosbag(dst, out)
+    assert list(out.parent.iterdir()) == []
 
 
 # ------------------------------------------------------------------------------------------- bad input
