@@ -36,19 +36,31 @@ __all__ = ["TARGET_P99_MS", "TARGET_RPS", "add_arguments", "run"]
 TARGET_RPS = 200.0
 TARGET_P99_MS = 20.0
 LOCUSTFILE = Path(__file__).with_name("locustfile.py")
-USER_RPS = 10.0
+#: requests per second of one locust user by default, and of the comparison run at the target rate
+USER_RPS = 50.0
+DASHBOARD_USER_RPS = 10.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rps", default="50,100,200", help="offered request rates (comma list)")
     p.add_argument("--seconds", type=float, default=60.0, help="measured seconds per rate")
     p.add_argument("--warmup", type=float, default=30.0, help="seconds the farm runs before the first rate")
+    p.add_argument(
+        "--user-rps",
+        type=float,
+        default=USER_RPS,
+        help="requests/s of one locust user (users = rate / this); the target rate is also measured with "
+        f"{DASHBOARD_USER_RPS:g} rps users, to show what the load generator's own concurrency adds",
+    )
     p.add_argument("--out", type=Path, default=RESULTS_DIR)
 
 
 @dataclass
 class Row:
     offered_rps: float
+    users: int
+    #: "locust", or "threads": :func:`_threads`, the comparison client
+    client: str
     achieved_rps: float
     requests: int
     failures: int
@@ -59,6 +71,8 @@ class Row:
     service_cpu_per_s: float
     frames_stored_per_s: float
     frames_dropped: int
+    #: sensor-network retrains that finished on the training cluster during the run
+    network_retrains: int = 0
 
 
 def _free_port() -> int:
@@ -74,12 +88,16 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _metric(text: str, name: str) -> float:
-    return sum(float(m.group(1)) for m in re.finditer(rf"^{name}(?:{{[^}}]*}})? (\S+)$", text, re.M))
+def _metric(text: str, name: str, skip: str | None = None) -> float:
+    """The sum of metric ``name`` over its label sets (those containing ``skip`` left out)."""
+    return sum(
+        float(m.group(2))
+        for m in re.finditer(rf"^{name}(?:{{([^}}]*)}})? (\S+)$", text, re.M)
+        if skip is None or skip not in (m.group(1) or "")
+    )
 
 
-def _locust(host: str, rps: float, seconds: float, prefix: Path) -> dict[str, str]:
-    users = max(1, round(rps / USER_RPS))
+def _locust(host: str, rps: float, users: int, seconds: float, prefix: Path) -> dict[str, str]:
     env = {**os.environ, "BODYHEALTH_LOAD_USER_RPS": f"{rps / users:g}"}
     cmd = [
         sys.executable,
@@ -109,10 +127,79 @@ def _locust(host: str, rps: float, seconds: float, prefix: Path) -> dict[str, st
     return rows["Aggregated"]
 
 
+def _threads(host: str, rps: float, users: int, seconds: float) -> dict[str, str]:
+    """The comparison client: ``users`` threads, each with its own keep-alive connection (the standard
+    library's ``http.client``), each asking the locustfile's read mix at ``rps / users`` requests per
+    second from a random phase; the same summary fields as locust's CSV (times in ms)."""
+    import http.client
+    import random
+    import threading
+    from urllib.parse import urlsplit
+
+    import numpy as np
+
+    where = urlsplit(host)
+    lat: list[float] = []
+    fails = [0]
+    lock = threading.Lock()
+    start = time.perf_counter() + 1.0
+
+    def user(seed: int) -> None:
+        rng = random.Random(seed)
+        conn = http.client.HTTPConnection(where.hostname, where.port, timeout=10)
+
+        def get(path: str) -> bytes:
+            conn.request("GET", path)
+            resp = conn.getresponse()
+            body = resp.read()
+            if resp.status != 200:
+                with lock:
+                    fails[0] += 1
+            return body
+
+        names = [r["name"] for r in json.loads(get("/api/v1/robots"))] or ["none"]
+        mix = [(4, "/api/v1/robots"), (2, "/api/v1/alerts"), (1, "/readyz")]
+        mix += [(w, f"/api/v1/robots/{{}}{tail}") for w, tail in ((3, "/status"), (2, ""), (2, "/topology"))]
+        mix += [(1, "/api/v1/robots/{}/alerts")]
+        paths = [p for w, p in mix for _ in range(w)]
+        period = users / rps
+        t_next, end, mine = start + rng.uniform(0.0, period), start + seconds, []
+        while t_next < end:
+            time.sleep(max(0.0, t_next - time.perf_counter()))
+            path = rng.choice(paths).format(rng.choice(names))
+            t0 = time.perf_counter()
+            get(path)
+            mine.append(time.perf_counter() - t0)
+            t_next += period
+        with lock:
+            lat.extend(mine)
+        conn.close()
+
+    threads = [threading.Thread(target=user, args=(k,)) for k in range(users)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    ms = np.array(lat) * 1000.0
+    pct = {f"{q}%": f"{np.percentile(ms, q):.1f}" for q in (50, 95, 99)}
+    return {
+        "Requests/s": f"{ms.size / seconds:.2f}",
+        "Request Count": str(ms.size),
+        "Failure Count": str(fails[0]),
+        "Max Response Time": f"{ms.max():.1f}",
+        **pct,
+    }
+
+
 def run(args: argparse.Namespace) -> Path:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rates = [float(x) for x in args.rps.split(",") if x.strip()]
+    runs = [(rps, max(1, round(rps / args.user_rps)), "locust") for rps in rates]
+    if TARGET_RPS in rates:
+        dashboards = max(1, round(TARGET_RPS / DASHBOARD_USER_RPS))
+        runs += [(TARGET_RPS, dashboards, "locust"), (TARGET_RPS, dashboards, "threads")]
+        runs = list(dict.fromkeys(runs))
     port = _free_port()
     host = f"http://127.0.0.1:{port}"
     rows: list[Row] = []
@@ -138,9 +225,12 @@ def run(args: argparse.Namespace) -> Path:
                         raise RuntimeError("the demo service did not come up within 120 s")
                     time.sleep(0.5)
                 time.sleep(args.warmup)
-                for i, rps in enumerate(progress(rates, desc="bench load", unit="rate")):
+                for i, (rps, users, client) in enumerate(progress(runs, desc="bench load", unit="run")):
                     m0, c0, t0 = c.get("/metrics").text, _cpu_seconds(proc.pid), time.monotonic()
-                    agg = _locust(host, rps, args.seconds, Path(tmp) / f"rate{i}")
+                    if client == "locust":
+                        agg = _locust(host, rps, users, args.seconds, Path(tmp) / f"rate{i}")
+                    else:
+                        agg = _threads(host, rps, users, args.seconds)
                     m1, c1, t1 = c.get("/metrics").text, _cpu_seconds(proc.pid), time.monotonic()
                     stored = _metric(m1, "bodyhealth_frames_stored_total") - _metric(
                         m0, "bodyhealth_frames_stored_total"
@@ -148,9 +238,14 @@ def run(args: argparse.Namespace) -> Path:
                     dropped = _metric(m1, "bodyhealth_frames_dropped_total") - _metric(
                         m0, "bodyhealth_frames_dropped_total"
                     )
+                    trained = _metric(m1, "bodyhealth_retrains_total", 'method="fast"') - _metric(
+                        m0, "bodyhealth_retrains_total", 'method="fast"'
+                    )
                     rows.append(
                         Row(
                             offered_rps=rps,
+                            users=users,
+                            client=client,
                             achieved_rps=float(agg["Requests/s"]),
                             requests=int(agg["Request Count"]),
                             failures=int(agg["Failure Count"]),
@@ -161,6 +256,7 @@ def run(args: argparse.Namespace) -> Path:
                             service_cpu_per_s=(c1 - c0) / (t1 - t0),
                             frames_stored_per_s=stored / (t1 - t0),
                             frames_dropped=int(dropped),
+                            network_retrains=int(trained),
                         )
                     )
         finally:
@@ -174,6 +270,9 @@ def run(args: argparse.Namespace) -> Path:
     return out / "load.md"
 
 
+_CLIENT_NOTE = {"locust": "", "threads": " (threads)"}
+
+
 def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) -> None:
     note = machine_note()
     (out / "load.json").write_text(
@@ -183,6 +282,7 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
                 "load_average": load,
                 "seconds": args.seconds,
                 "warmup": args.warmup,
+                "user_rps": args.user_rps,
                 "target_rps": TARGET_RPS,
                 "target_p99_ms": TARGET_P99_MS,
                 "rows": [asdict(r) for r in rows],
@@ -200,33 +300,59 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
         f"of warm-up. Target: p99 at most {TARGET_P99_MS:g} ms at {TARGET_RPS:g} rps.",
         "",
         f"Machine: {note}; load average {load:.1f} when the run started. The load generator runs on the "
-        "same machine.",
+        "same machine. The sensor networks are on (the service's default): network retrains is how many "
+        "finished on the embedded Dask cluster during the run (nice "
+        "10: they yield the CPU to the API).",
         "",
-        "| offered rps | achieved rps | requests | failures | p50 | p95 | p99 | max | service CPU s/s "
-        "| frames stored/s | frames dropped |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| offered rps | users | achieved rps | requests | failures | p50 | p95 | p99 | max "
+        "| service CPU s/s | frames stored/s | frames dropped | network retrains |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
-            f"| {r.offered_rps:g} | {r.achieved_rps:.1f} | {r.requests} | {r.failures} | {r.p50_ms:g} ms "
-            f"| {r.p95_ms:g} ms | {r.p99_ms:g} ms | {r.max_ms:.0f} ms | {r.service_cpu_per_s:.2f} "
-            f"| {r.frames_stored_per_s:.0f} | {r.frames_dropped} |"
+            f"| {r.offered_rps:g} | {r.users}{_CLIENT_NOTE[r.client]} | {r.achieved_rps:.1f} | {r.requests} "
+            f"| {r.failures} "
+            f"| {r.p50_ms:g} ms | {r.p95_ms:g} ms | {r.p99_ms:g} ms | {r.max_ms:.0f} ms "
+            f"| {r.service_cpu_per_s:.2f} | {r.frames_stored_per_s:.0f} | {r.frames_dropped} "
+            f"| {r.network_retrains} |"
         )
-    lines += ["", "![API latency against request rate](load.png)", ""]
+    lines += [
+        "",
+        f"Users: locust users at {args.user_rps:g} requests/s each. The last two rows offer the target "
+        f"rate from {DASHBOARD_USER_RPS:g} requests/s users (dashboards polling), through locust and "
+        "through threads with one keep-alive connection each (`http.client`, the same read mix): the "
+        "difference is what locust's own client adds, many gevent users in one process on the machine "
+        "it measures.",
+        "",
+        "![API latency against request rate](load.png)",
+        "",
+    ]
     (out / "load.md").write_text("\n".join(lines))
-    _plot(out / "load.png", rows, note)
+    _plot(out / "load.png", rows, note, args.user_rps)
 
 
-def _plot(path: Path, rows: list[Row], note: str) -> None:
+def _plot(path: Path, rows: list[Row], note: str, user_rps: float) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
+    main = [r for r in rows if r.client == "locust" and r.users == max(1, round(r.offered_rps / user_rps))]
+    extra = [r for r in rows if r not in main]
+    rows = main
     x = [r.achieved_rps for r in rows]
     for key, label in (("p50_ms", "p50"), ("p95_ms", "p95"), ("p99_ms", "p99")):
         ax.plot(x, [getattr(r, key) for r in rows], "o-", label=label)
+    for r, marker in zip(extra, "sD", strict=False):
+        ax.plot(
+            [r.achieved_rps],
+            [r.p99_ms],
+            marker,
+            color="k",
+            mfc="none",
+            label=f"p99, {r.users} {r.client} users",
+        )
     ax.axhline(TARGET_P99_MS, color="red", ls="--", lw=1, label=f"p99 target {TARGET_P99_MS:g} ms")
     ax.axvline(TARGET_RPS, color="grey", ls=":", lw=1)
     ax.set_xlabel("achieved requests/s (mixed reads)")

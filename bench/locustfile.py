@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import random
 
+import gevent
 from locust import FastHttpUser, constant_throughput, task
 
 __all__ = ["MixedReads"]
@@ -23,9 +24,14 @@ __all__ = ["MixedReads"]
 class MixedReads(FastHttpUser):
     """The read mix: the robot list (a dashboard's poll) most, then status, details, topology, alerts."""
 
-    wait_time = constant_throughput(float(os.environ.get("BODYHEALTH_LOAD_USER_RPS", "10")))
+    rate = float(os.environ.get("BODYHEALTH_LOAD_USER_RPS", "10"))
+    wait_time = constant_throughput(rate)
 
     def on_start(self) -> None:
+        # Independent clients are not in step. Users spawned together at a fixed rate each would
+        # otherwise fire in the same few milliseconds of every period: the service would see bursts of
+        # all users at once, and the percentiles would measure the queue of one burst.
+        gevent.sleep(random.uniform(0.0, 1.0 / self.rate))
         token = os.environ.get("BODYHEALTH_API_READ_TOKEN") or os.environ.get("BODYHEALTH_API_TOKEN")
         self.headers = {"Authorization": f"Bearer {token}"} if token else {}
         resp = self.client.get("/api/v1/robots", headers=self.headers, name="/api/v1/robots")

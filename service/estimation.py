@@ -1,11 +1,13 @@
-"""The worker's topology estimates in a child process: CPU-bound work off the API's interpreter lock.
+"""The worker's estimates in a child process: CPU-bound work off the API's interpreter lock.
 
 The API, the ingest writer and the worker share one process (:mod:`service.daemon`). A fast estimate
 of one robot's window is 0.1 to 1 CPU s of numpy and Python; in the worker thread it holds the
 interpreter lock for most of that, and every request that arrives meanwhile waits for it: the latency
 tail of docs/bench/load.md. In a child process it costs the service only the pickling of the window
-and of the answer. The child is started on the first estimate (:mod:`service.children`: ``spawn``,
-and it ends with its parent) and serves one estimate at a time, in order.
+and of the answer. The worker's other CPU-bound steps (signal health, impact removal, fingerprints) run
+there too (:meth:`EstimatorProcess.run`): in the worker thread they held the lock for a tenth of the
+service's time, long enough to triple the API's latency tail. The child is started on the first estimate
+(:mod:`service.children`: ``spawn``, and it ends with its parent) and serves one estimate at a time, in order.
 
 A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
 robot, and the next cycle tries again. The network methods come here only when the service runs
@@ -31,15 +33,19 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from types import TracebackType
+from typing import Any, TypeVar
 
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.children import SPAWN, exit_with_parent
 
 __all__ = ["EstimatorProcess"]
+
+T = TypeVar("T")
 
 
 class EstimatorProcess:
@@ -55,12 +61,14 @@ class EstimatorProcess:
     def __call__(self, rec: Recording, method: str) -> Topology:
         from bodyschema.estimate import estimate_topology
 
+        return self.run(estimate_topology, rec, method, timer=time.process_time, imu_delay=self.imu_delay)
+
+    def run(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> T:
+        """``fn(*args, **kwargs)`` in the child (a module-level function, picklable arguments): the
+        worker's other CPU-bound steps go this way too (:data:`service.worker.Compute`)."""
         pool = self._ensure()
         try:
-            fut = pool.submit(
-                estimate_topology, rec, method, timer=time.process_time, imu_delay=self.imu_delay
-            )
-            return fut.result()
+            return pool.submit(fn, *args, **kwargs).result()
         except BrokenProcessPool:
             with self._lock:  # the child died: the next call starts another
                 if self._pool is pool:

@@ -66,6 +66,8 @@ class RetrainJob:
     #: the baseline current at submission: the task starts from the robot's weights trained under it
     baseline_id: int | None = None
     warm_start: bool = True
+    #: nice value the training thread is raised to (0: left as it is); see :func:`lower_priority`
+    nice: int = 0
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,19 @@ def job_key(job: RetrainJob) -> str:
     return f"retrain-{job.method}-{job.robot}-e{job.epoch}-{job.window_end:.6f}"
 
 
+def lower_priority(nice: int) -> None:
+    """Raise the calling thread's nice value to ``nice`` (never lower it: that needs privileges).
+
+    On Linux a nice value belongs to a thread, and the training runs on the Dask worker's one task
+    thread, so that thread is what yields the CPU to the service's API and ingest; threads it starts
+    later (torch's) inherit it. Elsewhere it applies to the process.
+    """
+    if nice <= 0 or not hasattr(os, "setpriority"):
+        return
+    if os.getpriority(os.PRIO_PROCESS, 0) < nice:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+
+
 def run_retrain(job: RetrainJob) -> RetrainResult:
     """Read the job's window from its store, learn the topology, return it (the Dask task body).
 
@@ -136,6 +151,7 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     from service.store import Store
     from service.store.weights import pack_weights
 
+    lower_priority(job.nice)
     wall0, cpu0 = time.monotonic(), time.process_time()
     store = Store(job.database_url)
     stored = None

@@ -128,6 +128,14 @@ class Settings(BaseSettings):
     dask_connect_timeout_seconds: float = Field(
         5.0, gt=0, description="how long one attempt to reach the scheduler may take before it is retried"
     )
+    training_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="nice value the embedded cluster's retrains run at (Linux), so on a small machine "
+        "they yield the CPU to the API and ingest; 0 = as the service; an external cluster's workers "
+        "are left as they are",
+    )
 
     # ----------------------------------------------------------------- ingest
     queue_max_batches: int = Field(1000, ge=1, description="bounded ingest queue (backpressure)")

@@ -53,6 +53,8 @@ class TrainingOptions:
     estimator_options: tuple[tuple[str, Any], ...] = ()
     #: start the sensor networks from the robot's stored weights (:mod:`service.store.weights`)
     warm_start: bool = True
+    #: nice value of the training thread (:func:`service.retrain_task.lower_priority`; 0: as it is)
+    nice: int = 0
 
 
 @dataclass(frozen=True)
@@ -240,4 +242,5 @@ class RemoteRetrains:
             min_samples=self.min_samples,
             baseline_id=base.id if base is not None else None,
             warm_start=self.options.warm_start,
+            nice=self.options.nice,
         )

@@ -47,6 +47,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -67,7 +68,7 @@ from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
 from service.training import RemoteRetrains
 
-__all__ = ["HEARTBEAT_COMPONENT", "CycleResult", "Estimator", "Worker", "default_estimator"]
+__all__ = ["HEARTBEAT_COMPONENT", "Compute", "CycleResult", "Estimator", "Worker", "default_estimator"]
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,15 @@ HEARTBEAT_COMPONENT = "worker"
 
 #: ``(recording, method) -> Topology``; the default is :func:`bodyschema.estimate.estimate_topology`.
 Estimator = Callable[[Recording, str], Topology]
+#: ``compute(fn, *args, **kwargs)`` returns ``fn(*args, **kwargs)``: where the worker's other CPU-bound
+#: steps (impact removal, signal health, fingerprints) run. Inline by default; the service runs them in
+#: the estimator's child process (:meth:`service.estimation.EstimatorProcess.run`), off the API's
+#: interpreter lock.
+Compute = Callable[..., Any]
+
+
+def _inline(fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Any:
+    return fn(*args, **kwargs)
 
 
 def default_estimator(rec: Recording, method: str, imu_delay: float | None = None) -> Topology:
@@ -104,7 +114,8 @@ class Worker:
 
     ``estimator`` is injected so tests and benchmarks can swap the method; ``clock`` is the wall clock
     (alert and heartbeat times). Settings give the interval, window, K, M and the network schedule.
-    ``remote``, when given, runs every method but ``fast`` on a cluster (module doc).
+    ``remote``, when given, runs every method but ``fast`` on a cluster (module doc); ``compute``
+    runs the other CPU-bound steps (:data:`Compute`).
     """
 
     def __init__(
@@ -117,9 +128,11 @@ class Worker:
         clock: Callable[[], float] = time.time,
         min_samples: int = 50,
         remote: RemoteRetrains | None = None,
+        compute: Compute | None = None,
     ) -> None:
         self.store = store
         self.remote = remote
+        self.compute = compute or _inline
         self.settings = settings or get_settings()
         self.estimator = estimator or functools.partial(
             default_estimator, imu_delay=self.settings.imu_filter_delay
@@ -338,7 +351,8 @@ class Worker:
         layout = base.topology if base is not None else None
         window_end = float(rec.t[-1])
         fast: Topology | None = None
-        learn = drop_impacts(rec)  # velocity jumps at stops read as contradictions to the estimators
+        # velocity jumps at stops read as contradictions to the estimators
+        learn = self.compute(drop_impacts, rec)
         for method in self._methods(robot):
             if method != "fast" and self.remote is not None:
                 self.remote.want(robot, method)  # submitted at the end of the cycle, stored when done
@@ -352,7 +366,8 @@ class Worker:
                 fast = topo
         if fast is None:
             return res
-        res.health = signal_health(
+        res.health = self.compute(
+            signal_health,
             rec,
             layout,
             expected_imus,
@@ -370,7 +385,7 @@ class Worker:
         res.diff = diff_bodies(base.topology, fast, res.health)
         self._on_change(robot, res.diff)
         if robot not in self.fingerprints_ and not res.diff.findings:
-            self.fingerprints_[robot] = baseline_fingerprints(rec, base.topology, current=fast)
+            self.fingerprints_[robot] = self.compute(baseline_fingerprints, rec, base.topology, current=fast)
         hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
         if not hold:
             res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)

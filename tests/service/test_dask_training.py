@@ -333,6 +333,12 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
         assert daemon.worker is not None
         (res,) = daemon.worker.remote.results
         assert res.pid in {p.pid for p in ours}
+        # the retrain ran at the settings' nice value, on its worker's task thread
+        nice = {
+            int((task / "stat").read_text().rsplit(")", 1)[1].split()[16])
+            for task in Path(f"/proc/{res.pid}/task").iterdir()
+        }
+        assert settings.training_nice == 10 and 10 in nice and 0 in nice, nice
     finally:
         daemon.stop()
     _, alive = psutil.wait_procs(ours, timeout=20)

@@ -1,5 +1,6 @@
 """The worker's estimates in a child process (service.estimation): the same answer as in the thread,
-a child that died is replaced, and a child never outlives a SIGKILLed service."""
+a child that died is replaced, and a child never outlives a SIGKILLed service; the training thread's
+lowered priority."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -16,7 +18,9 @@ import numpy as np
 import pytest
 
 from bodyschema.estimate import estimate_topology
+from bodyschema.health import signal_health
 from service.estimation import EstimatorProcess
+from service.retrain_task import lower_priority
 from simulators.kinematic_tree import random_robot_recording
 
 REPO = Path(__file__).resolve().parents[2]
@@ -52,7 +56,26 @@ def test_the_child_answers_as_the_thread_and_is_replaced_when_it_dies() -> None:
         again = est(rec, "fast")  # the next one gets a new child
         assert again.joint_parent == here.joint_parent
         assert _child(est) != first
+        # the worker's other steps run in the same child, with the same answers as here
+        assert est.run(os.getpid) == _child(est) != os.getpid()
+        health = est.run(signal_health, rec, there)
+        assert health == signal_health(rec, there)
     assert not _alive(first)
+
+
+def test_lower_priority_raises_the_nice_value_of_the_calling_thread_only() -> None:
+    seen: list[int] = []
+
+    def train() -> None:
+        lower_priority(7)
+        lower_priority(3)  # never lowered again
+        seen.append(os.getpriority(os.PRIO_PROCESS, 0))
+
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    t = threading.Thread(target=train)
+    t.start()
+    t.join()
+    assert seen == [max(7, before)] and os.getpriority(os.PRIO_PROCESS, 0) == before
 
 
 @pytest.mark.slow

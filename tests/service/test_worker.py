@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -429,3 +430,25 @@ def test_encoder_offset_raises_after_the_fingerprint_is_learned(
     w.run_cycle()
     (tr,) = w.run_cycle()["arm"].transitions
     assert (tr.kind, tr.part, tr.state) == ("encoder_fault", "joint:j2", "active")
+
+
+def test_the_cpu_bound_steps_run_where_compute_says(
+    store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """The service hands impact removal, signal health and fingerprints to the estimator's child
+    (off the API's interpreter lock); the worker calls them through ``compute`` and uses its answers."""
+    from bodyschema.health import baseline_fingerprints, drop_impacts, signal_health
+
+    feed(store, synth(rng, seconds=12))
+    calls: list[str] = []
+
+    def compute(fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Any:
+        calls.append(fn.__name__)
+        return fn(*args, **kwargs)
+
+    w = Worker(store, settings, estimator=Scripted(GOOD), compute=compute)
+    results = [w.run_cycle()["arm"] for _ in range(4)]
+    assert results[2].baseline_set and results[3].diff is not None
+    assert calls.count(drop_impacts.__name__) == 4 and calls.count(signal_health.__name__) == 4
+    assert calls.count(baseline_fingerprints.__name__) == 1  # once, on the first window after the baseline
+    assert "arm" in w.fingerprints_
