@@ -265,14 +265,18 @@ def network_jacobian(
     progress: bool = False,
     warm_start: NetworkWeights | None = None,
     watch: Callable[[np.ndarray, int], bool] | None = None,
+    watch_stride: int = 2,
     **train_kw: Any,
 ) -> JacobianFit:
     """Train ``kind`` ("network": SE(3) sensor networks, "mlp": the IV-D baseline) on ``rec`` and return
     the per-sample Jacobian norms (K, S, rows, N) at ``samples`` recorded configurations, the loss and
     the networks' weights. ``warm_start`` (sensor networks only) starts from an earlier training's
     weights (:func:`bodyschema.networks.train_sensor_networks`); ``watch(jbar, epoch)``, when given,
-    sees the Jacobian norms at the same configurations after every epoch of the sensor networks and
-    stops training by returning True (:class:`StableDependency`).
+    sees the Jacobian norms at the same configurations after every epoch of the sensor networks (and,
+    on a warm start, before the first, as epoch -1) and stops training by returning True
+    (:class:`StableDependency`), read at every ``watch_stride``-th of those configurations: a reading
+    costs a Jacobian, and a warm start's readings (one per epoch) were as costly as its epochs; with
+    ``watch_stride`` 1 the last reading is the one returned.
 
     ``gravity`` None: the gravity-aware loss (Eq. 24) whenever the recording has gravity. ``seed``
     drives initialization, batches and the choice of θ samples.
@@ -310,10 +314,15 @@ def network_jacobian(
 
         use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
         on_epoch = None
+        last: list[Any] = []  # the newest reading: (Jacobian, the weights it was read from)
         if watch is not None:
+            theta_w = theta[::watch_stride].contiguous()
 
             def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
-                return watch(invariant_jacobian(net, theta).numpy().astype(np.float64), epoch)
+                jac = invariant_jacobian(net, theta_w)
+                if watch_stride == 1:
+                    last[:] = [jac, {k: v.detach().clone() for k, v in net.state_dict().items()}]
+                return watch(jac.numpy().astype(np.float64), epoch)
 
         net, loss = train_sensor_networks(
             rec.q,
@@ -330,7 +339,11 @@ def network_jacobian(
             on_epoch=on_epoch,
             **train_kw,
         )
-        jbar = invariant_jacobian(net, theta)
+        now = net.state_dict()
+        if last and all(torch.equal(v, now[k]) for k, v in last[1].items()):
+            jbar = last[0]  # read after the last epoch, from these very weights: not computed twice
+        else:
+            jbar = invariant_jacobian(net, theta)
         weights, warm = NetworkWeights.from_model(net), net.warm
     else:
         raise ValueError(f"unknown network kind {kind!r}")
@@ -425,11 +438,15 @@ class StableDependency:
     (robot sensing, two 30 s windows, the Jacobian checked after every epoch): the warm run's matrix
     equals the cold run's after every one of its 20 epochs; with an IMU moved to another link between
     the windows, it differs after the first epoch and equals the cold run's from the second on. So a
-    warm start stops when the matrix read after each epoch (the same statistic, configurations and
-    clustering seed as the final one) has stayed the same for ``epochs`` epochs in a row; the warm
-    plateau schedule (:func:`bodyschema.training.warm_plateau`) still bounds it. Each check costs
-    about half an epoch. ``bodyhealth bench warmstart`` compares the answers with cold runs, healthy
-    and damaged.
+    warm start stops when the matrix read after each epoch (the same statistic and clustering seed as
+    the final one, at every other of its configurations) has stayed the same for ``epochs`` epochs in
+    a row, the stored weights' own reading of the new window before the first epoch counting as the
+    first of the row
+    (healthy: the reading is the same from the start, and training stops after ``epochs`` epochs;
+    changed: that reading is the old body's and the row starts at the first epoch); the warm plateau
+    schedule (:func:`bodyschema.training.warm_plateau`) still bounds it. Each check costs about a
+    third of an epoch. ``bodyhealth bench warmstart`` compares the answers with cold runs, healthy and
+    damaged.
     """
 
     def __init__(

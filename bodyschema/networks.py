@@ -262,7 +262,9 @@ def train_sensor_networks(
     layers; otherwise it starts cold and logs why). Training to convergence then begins from them on
     :func:`bodyschema.training.warm_plateau`: no warm-up, two rate cuts instead of three. The
     networks already describe the body, so what is left is to follow the new window. ``net.warm``
-    says which start was taken.
+    says which start was taken. ``on_epoch(net, epoch, loss)`` is called after every epoch and may
+    stop training by returning True; on a warm start it is also called once before the first, with
+    epoch -1 (its answer there is ignored).
     Threads follow :func:`set_torch_threads`; a bar (:func:`bodyschema.progress.progress`) is shown
     when ``progress``, and the loss is logged every 10 epochs either way.
     """
@@ -308,6 +310,10 @@ def train_sensor_networks(
     else:
         schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
     net.warm = warm
+    if warm and on_epoch is not None:
+        # what the stored weights read from this window before any step (epoch -1): a watcher that
+        # waits for the same answer several epochs in a row can count it (StableDependency)
+        on_epoch(net, -1, math.nan)
 
     def batch_loss(idx: torch.Tensor) -> torch.Tensor:
         w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)

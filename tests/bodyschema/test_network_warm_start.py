@@ -15,7 +15,9 @@ import logging
 
 import numpy as np
 import pytest
+import torch
 
+from bodyschema import dependency
 from bodyschema.dependency import StableDependency
 from bodyschema.estimate import fit_topology
 from bodyschema.network_weights import NetworkWeights
@@ -32,11 +34,17 @@ def windows():
     return rec, first, second
 
 
+@pytest.fixture(scope="module")
+def cold(windows):
+    """The cold run on the first window, whose weights start the warm runs."""
+    return fit_topology(windows[1], "network", seed=SEED)
+
+
 @pytest.mark.slow
-def test_a_warm_start_learns_the_true_tree_in_fewer_epochs(windows) -> None:
-    rec, first, second = windows
+def test_a_warm_start_learns_the_true_tree_in_fewer_epochs(windows, cold) -> None:
+    rec, _, second = windows
     truth = (rec.truth_parent_map, rec.truth_imu_map)
-    before = fit_topology(first, "network", seed=SEED)
+    before = cold
     assert before.weights is not None and before.topology.training["warm"] == 0.0
     warm = fit_topology(second, "network", seed=SEED, warm_start=before.weights)
     assert warm.topology.training["warm"] == 1.0 and warm.topology.training["converged"] == 1.0
@@ -46,6 +54,37 @@ def test_a_warm_start_learns_the_true_tree_in_fewer_epochs(windows) -> None:
     # the weights are the warm run's own, not the ones it started from
     a, b = warm.weights.arrays["weights.0"], before.weights.arrays["weights.0"]
     assert a.shape == b.shape and not np.array_equal(a, b)
+
+
+@pytest.mark.slow
+def test_a_warm_start_reads_the_stored_weights_first_at_half_the_configurations(
+    windows, cold, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The watcher sees the stored weights' reading of the new window (epoch -1), then one after each
+    epoch, each at every other of the final reading's 1000 configurations; a healthy window's matrix is
+    the same from the start, so training stops after three epochs."""
+    _, _, second = windows
+    seen: list[int] = []
+    jacobians: list[int] = []
+    watch, jacobian = StableDependency.__call__, dependency.invariant_jacobian
+
+    def seen_watch(self: StableDependency, jbar: np.ndarray, epoch: int) -> bool:
+        seen.append(epoch)
+        return watch(self, jbar, epoch)
+
+    def counted(net: object, theta: torch.Tensor) -> object:
+        jacobians.append(theta.shape[0])
+        return jacobian(net, theta)
+
+    monkeypatch.setattr(StableDependency, "__call__", seen_watch)
+    monkeypatch.setattr(dependency, "invariant_jacobian", counted)
+    warm = fit_topology(second, "network", seed=SEED, warm_start=cold.weights)
+    assert warm.topology.training["warm"] == 1.0 and warm.topology.training["epochs"] == 3
+    assert seen == [-1, 0, 1, 2] and jacobians == [500, 500, 500, 500, 1000]
+    assert (warm.topology.joint_parent, warm.topology.imu_joint) == (
+        windows[0].truth_parent_map,
+        windows[0].truth_imu_map,
+    )
 
 
 @pytest.mark.slow
