@@ -29,6 +29,7 @@ BENCHMARKS: tuple[str, ...] = (
     "gravity",
     "realism",
     "warmstart",
+    "fleet",
     "import_",
     "kinematics",
     "docs",

@@ -1085,6 +1085,63 @@ def _import_doc(b: _Bench) -> str:
     return "\n".join(lines)
 
 
+def _scale_doc(b: _Bench) -> str:
+    d: dict = b.json("fleet.json")  # type: ignore[assignment]
+    rows = d["rows"]
+    best = max(rows, key=lambda r: r["retrains_per_hour"] / r["workers"])
+    per_worker = best["retrains_per_hour"] / best["workers"]
+    warm = d["warm_cpu_s"]
+    per_robot_sps = statistics.median(r["ingest_samples_per_s"] / r["robots"] for r in rows)
+    speed = ", ".join(f"{n} robots {s:g}x" for n, s in d["speedup_2_over_1"].items())
+    lines = [
+        f"From {b.provenance('fleet')} (load average {d['load_average']} at its end): {d['robot']} "
+        f"robots ({d['joints']} joints, {d['imus']} IMUs), {d['window_s']:g} s windows. A warm retrain "
+        f"took {warm:g} CPU s (median), a robot's first, cold one {d['cold_cpu_s']:g} CPU s. Per fleet "
+        "size and workers, on this machine, with ingest and the API running beside the training:",
+        "",
+        "| robots | workers | retrains/hour | ingest lag median s | ingest lag max s | API p99 ms |",
+        "|---:|---:|---:|---:|---:|---:|",
+        *[
+            _row(
+                [
+                    r["robots"],
+                    r["workers"],
+                    _int(r["retrains_per_hour"]),
+                    r["ingest_lag_s_median"],
+                    r["ingest_lag_s_max"],
+                    f"{r['api_p99_ms']:g}",
+                ]
+            )
+            for r in rows
+        ],
+        "",
+        f"2 workers against 1: {speed}. Extrapolated from the per-robot costs: workers at the best "
+        f"rate measured per worker ({per_worker:,.0f} retrains/hour, {best['robots']} robots on "
+        f"{best['workers']}), CPU cores from the warm retrain's CPU seconds, and {per_robot_sps:,.0f} "
+        "IMU samples/s per robot:",
+        "",
+        "| robots | retrain every | retrains/hour needed | workers (measured rate) | CPU cores (warm CPU s) "
+        "| IMU samples/s into the store |",
+        "|---:|---|---:|---:|---:|---:|",
+    ]
+    for n in (1_000, 10_000):
+        for every, label in ((60.0, "1 min (default)"), (600.0, "10 min"), (3600.0, "1 h")):
+            need = n * 3600.0 / every
+            lines.append(
+                _row(
+                    [
+                        _int(n),
+                        label,
+                        _int(need),
+                        _int(-(-need // per_worker)),
+                        _int(-(-need * warm // 3600.0)),
+                        _int(n * per_robot_sps),
+                    ]
+                )
+            )
+    return "\n".join(lines)
+
+
 def _kinematics_rows(b: _Bench) -> dict:
     d = b.json("kinematics.json")
     assert isinstance(d, dict)
@@ -1203,6 +1260,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/recording-format.md", "import", "import.json", _import_doc),
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),
+    _f("docs/scale.md", "fleet", "fleet.json", _scale_doc),
 )
 
 

@@ -21,6 +21,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -31,7 +32,7 @@ from bench import REPO_ROOT, RESULTS_DIR, machine_note
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["TARGET_P99_MS", "TARGET_RPS", "add_arguments", "run"]
+__all__ = ["TARGET_P99_MS", "TARGET_RPS", "add_arguments", "read_mix", "run"]
 
 TARGET_RPS = 200.0
 TARGET_P99_MS = 20.0
@@ -59,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class Row:
     offered_rps: float
     users: int
-    #: "locust", or "threads": :func:`_threads`, the comparison client
+    #: "locust", or "threads": :func:`read_mix`, the comparison client
     client: str
     achieved_rps: float
     requests: int
@@ -127,13 +128,20 @@ def _locust(host: str, rps: float, users: int, seconds: float, prefix: Path) -> 
     return rows["Aggregated"]
 
 
-def _threads(host: str, rps: float, users: int, seconds: float) -> dict[str, str]:
+def read_mix(
+    host: str,
+    rps: float,
+    users: int,
+    seconds: float,
+    stop: threading.Event | None = None,
+    ready: bool = True,
+) -> dict[str, str]:
     """The comparison client: ``users`` threads, each with its own keep-alive connection (the standard
     library's ``http.client``), each asking the locustfile's read mix at ``rps / users`` requests per
-    second from a random phase; the same summary fields as locust's CSV (times in ms)."""
+    second from a random phase, for ``seconds`` or until ``stop`` is set (``ready`` False leaves
+    ``/readyz`` out, for an app without a worker); the same summary fields as locust's CSV (ms)."""
     import http.client
     import random
-    import threading
     from urllib.parse import urlsplit
 
     import numpy as np
@@ -158,13 +166,13 @@ def _threads(host: str, rps: float, users: int, seconds: float) -> dict[str, str
             return body
 
         names = [r["name"] for r in json.loads(get("/api/v1/robots"))] or ["none"]
-        mix = [(4, "/api/v1/robots"), (2, "/api/v1/alerts"), (1, "/readyz")]
+        mix = [(4, "/api/v1/robots"), (2, "/api/v1/alerts"), (1 if ready else 0, "/readyz")]
         mix += [(w, f"/api/v1/robots/{{}}{tail}") for w, tail in ((3, "/status"), (2, ""), (2, "/topology"))]
         mix += [(1, "/api/v1/robots/{}/alerts")]
         paths = [p for w, p in mix for _ in range(w)]
         period = users / rps
         t_next, end, mine = start + rng.uniform(0.0, period), start + seconds, []
-        while t_next < end:
+        while t_next < end and not (stop is not None and stop.is_set()):
             time.sleep(max(0.0, t_next - time.perf_counter()))
             path = rng.choice(paths).format(rng.choice(names))
             t0 = time.perf_counter()
@@ -180,10 +188,11 @@ def _threads(host: str, rps: float, users: int, seconds: float) -> dict[str, str
         t.start()
     for t in threads:
         t.join()
+    took = min(seconds, max(1e-9, time.perf_counter() - start))
     ms = np.array(lat) * 1000.0
     pct = {f"{q}%": f"{np.percentile(ms, q):.1f}" for q in (50, 95, 99)}
     return {
-        "Requests/s": f"{ms.size / seconds:.2f}",
+        "Requests/s": f"{ms.size / took:.2f}",
         "Request Count": str(ms.size),
         "Failure Count": str(fails[0]),
         "Max Response Time": f"{ms.max():.1f}",
@@ -230,7 +239,7 @@ def run(args: argparse.Namespace) -> Path:
                     if client == "locust":
                         agg = _locust(host, rps, users, args.seconds, Path(tmp) / f"rate{i}")
                     else:
-                        agg = _threads(host, rps, users, args.seconds)
+                        agg = read_mix(host, rps, users, args.seconds)
                     m1, c1, t1 = c.get("/metrics").text, _cpu_seconds(proc.pid), time.monotonic()
                     stored = _metric(m1, "bodyhealth_frames_stored_total") - _metric(
                         m0, "bodyhealth_frames_stored_total"

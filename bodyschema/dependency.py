@@ -274,9 +274,9 @@ def network_jacobian(
     weights (:func:`bodyschema.networks.train_sensor_networks`); ``watch(jbar, epoch)``, when given,
     sees the Jacobian norms at the same configurations after every epoch of the sensor networks (and,
     on a warm start, before the first, as epoch -1) and stops training by returning True
-    (:class:`StableDependency`), read at every ``watch_stride``-th of those configurations: a reading
-    costs a Jacobian, and a warm start's readings (one per epoch) were as costly as its epochs; with
-    ``watch_stride`` 1 the last reading is the one returned.
+    (:class:`StableDependency`), read at every ``watch_stride``-th of those configurations while that
+    leaves at least 500 (a reading costs a Jacobian, and a warm start's readings, one per epoch, were
+    as costly as its epochs); when it reads them all, its last reading is the one returned.
 
     ``gravity`` None: the gravity-aware loss (Eq. 24) whenever the recording has gravity. ``seed``
     drives initialization, batches and the choice of θ samples.
@@ -316,11 +316,13 @@ def network_jacobian(
         on_epoch = None
         last: list[Any] = []  # the newest reading: (Jacobian, the weights it was read from)
         if watch is not None:
-            theta_w = theta[::watch_stride].contiguous()
+            # fewer than 500 configurations read too noisily to settle: short windows read them all
+            stride = watch_stride if S // watch_stride >= 500 else 1
+            theta_w = theta[::stride].contiguous()
 
             def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
                 jac = invariant_jacobian(net, theta_w)
-                if watch_stride == 1:
+                if stride == 1:
                     last[:] = [jac, {k: v.detach().clone() for k, v in net.state_dict().items()}]
                 return watch(jac.numpy().astype(np.float64), epoch)
 

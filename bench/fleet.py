@@ -1,0 +1,419 @@
+"""A fleet's sensor-network retrains on Dask: retrains per hour, ingest lag and API latency meanwhile.
+
+For each fleet size (``--robots``) a SQLite store holds that many robots of one catalog model, each
+with a window of data recorded on the ``robot`` sensing preset, a baseline and the weights of an
+earlier training under it, as a running service has them after its first retrains. Then, for each
+cluster size (``--workers``), a local Dask cluster of that many worker processes (one thread each, the
+service's embedded cluster) retrains every robot once through the service's own path
+(:class:`service.training.RemoteRetrains`: jobs naming robot and window, the task reads the window and
+the weights from the store, the results and new weights are stored). Once every job is submitted (their
+windows are then fixed: the robots' newest 30 s), this process runs beside the training:
+
+* **ingest** writes one second of frames per robot every second (robot time = wall time), as the
+  robots stream; the lag is how late each second's frames are committed;
+* **the API** (the service's app on uvicorn) answers the read mix of ``bench load`` from threads with
+  one connection each, at ``--api-rps`` (without ``/readyz``: no monitoring worker runs here, so it
+  would answer 503 by design).
+
+Measured: retrains per hour (robots / wall time of the round), the CPU seconds of each retrain, warm
+(the service's steady state) and, once per recording, cold (the first training of a robot); ingest
+lag; API p50/p99. Training runs at the service's ``training_nice``.
+
+Writes ``fleet.json``, ``fleet.md`` and ``fleet.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench import RESULTS_DIR, machine_note
+from bodyschema.progress import progress
+
+__all__ = ["TARGET_P99_MS", "TARGET_SPEEDUP", "add_arguments", "run"]
+
+#: 2 workers must give at least this many times the retrains per hour of 1
+TARGET_SPEEDUP = 1.6
+#: API p99 while training runs
+TARGET_P99_MS = 50.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robots", default="8,32,128", help="fleet sizes, comma-separated")
+    parser.add_argument("--workers", default="1,2", help="Dask worker processes, comma-separated")
+    parser.add_argument("--robot", default="ur5e", help="catalog model of every robot of the fleet")
+    parser.add_argument("--recordings", type=int, default=2, help="distinct recordings the fleet shares")
+    parser.add_argument(
+        "--window", type=float, default=30.0, help="seconds of the window each retrain learns"
+    )
+    parser.add_argument("--api-rps", type=float, default=50.0, help="API read requests per second meanwhile")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+
+
+def _log(msg: str) -> None:
+    print(f"[bench fleet] {msg}", flush=True)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class _Ingest(threading.Thread):
+    """Every second, one second of frames for every robot (its recording looped on, stamps going on),
+    each robot in its own transaction; records how late each second was committed."""
+
+    def __init__(self, store: Any, fleet: list[tuple[str, Any]], start_t: float) -> None:
+        super().__init__(name="bench-ingest", daemon=True)
+        self.store, self.fleet, self.t = store, fleet, start_t
+        self.lag: list[float] = []
+        self.samples = 0
+        self._halt = threading.Event()
+
+    def run(self) -> None:
+        from service.ingest.replay import recording_batch
+
+        t0 = time.monotonic()
+        k = 0
+        while not self._halt.is_set():
+            due = t0 + k + 1.0  # the second [k, k+1) of robot time is complete at t0 + k + 1
+            if self._halt.wait(max(0.0, due - time.monotonic())):
+                return
+            for name, rec in self.fleet:
+                lo = self.t + k
+                span = rec.t[-1] - rec.t[0]
+                off = np.floor((lo - rec.t[0]) / span) * span  # the recording looped on
+                a, b = np.searchsorted(rec.t + off, [lo, lo + 1.0])
+                qa, qb = np.searchsorted(rec.encoder_t + off, [lo, lo + 1.0])
+                if b > a and qb > qa:
+                    self.store.write(recording_batch(name, rec, slice(a, b), off, slice(qa, qb)))
+                    self.samples += int(b - a)
+            self.lag.append(time.monotonic() - due)
+            k += 1
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join(10)
+
+
+class _Api:
+    """The service's app on uvicorn in a thread, over the fleet's store."""
+
+    def __init__(self, store: Any) -> None:
+        import uvicorn
+
+        from service.api import create_app
+        from service.settings import Settings
+
+        self.port = _free_port()
+        app = create_app(store, settings=Settings(database_url=store.url))
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_config=None, access_log=False)
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, name="bench-api", daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            if time.monotonic() > deadline:
+                raise RuntimeError("the API did not start within 30 s")
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(10)
+
+
+def _cold(robot: str, recs: list[Any], window: float, seed: int) -> tuple[list[Any], list[dict[str, Any]]]:
+    """A cold training of each recording, as the task runs it (one thread): the weights the fleet
+    starts from, and what a robot's first retrain costs."""
+    from bodyschema.estimate import fit_topology
+    from bodyschema.health import drop_impacts
+    from bodyschema.threads import set_torch_threads
+
+    set_torch_threads(1)
+    fits, costs = [], []
+    for i, rec in enumerate(recs):
+        _log(f"cold training of recording {i + 1}/{len(recs)} ({robot}, {window:g} s)")
+        c0 = time.process_time()
+        fit = fit_topology(drop_impacts(rec.window(rec.t[-1] - window, np.inf)), "network", seed=seed)
+        costs.append({"cpu_s": round(time.process_time() - c0, 2), "epochs": fit.topology.training["epochs"]})
+        fits.append(fit)
+    return fits, costs
+
+
+def _fill(store: Any, names: list[str], recs: list[Any], fits: list[Any]) -> None:
+    """Each robot's window, its baseline (the cold run's tree) and the weights trained under it."""
+    from service.ingest.replay import recording_batch
+
+    for i, name in enumerate(names):
+        rec, fit = recs[i % len(recs)], fits[i % len(fits)]
+        store.write(recording_batch(name, rec))
+        base = store.set_baseline(name, fit.topology, "auto", wall_time=time.time())
+        store.save_network_weights(
+            name,
+            "network",
+            fit.weights,
+            rec.imu_names,
+            rec.joint_names,
+            baseline_id=base,
+            wall_time=time.time(),
+        )
+
+
+def _round(
+    store: Any,
+    names: list[str],
+    workers: int,
+    window: float,
+    seed: int,
+    nice: int,
+    submitted: Callable[[], None],
+) -> dict[str, Any]:
+    """Every robot retrained once on a local cluster of ``workers`` processes; wall time and costs.
+    ``submitted()`` is called once every job is on the cluster (their windows are fixed then)."""
+    from distributed import LocalCluster
+
+    from service.cluster import ClusterOptions, TrainingCluster
+    from service.metrics import Metrics
+    from service.training import RemoteRetrains, TrainingOptions
+
+    cluster = LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+    )
+    tc = TrainingCluster(ClusterOptions(scheduler=cluster.scheduler_address))
+    try:
+        tc.start()
+        deadline = time.monotonic() + 60
+        while tc.client is None:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no client for the local cluster: {tc.fault}")
+            time.sleep(0.1)
+        remote = RemoteRetrains(
+            tc, store, window, options=TrainingOptions(seed=seed, nice=nice), metrics=Metrics()
+        )
+        for name in names:
+            remote.want(name, "network")
+        t0 = time.monotonic()
+        results = []
+        bar = progress(total=len(names), desc=f"retrains on {workers} worker(s)", unit="retrain")
+        while remote.wanted():
+            remote.submit_wanted()
+        submitted()
+        while len(results) < len(names):
+            remote.submit_wanted()
+            new = remote.collect(time.time)
+            results += new
+            bar.update(len(new))
+            if time.monotonic() - t0 > 3 * 3600:
+                raise RuntimeError("the round did not end within 3 hours")
+            time.sleep(0.2)
+        bar.close()
+        wall = time.monotonic() - t0
+    finally:
+        tc.close()
+        cluster.close()
+    cpu = np.array([r.cpu_seconds for r in results])
+    return {
+        "wall_s": round(wall, 1),
+        "retrains_per_hour": round(len(names) / wall * 3600.0, 1),
+        "cpu_s_median": round(float(np.median(cpu)), 2),
+        "cpu_s_max": round(float(cpu.max()), 2),
+        "warm": int(sum(r.warm_from is not None for r in results)),
+        "epochs_median": float(np.median([r.topology["training"]["epochs"] for r in results])),
+    }
+
+
+def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Namespace, workers: int) -> dict:
+    """One round with ingest and API load running beside it."""
+    from bench.load import read_mix
+    from service.settings import Settings
+
+    nice = Settings(database_url="sqlite://").training_nice
+    fleet = [(n, recs[i % len(recs)]) for i, n in enumerate(names)]
+    last = max(float(store.robot(n).last_frame_t) for n in names)
+    ingest = _Ingest(store, fleet, last + 1e-6)
+    api = _Api(store)
+    stop = threading.Event()
+    answers: dict[str, str] = {}
+    users = max(1, round(args.api_rps / 10.0))
+    client = threading.Thread(
+        target=lambda: answers.update(
+            read_mix(f"http://127.0.0.1:{api.port}", args.api_rps, users, 3 * 3600.0, stop, ready=False)
+        ),
+        daemon=True,
+    )
+
+    def start() -> None:
+        ingest.start()
+        client.start()
+
+    try:
+        row = _round(store, names, workers, args.window, args.seed + 1, nice, start)
+    finally:
+        stop.set()
+        if client.is_alive():
+            client.join(30)
+        if ingest.is_alive():
+            ingest.stop()
+        api.close()
+    lag = np.array(ingest.lag) if ingest.lag else np.zeros(1)
+    row.update(
+        robots=len(names),
+        workers=workers,
+        ingest_samples_per_s=round(ingest.samples / max(row["wall_s"], 1e-9), 1),
+        ingest_lag_s_median=round(float(np.median(lag)), 3),
+        ingest_lag_s_max=round(float(lag.max()), 3),
+        api_rps=float(answers.get("Requests/s", "nan")),
+        api_p50_ms=float(answers.get("50%", "nan")),
+        api_p99_ms=float(answers.get("99%", "nan")),
+        api_failures=int(answers.get("Failure Count", "0")),
+    )
+    return row
+
+
+def run(args: argparse.Namespace) -> Path:
+    from service.store import open_store
+    from simulators.simulation import simulate
+
+    sizes = [int(x) for x in str(args.robots).split(",") if x.strip()]
+    workers = [int(x) for x in str(args.workers).split(",") if x.strip()]
+    _log(f"simulating {args.recordings} recording(s) of {args.robot}")
+    recs = [
+        simulate(args.robot, seconds=args.window + 5.0, seed=args.seed + i, sensing="robot")
+        for i in range(args.recordings)
+    ]
+    fits, cold = _cold(args.robot, recs, args.window, args.seed + 1)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
+        for n in sizes:
+            names = [f"{args.robot}-{i:04d}" for i in range(n)]
+            for w in workers:
+                store = open_store(f"sqlite:///{tmp}/fleet-{n}-{w}.db")
+                try:
+                    _fill(store, names, recs, fits)
+                    _log(f"{n} robots on {w} worker(s)")
+                    rows.append(_measured(store, names, recs, args, w))
+                    _log(json.dumps(rows[-1]))
+                finally:
+                    store.close()
+    return _write(args, recs[0], cold, rows)
+
+
+def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict]) -> Path:
+    args.out.mkdir(parents=True, exist_ok=True)
+    by = {(r["robots"], r["workers"]): r for r in rows}
+    speedups = {
+        n: round(by[(n, 2)]["retrains_per_hour"] / by[(n, 1)]["retrains_per_hour"], 2)
+        for n in sorted({r["robots"] for r in rows})
+        if (n, 1) in by and (n, 2) in by
+    }
+    warm = float(np.median([r["cpu_s_median"] for r in rows]))
+    cold_cpu = float(np.median([c["cpu_s"] for c in cold]))
+    data = {
+        "machine": machine_note(),
+        "command": f"bodyhealth bench fleet --robots {args.robots} --workers {args.workers} --robot "
+        f"{args.robot} --recordings {args.recordings} --window {args.window:g} --api-rps {args.api_rps:g} "
+        f"--seed {args.seed}",
+        "robot": args.robot,
+        "imus": rec.n_imus,
+        "joints": rec.n_joints,
+        "window_s": args.window,
+        "cold": cold,
+        "warm_cpu_s": round(warm, 2),
+        "cold_cpu_s": round(cold_cpu, 2),
+        "speedup_2_over_1": speedups,
+        "target_speedup": TARGET_SPEEDUP,
+        "target_api_p99_ms": TARGET_P99_MS,
+        "rows": rows,
+        "load_average": round(os.getloadavg()[0], 1),
+    }
+    (args.out / "fleet.json").write_text(json.dumps(data, indent=1) + "\n")
+    lines = [
+        "# bench fleet",
+        "",
+        f"Machine: {data['machine']}  ",
+        f"Command: `{data['command']}`  ",
+        f"Fleet: {args.robot} robots ({rec.n_joints} joints, {rec.n_imus} IMUs, `robot` sensing), each "
+        f"with a {args.window:g} s window, a baseline and the weights of an earlier training; every robot "
+        "retrained once per round on a local Dask cluster (one thread per worker process, the training at "
+        "the service's nice value) while ingest writes one second of frames per robot every second and the "
+        f"API answers {args.api_rps:g} reads/s from threads.",
+        "",
+        "| robots | workers | wall s | retrains/hour | warm retrains | CPU s per retrain (median, max) "
+        "| epochs | ingest samples/s | ingest lag median s | ingest lag max s | API p50 ms | API p99 ms "
+        "| API failures |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        *[
+            f"| {r['robots']} | {r['workers']} | {r['wall_s']} | {r['retrains_per_hour']:,} "
+            f"| {r['warm']}/{r['robots']} | {r['cpu_s_median']}, {r['cpu_s_max']} | {r['epochs_median']:g} "
+            f"| {r['ingest_samples_per_s']:,} | {r['ingest_lag_s_median']} | {r['ingest_lag_s_max']} "
+            f"| {r['api_p50_ms']} | {r['api_p99_ms']} | {r['api_failures']} |"
+            for r in rows
+        ],
+        "",
+        "2 workers against 1 (retrains per hour): "
+        + (", ".join(f"{n} robots {s:g}x" for n, s in speedups.items()) or "not measured")
+        + f" (must hold: at least {TARGET_SPEEDUP:g}x). API p99 while training: "
+        f"{max(r['api_p99_ms'] for r in rows):g} ms at most (must hold: under {TARGET_P99_MS:g} ms).",
+        "",
+        f"Warm against cold: a warm retrain (the steady state: a robot's networks start from its stored "
+        f"weights) took {warm:g} CPU s (median of the rounds' medians); the first, cold training of each "
+        f"recording took {', '.join(str(c['cpu_s']) for c in cold)} CPU s "
+        f"({', '.join(str(c['epochs']) for c in cold)} epochs), one thread.",
+        "Wall time and ingest lag depend on what else the machine runs: the load generator, the ingest "
+        f"and the API share its cores with the workers (load average {data['load_average']} at the end).",
+        "",
+        "![fleet](fleet.png)",
+        "",
+    ]
+    md = args.out / "fleet.md"
+    md.write_text("\n".join(lines))
+    _plot(rows, args.out / "fleet.png")
+    print("\n".join(lines))
+    return md
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sim2real.figures import save_figure
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(9.0, 3.4))
+    for w in sorted({r["workers"] for r in rows}):
+        rs = sorted((r for r in rows if r["workers"] == w), key=lambda r: r["robots"])
+        ax.plot([r["robots"] for r in rs], [r["retrains_per_hour"] for r in rs], "o-", label=f"{w} worker(s)")
+        bx.plot(
+            [r["robots"] for r in rs], [r["api_p99_ms"] for r in rs], "o-", label=f"API p99, {w} worker(s)"
+        )
+    bx.axhline(TARGET_P99_MS, color="#c0392b", lw=0.8, ls=":", label=f"{TARGET_P99_MS:g} ms")
+    for a in (ax, bx):
+        a.set_xscale("log", base=2)
+        a.set_xlabel("robots")
+        a.legend(fontsize=8)
+    ax.set_ylabel("retrains per hour")
+    bx.set_ylabel("ms")
+    save_figure(fig, path, dpi=110)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    run(p.parse_args())

@@ -1,0 +1,35 @@
+"""``bodyhealth bench fleet`` on a tiny fleet: real Dask worker processes retrain every robot from its
+stored weights while ingest and the API run beside them; the table, JSON and plot agree."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench import fleet as bench
+from tests.bench.args import bench_args
+
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]
+
+
+def test_bench_fleet_retrains_every_robot_warm_on_one_and_two_workers(tmp_path: Path) -> None:
+    argv = ["--robots", "2", "--workers", "1,2", "--window", "10", "--recordings", "1"]
+    args = bench_args(bench, *argv, "--api-rps", "10", "--out", str(tmp_path))
+    assert bench.run(args) == tmp_path / "fleet.md"
+    data = json.loads((tmp_path / "fleet.json").read_text())
+    assert (tmp_path / "fleet.png").stat().st_size > 1000
+    assert [(r["robots"], r["workers"]) for r in data["rows"]] == [(2, 1), (2, 2)]
+    (cold,) = data["cold"]
+    for r in data["rows"]:
+        assert r["warm"] == 2  # every retrain started from the robot's stored weights
+        # a warm start stops after 3 or 4 epochs; the cold one ran to convergence (the CPU seconds of a
+        # worker's first task also count its imports, so on a short window they say less)
+        assert r["epochs_median"] <= 4 < cold["epochs"] and 0 < r["cpu_s_median"] <= r["cpu_s_max"]
+        assert r["retrains_per_hour"] == pytest.approx(2 / r["wall_s"] * 3600, rel=0.01)
+        # ingest kept writing one second per second for both robots (12 IMUs at 100 Hz each)
+        assert r["ingest_samples_per_s"] > 50 and r["ingest_lag_s_median"] < 1.0
+        assert r["api_failures"] == 0 and 0 < r["api_p50_ms"] <= r["api_p99_ms"]
+    assert set(data["speedup_2_over_1"]) == {"2"}
+    assert "| 2 | 2 |" in (tmp_path / "fleet.md").read_text()
