@@ -276,7 +276,7 @@ def network_jacobian(
     on a warm start, before the first, as epoch -1) and stops training by returning True
     (:class:`StableDependency`), read at every ``watch_stride``-th of those configurations while that
     leaves at least 500 (a reading costs a Jacobian, and a warm start's readings, one per epoch, were
-    as costly as its epochs); when it reads them all, its last reading is the one returned.
+    as costly as its epochs).
 
     ``gravity`` None: the gravity-aware loss (Eq. 24) whenever the recording has gravity. ``seed``
     drives initialization, batches and the choice of θ samples.
@@ -314,17 +314,13 @@ def network_jacobian(
 
         use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
         on_epoch = None
-        last: list[Any] = []  # the newest reading: (Jacobian, the weights it was read from)
         if watch is not None:
             # fewer than 500 configurations read too noisily to settle: short windows read them all
             stride = watch_stride if S // watch_stride >= 500 else 1
             theta_w = theta[::stride].contiguous()
 
             def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
-                jac = invariant_jacobian(net, theta_w)
-                if stride == 1:
-                    last[:] = [jac, {k: v.detach().clone() for k, v in net.state_dict().items()}]
-                return watch(jac.numpy().astype(np.float64), epoch)
+                return watch(invariant_jacobian(net, theta_w).numpy().astype(np.float64), epoch)
 
         net, loss = train_sensor_networks(
             rec.q,
@@ -341,11 +337,7 @@ def network_jacobian(
             on_epoch=on_epoch,
             **train_kw,
         )
-        now = net.state_dict()
-        if last and all(torch.equal(v, now[k]) for k, v in last[1].items()):
-            jbar = last[0]  # read after the last epoch, from these very weights: not computed twice
-        else:
-            jbar = invariant_jacobian(net, theta)
+        jbar = invariant_jacobian(net, theta)
         weights, warm = NetworkWeights.from_model(net), net.warm
     else:
         raise ValueError(f"unknown network kind {kind!r}")
