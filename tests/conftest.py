@@ -8,6 +8,13 @@ only fail because the code changed. ``BODYHEALTH_TEST_SEED=<n>`` pins every test
 same way before each test, so code that forgets to take an ``rng`` is reproducible too. Hypothesis runs
 derandomized (its examples are a function of the test) and keeps no example database between runs.
 
+**Every collected test runs once, under its own id.** The suite runs on pytest-xdist workers
+(``make test``), which schedule tests by node id: two tests with one id would run as one, and the other
+would vanish from the count without a failure. Collection fails on a repeated id. schemathesis names
+one test per API operation (``test_x[GET /path]``), but pytest >= 9.2 builds the node id from the
+function's name and its parametrization only, so its tests all share one id: the operation is put back
+into it.
+
 **A skip is a failure in CI.** Under ``BODYHEALTH_CI=1`` (``.ci/run`` sets it) a test that skips —
 because PostgreSQL, the browser or the BROAD data is missing — is reported as failed, so a missing part
 can never turn CI green.
@@ -111,3 +118,25 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
     report = outcome.get_result()
     if _in_ci() and report.skipped:
         _ci_failure(report)
+
+
+def _operation_ids(items: list[pytest.Item]) -> None:
+    """Put schemathesis' operation label into its tests' node ids (see the module docstring).
+
+    pytest keeps the node id in ``_id`` and offers no setter; the name the plugin gave the item
+    (``test_x[GET /path]``) is what the id should end with.
+    """
+    for item in items:
+        if getattr(item, "operation_label", None) and not item.nodeid.endswith("]"):
+            item._id = item.parent.id.child(item.name)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    _operation_ids(items)
+    seen: set[str] = set()
+    repeated = sorted({item.nodeid for item in items if item.nodeid in seen or seen.add(item.nodeid)})
+    if repeated:
+        raise pytest.UsageError(
+            f"{len(repeated)} test id(s) collected more than once (xdist would run only one of each): "
+            + ", ".join(repeated[:5])
+        )

@@ -1,4 +1,5 @@
-"""The suite's trust rules hold: a skip fails under ``BODYHEALTH_CI=1``, and seeds are fixed per test.
+"""The suite's trust rules hold: a skip fails under ``BODYHEALTH_CI=1``, seeds are fixed per test, and
+every collected test has an id of its own (xdist runs tests by id).
 
 Each case runs a throw-away test file in a child pytest that loads this suite's ``tests/conftest.py``
 as a plugin, so the real hooks are exercised, not a copy of them.
@@ -31,7 +32,38 @@ def test_draws(seed, rng):
 """
 
 
-def _child_pytest(tmp_path: Path, source: str, **env: str) -> subprocess.CompletedProcess[str]:
+OPERATIONS = """
+import schemathesis
+from fastapi import FastAPI
+
+app = FastAPI()
+
+@app.get("/a")
+def a() -> dict:
+    return {}
+
+@app.get("/b")
+def b() -> dict:
+    return {}
+
+schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+
+@schema.parametrize()
+def test_operation(case):
+    pass
+"""
+
+#: A plugin that gives the second test the first one's id, as a collector that names its items badly would.
+SAME_ID = """
+import pytest
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items):
+    items[1]._id = items[0]._id
+"""
+
+
+def _child_pytest(tmp_path: Path, source: str, *args: str, **env: str) -> subprocess.CompletedProcess[str]:
     (tmp_path / "test_child.py").write_text(source)
     (tmp_path / "pytest.ini").write_text("[pytest]\n")
     child_env = {k: v for k, v in os.environ.items() if k not in ("BODYHEALTH_CI", "BODYHEALTH_TEST_SEED")}
@@ -39,7 +71,7 @@ def _child_pytest(tmp_path: Path, source: str, **env: str) -> subprocess.Complet
     child_env["PYTHONPATH"] = str(ROOT)
     return subprocess.run(
         [sys.executable, "-m", "pytest", "-p", "tests.conftest", "-c", str(tmp_path / "pytest.ini"),
-         "-s", "-q", "-p", "no:cacheprovider", str(tmp_path / "test_child.py")],
+         "-s", "-q", "-p", "no:cacheprovider", *args, str(tmp_path / "test_child.py")],
         cwd=tmp_path, env=child_env, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
 
@@ -69,3 +101,17 @@ def test_seeds_are_fixed_per_test_and_can_be_pinned(tmp_path: Path) -> None:
     assert first == second
     pinned = _draw(tmp_path, BODYHEALTH_TEST_SEED="12345")
     assert pinned.split()[1] == "12345" and pinned != first
+
+
+def test_each_api_operation_is_a_test_with_its_own_id(tmp_path: Path) -> None:
+    res = _child_pytest(tmp_path, OPERATIONS, "--co")
+    assert res.returncode == 0, res.stdout
+    ids = [line for line in res.stdout.splitlines() if "::" in line]
+    assert ids == ["test_child.py::test_operation[GET /a]", "test_child.py::test_operation[GET /b]"]
+
+
+def test_a_repeated_test_id_fails_collection(tmp_path: Path) -> None:
+    (tmp_path / "same_id.py").write_text(SAME_ID)
+    res = _child_pytest(tmp_path, SKIPPING, "-p", "same_id")  # cwd is on the path of `python -m`
+    assert res.returncode != 0, res.stdout
+    assert "collected more than once" in res.stdout + res.stderr
