@@ -9,8 +9,9 @@ service's embedded cluster) retrains every robot once through the service's own 
 the weights from the store, the results and new weights are stored). Once every job is submitted (their
 windows are then fixed: the robots' newest 30 s), this process runs beside the training:
 
-* **ingest** writes one second of frames per robot every second (robot time = wall time), as the
-  robots stream; the lag is how late each second's frames are committed;
+* **ingest**: one second of frames per robot every second (robot time = wall time), as the robots
+  stream, through the service's ingest pipeline (queue, coalescing writer, one transaction per commit
+  interval); the lag is how late each robot's second is committed;
 * **the API** (the service's app on uvicorn) answers the read mix of ``bench load`` from threads with
   one connection each, at ``--api-rps`` (without ``/readyz``: no monitoring worker runs here, so it
   would answer 503 by design).
@@ -18,6 +19,12 @@ windows are then fixed: the robots' newest 30 s), this process runs beside the t
 Measured: retrains per hour (robots / wall time of the round), the CPU seconds of each retrain, warm
 (the service's steady state) and, once per recording, cold (the first training of a robot); ingest
 lag; API p50/p99. Training runs at the service's ``training_nice``.
+
+For the fleet sizes in ``--alone`` the rounds run once more with nothing beside them: what the Dask
+workers give when they have the machine to themselves, as workers on machines of their own do (the
+distributed setup). On a machine with as many cores as workers, ingest and the API take their share
+of the same cores, so the loaded rounds cannot show how training scales with workers; the rounds
+alone can.
 
 Writes ``fleet.json``, ``fleet.md`` and ``fleet.png``.
 """
@@ -40,7 +47,7 @@ import numpy as np
 from bench import RESULTS_DIR, machine_note
 from bodyschema.progress import progress
 
-__all__ = ["TARGET_P99_MS", "TARGET_SPEEDUP", "add_arguments", "run"]
+__all__ = ["ALONE", "LOADED", "TARGET_P99_MS", "TARGET_SPEEDUP", "add_arguments", "run", "speedups"]
 
 #: 2 workers must give at least this many times the retrains per hour of 1
 TARGET_SPEEDUP = 1.6
@@ -57,6 +64,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--window", type=float, default=30.0, help="seconds of the window each retrain learns"
     )
     parser.add_argument("--api-rps", type=float, default=50.0, help="API read requests per second meanwhile")
+    parser.add_argument(
+        "--alone",
+        default="32",
+        help="fleet sizes also measured with the training alone (no ingest, no API), comma-separated",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
 
@@ -71,41 +83,75 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-class _Ingest(threading.Thread):
-    """Every second, one second of frames for every robot (its recording looped on, stamps going on),
-    each robot in its own transaction; records how late each second was committed."""
+class _Ingest:
+    """The fleet streaming through the service's ingest pipeline: a source that, every second, yields
+    one second of frames for every robot (its recording looped on, stamps going on), and the
+    :class:`~service.ingest.pipeline.Pipeline` writing what is queued as the service does (coalesced,
+    one transaction per commit interval). The lag of a batch is how late its second was committed."""
 
     def __init__(self, store: Any, fleet: list[tuple[str, Any]], start_t: float) -> None:
-        super().__init__(name="bench-ingest", daemon=True)
-        self.store, self.fleet, self.t = store, fleet, start_t
-        self.lag: list[float] = []
-        self.samples = 0
-        self._halt = threading.Event()
+        from service.ingest.base import Source
+        from service.ingest.pipeline import Pipeline
 
-    def run(self) -> None:
+        outer = self
+        self.lag: list[float] = []
+        self._due: dict[int, float] = {}  # id(batch) -> monotonic time its second was complete
+
+        class Fleet(Source):
+            exhausted = False
+
+            def __init__(self) -> None:
+                super().__init__("fleet")
+                self.k = 0
+                self.t0: float | None = None
+
+            def _read_raw(self, timeout: float) -> list[Any]:
+                if self.t0 is None:
+                    self.t0 = time.monotonic()
+                due = self.t0 + self.k + 1.0  # the second [k, k+1) of robot time is complete then
+                wait = due - time.monotonic()
+                if wait > timeout:
+                    time.sleep(timeout)
+                    return []
+                time.sleep(max(0.0, wait))
+                out = outer._second(fleet, start_t + self.k, due)
+                self.k += 1
+                return out
+
+        self.source = Fleet()
+        self.pipeline = Pipeline(store, [self.source], prune_interval=0, on_commit=self._committed)
+
+    def _second(self, fleet: list[tuple[str, Any]], lo: float, due: float) -> list[Any]:
         from service.ingest.replay import recording_batch
 
-        t0 = time.monotonic()
-        k = 0
-        while not self._halt.is_set():
-            due = t0 + k + 1.0  # the second [k, k+1) of robot time is complete at t0 + k + 1
-            if self._halt.wait(max(0.0, due - time.monotonic())):
-                return
-            for name, rec in self.fleet:
-                lo = self.t + k
-                span = rec.t[-1] - rec.t[0]
-                off = np.floor((lo - rec.t[0]) / span) * span  # the recording looped on
-                a, b = np.searchsorted(rec.t + off, [lo, lo + 1.0])
-                qa, qb = np.searchsorted(rec.encoder_t + off, [lo, lo + 1.0])
-                if b > a and qb > qa:
-                    self.store.write(recording_batch(name, rec, slice(a, b), off, slice(qa, qb)))
-                    self.samples += int(b - a)
-            self.lag.append(time.monotonic() - due)
-            k += 1
+        out = []
+        for name, rec in fleet:
+            span = rec.t[-1] - rec.t[0]
+            off = np.floor((lo - rec.t[0]) / span) * span  # the recording looped on
+            a, b = np.searchsorted(rec.t + off, [lo, lo + 1.0])
+            qa, qb = np.searchsorted(rec.encoder_t + off, [lo, lo + 1.0])
+            if b > a and qb > qa:
+                batch = recording_batch(name, rec, slice(a, b), off, slice(qa, qb))
+                self._due[id(batch)] = due
+                out.append(batch)
+        return out
+
+    def _committed(self, batches: list[Any]) -> None:
+        now = time.monotonic()
+        self.lag += [now - self._due.pop(id(b)) for b in batches if id(b) in self._due]
+
+    @property
+    def samples(self) -> int:
+        return int(self.source.counters.as_dict()["stored"])
+
+    def start(self) -> None:
+        self.pipeline.start()
+
+    def is_alive(self) -> bool:
+        return self.pipeline.running
 
     def stop(self) -> None:
-        self._halt.set()
-        self.join(10)
+        self.pipeline.stop(timeout=30.0)
 
 
 class _Api:
@@ -238,12 +284,27 @@ def _round(
     }
 
 
+def _nice() -> int:
+    from service.settings import Settings
+
+    return Settings(database_url="sqlite://").training_nice
+
+
+#: What ran beside the training in a round.
+LOADED, ALONE = "ingest+api", "none"
+
+
+def _alone(store: Any, names: list[str], args: argparse.Namespace, workers: int) -> dict:
+    """One round with nothing beside the training."""
+    row = _round(store, names, workers, args.window, args.seed + 1, _nice(), lambda: None)
+    return {**row, "robots": len(names), "workers": workers, "beside": ALONE}
+
+
 def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Namespace, workers: int) -> dict:
     """One round with ingest and API load running beside it."""
     from bench.load import read_mix
-    from service.settings import Settings
 
-    nice = Settings(database_url="sqlite://").training_nice
+    nice = _nice()
     fleet = [(n, recs[i % len(recs)]) for i, n in enumerate(names)]
     last = max(float(store.robot(n).last_frame_t) for n in names)
     ingest = _Ingest(store, fleet, last + 1e-6)
@@ -275,6 +336,7 @@ def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Name
     row.update(
         robots=len(names),
         workers=workers,
+        beside=LOADED,
         ingest_samples_per_s=round(ingest.samples / max(row["wall_s"], 1e-9), 1),
         ingest_lag_s_median=round(float(np.median(lag)), 3),
         ingest_lag_s_max=round(float(lag.max()), 3),
@@ -290,8 +352,9 @@ def run(args: argparse.Namespace) -> Path:
     from service.store import open_store
     from simulators.simulation import simulate
 
-    sizes = [int(x) for x in str(args.robots).split(",") if x.strip()]
-    workers = [int(x) for x in str(args.workers).split(",") if x.strip()]
+    sizes = _ints(args.robots)
+    workers = _ints(args.workers)
+    alone = _ints(args.alone)
     _log(f"simulating {args.recordings} recording(s) of {args.robot}")
     recs = [
         simulate(args.robot, seconds=args.window + 5.0, seed=args.seed + i, sensing="robot")
@@ -300,35 +363,49 @@ def run(args: argparse.Namespace) -> Path:
     fits, cold = _cold(args.robot, recs, args.window, args.seed + 1)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
-        for n in sizes:
+        rounds = [(n, w, LOADED) for n in sizes for w in workers]
+        rounds += [(n, w, ALONE) for n in alone for w in workers]
+        for n, w, beside in rounds:
             names = [f"{args.robot}-{i:04d}" for i in range(n)]
-            for w in workers:
-                store = open_store(f"sqlite:///{tmp}/fleet-{n}-{w}.db")
-                try:
-                    _fill(store, names, recs, fits)
-                    _log(f"{n} robots on {w} worker(s)")
+            store = open_store(f"sqlite:///{tmp}/fleet-{n}-{w}-{len(rows)}.db")
+            try:
+                _fill(store, names, recs, fits)
+                _log(f"{n} robots on {w} worker(s), beside the training: {beside}")
+                if beside == ALONE:
+                    rows.append(_alone(store, names, args, w))
+                else:
                     rows.append(_measured(store, names, recs, args, w))
-                    _log(json.dumps(rows[-1]))
-                finally:
-                    store.close()
+                _log(json.dumps(rows[-1]))
+            finally:
+                store.close()
     return _write(args, recs[0], cold, rows)
+
+
+def _ints(text: object) -> list[int]:
+    return [int(x) for x in str(text).split(",") if x.strip()]
+
+
+def speedups(rows: list[dict], beside: str) -> dict[int, float]:
+    """Per fleet size: retrains per hour on 2 workers over 1, for the rounds with ``beside``."""
+    by = {(r["robots"], r["workers"]): r for r in rows if r.get("beside", LOADED) == beside}
+    return {
+        n: round(by[(n, 2)]["retrains_per_hour"] / by[(n, 1)]["retrains_per_hour"], 2)
+        for n in sorted({n for n, _ in by})
+        if (n, 1) in by and (n, 2) in by
+    }
 
 
 def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict]) -> Path:
     args.out.mkdir(parents=True, exist_ok=True)
-    by = {(r["robots"], r["workers"]): r for r in rows}
-    speedups = {
-        n: round(by[(n, 2)]["retrains_per_hour"] / by[(n, 1)]["retrains_per_hour"], 2)
-        for n in sorted({r["robots"] for r in rows})
-        if (n, 1) in by and (n, 2) in by
-    }
+    loaded = [r for r in rows if r["beside"] == LOADED]
+    speedup, speedup_alone = speedups(rows, LOADED), speedups(rows, ALONE)
     warm = float(np.median([r["cpu_s_median"] for r in rows]))
     cold_cpu = float(np.median([c["cpu_s"] for c in cold]))
     data = {
         "machine": machine_note(),
         "command": f"bodyhealth bench fleet --robots {args.robots} --workers {args.workers} --robot "
         f"{args.robot} --recordings {args.recordings} --window {args.window:g} --api-rps {args.api_rps:g} "
-        f"--seed {args.seed}",
+        f"--alone '{args.alone}' --seed {args.seed}",
         "robot": args.robot,
         "imus": rec.n_imus,
         "joints": rec.n_joints,
@@ -336,7 +413,8 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         "cold": cold,
         "warm_cpu_s": round(warm, 2),
         "cold_cpu_s": round(cold_cpu, 2),
-        "speedup_2_over_1": speedups,
+        "speedup_2_over_1": speedup,
+        "speedup_2_over_1_alone": speedup_alone,
         "target_speedup": TARGET_SPEEDUP,
         "target_api_p99_ms": TARGET_P99_MS,
         "rows": rows,
@@ -352,24 +430,23 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         f"with a {args.window:g} s window, a baseline and the weights of an earlier training; every robot "
         "retrained once per round on a local Dask cluster (one thread per worker process, the training at "
         "the service's nice value) while ingest writes one second of frames per robot every second and the "
-        f"API answers {args.api_rps:g} reads/s from threads.",
+        f"API answers {args.api_rps:g} reads/s from threads (beside: ingest+api); rounds with beside "
+        "none ran the same retrains with nothing else on the machine, as Dask workers on machines of their "
+        "own do.",
         "",
-        "| robots | workers | wall s | retrains/hour | warm retrains | CPU s per retrain (median, max) "
-        "| epochs | ingest samples/s | ingest lag median s | ingest lag max s | API p50 ms | API p99 ms "
-        "| API failures |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-        *[
-            f"| {r['robots']} | {r['workers']} | {r['wall_s']} | {r['retrains_per_hour']:,} "
-            f"| {r['warm']}/{r['robots']} | {r['cpu_s_median']}, {r['cpu_s_max']} | {r['epochs_median']:g} "
-            f"| {r['ingest_samples_per_s']:,} | {r['ingest_lag_s_median']} | {r['ingest_lag_s_max']} "
-            f"| {r['api_p50_ms']} | {r['api_p99_ms']} | {r['api_failures']} |"
-            for r in rows
-        ],
+        "| robots | workers | beside | wall s | retrains/hour | warm retrains "
+        "| CPU s per retrain (median, max) | epochs | ingest samples/s | ingest lag median s "
+        "| ingest lag max s | API p50 ms | API p99 ms | API failures |",
+        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        *[_md_row(r) for r in rows],
         "",
-        "2 workers against 1 (retrains per hour): "
-        + (", ".join(f"{n} robots {s:g}x" for n, s in speedups.items()) or "not measured")
+        "2 workers against 1 (retrains per hour), with ingest and the API beside: "
+        + _speedup_text(speedup)
+        + "; with the training alone: "
+        + _speedup_text(speedup_alone)
         + f" (must hold: at least {TARGET_SPEEDUP:g}x). API p99 while training: "
-        f"{max(r['api_p99_ms'] for r in rows):g} ms at most (must hold: under {TARGET_P99_MS:g} ms).",
+        + (f"{max(r['api_p99_ms'] for r in loaded):g} ms at most" if loaded else "not measured")
+        + f" (must hold: under {TARGET_P99_MS:g} ms).",
         "",
         f"Warm against cold: a warm retrain (the steady state: a robot's networks start from its stored "
         f"weights) took {warm:g} CPU s (median of the rounds' medians); the first, cold training of each "
@@ -388,6 +465,23 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
     return md
 
 
+def _speedup_text(speedup: dict[int, float]) -> str:
+    return ", ".join(f"{n} robots {s:g}x" for n, s in speedup.items()) or "not measured"
+
+
+def _md_row(r: dict) -> str:
+    head = (
+        f"| {r['robots']} | {r['workers']} | {r['beside']} | {r['wall_s']} | {r['retrains_per_hour']:,} "
+        f"| {r['warm']}/{r['robots']} | {r['cpu_s_median']}, {r['cpu_s_max']} | {r['epochs_median']:g} "
+    )
+    if r["beside"] == ALONE:
+        return head + "| — | — | — | — | — | — |"
+    return head + (
+        f"| {r['ingest_samples_per_s']:,} | {r['ingest_lag_s_median']} | {r['ingest_lag_s_max']} "
+        f"| {r['api_p50_ms']} | {r['api_p99_ms']} | {r['api_failures']} |"
+    )
+
+
 def _plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -397,9 +491,25 @@ def _plot(rows: list[dict], path: Path) -> None:
     from sim2real.figures import save_figure
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(9.0, 3.4))
+
+    def of(w: int, beside: str) -> list[dict]:
+        chosen = (r for r in rows if r["workers"] == w and r["beside"] == beside)
+        return sorted(chosen, key=lambda r: r["robots"])
+
     for w in sorted({r["workers"] for r in rows}):
-        rs = sorted((r for r in rows if r["workers"] == w), key=lambda r: r["robots"])
-        ax.plot([r["robots"] for r in rs], [r["retrains_per_hour"] for r in rs], "o-", label=f"{w} worker(s)")
+        rs, alone = of(w, LOADED), of(w, ALONE)
+        line = ax.plot(
+            [r["robots"] for r in rs], [r["retrains_per_hour"] for r in rs], "o-", label=f"{w} worker(s)"
+        )[0]
+        if alone:
+            ax.plot(
+                [r["robots"] for r in alone],
+                [r["retrains_per_hour"] for r in alone],
+                "s",
+                mfc="none",
+                color=line.get_color(),
+                label=f"{w} worker(s), training alone",
+            )
         bx.plot(
             [r["robots"] for r in rs], [r["api_p99_ms"] for r in rs], "o-", label=f"API p99, {w} worker(s)"
         )

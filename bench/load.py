@@ -29,6 +29,7 @@ from pathlib import Path
 import httpx
 
 from bench import REPO_ROOT, RESULTS_DIR, machine_note
+from bench.read_mix import READ_MIX, READY
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
@@ -137,9 +138,10 @@ def read_mix(
     ready: bool = True,
 ) -> dict[str, str]:
     """The comparison client: ``users`` threads, each with its own keep-alive connection (the standard
-    library's ``http.client``), each asking the locustfile's read mix at ``rps / users`` requests per
-    second from a random phase, for ``seconds`` or until ``stop`` is set (``ready`` False leaves
-    ``/readyz`` out, for an app without a worker); the same summary fields as locust's CSV (ms)."""
+    library's ``http.client``), each asking the read mix (:data:`bench.read_mix.READ_MIX`) at
+    ``rps / users`` requests per second from a random phase, for ``seconds`` or until ``stop`` is set
+    (``ready`` False leaves ``/readyz`` out, for an app without a worker); the same summary fields as
+    locust's CSV (ms)."""
     import http.client
     import random
     from urllib.parse import urlsplit
@@ -166,15 +168,12 @@ def read_mix(
             return body
 
         names = [r["name"] for r in json.loads(get("/api/v1/robots"))] or ["none"]
-        mix = [(4, "/api/v1/robots"), (2, "/api/v1/alerts"), (1 if ready else 0, "/readyz")]
-        mix += [(w, f"/api/v1/robots/{{}}{tail}") for w, tail in ((3, "/status"), (2, ""), (2, "/topology"))]
-        mix += [(1, "/api/v1/robots/{}/alerts")]
-        paths = [p for w, p in mix for _ in range(w)]
+        paths = [p for w, p, _ in READ_MIX if ready or p != READY for _ in range(w)]
         period = users / rps
         t_next, end, mine = start + rng.uniform(0.0, period), start + seconds, []
         while t_next < end and not (stop is not None and stop.is_set()):
             time.sleep(max(0.0, t_next - time.perf_counter()))
-            path = rng.choice(paths).format(rng.choice(names))
+            path = rng.choice(paths).format(robot=rng.choice(names))
             t0 = time.perf_counter()
             get(path)
             mine.append(time.perf_counter() - t0)

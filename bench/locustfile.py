@@ -14,18 +14,27 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Callable
 
 import gevent
-from locust import FastHttpUser, constant_throughput, task
+from locust import FastHttpUser, constant_throughput
+
+from bench.read_mix import READ_MIX
 
 __all__ = ["MixedReads"]
 
 
+def _task(path: str, name: str) -> Callable[[MixedReads], None]:
+    return lambda user: user._get(path, name)
+
+
 class MixedReads(FastHttpUser):
-    """The read mix: the robot list (a dashboard's poll) most, then status, details, topology, alerts."""
+    """The read mix of :data:`bench.read_mix.READ_MIX`."""
 
     rate = float(os.environ.get("BODYHEALTH_LOAD_USER_RPS", "10"))
     wait_time = constant_throughput(rate)
+    # locust draws a user's next task with these weights (``tasks`` as a callable -> weight mapping)
+    tasks = {_task(path, name): weight for weight, path, name in READ_MIX}  # noqa: RUF012 - locust's API
 
     def on_start(self) -> None:
         # Independent clients are not in step. Users spawned together at a fixed rate each would
@@ -38,32 +47,4 @@ class MixedReads(FastHttpUser):
         self.robots = [r["name"] for r in resp.json()] or ["none"]
 
     def _get(self, path: str, name: str) -> None:
-        self.client.get(path, headers=self.headers, name=name)
-
-    @task(4)
-    def robots(self) -> None:
-        self._get("/api/v1/robots", "/api/v1/robots")
-
-    @task(3)
-    def status(self) -> None:
-        self._get(f"/api/v1/robots/{random.choice(self.robots)}/status", "/api/v1/robots/[robot]/status")
-
-    @task(2)
-    def robot(self) -> None:
-        self._get(f"/api/v1/robots/{random.choice(self.robots)}", "/api/v1/robots/[robot]")
-
-    @task(2)
-    def topology(self) -> None:
-        self._get(f"/api/v1/robots/{random.choice(self.robots)}/topology", "/api/v1/robots/[robot]/topology")
-
-    @task(2)
-    def alerts(self) -> None:
-        self._get("/api/v1/alerts", "/api/v1/alerts")
-
-    @task(1)
-    def robot_alerts(self) -> None:
-        self._get(f"/api/v1/robots/{random.choice(self.robots)}/alerts", "/api/v1/robots/[robot]/alerts")
-
-    @task(1)
-    def ready(self) -> None:
-        self._get("/readyz", "/readyz")
+        self.client.get(path.format(robot=random.choice(self.robots)), headers=self.headers, name=name)
