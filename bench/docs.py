@@ -1086,9 +1086,11 @@ def _import_doc(b: _Bench) -> str:
 
 
 def _scale_doc(b: _Bench) -> str:
+    from bench.fleet import ALONE, LOADED
+
     d: dict = b.json("fleet.json")  # type: ignore[assignment]
-    rows = [r for r in d["rows"] if r.get("beside", "ingest+api") == "ingest+api"]
-    alone = [r for r in d["rows"] if r.get("beside") == "none"]
+    rows = [r for r in d["rows"] if r["beside"] == LOADED]
+    alone = [r for r in d["rows"] if r["beside"] == ALONE]
     # Workers on machines of their own (the distributed setup) train at the rate measured alone, when
     # the bench measured it; else at the best rate measured beside ingest and the API.
     basis = alone or rows
@@ -1097,7 +1099,7 @@ def _scale_doc(b: _Bench) -> str:
     warm = d["warm_cpu_s"]
     per_robot_sps = statistics.median(r["ingest_samples_per_s"] / r["robots"] for r in rows)
     speed = ", ".join(f"{n} robots {s:g}x" for n, s in d["speedup_2_over_1"].items())
-    speed_alone = ", ".join(f"{n} robots {s:g}x" for n, s in d.get("speedup_2_over_1_alone", {}).items())
+    speed_alone = ", ".join(f"{n} robots {s:g}x" for n, s in d["speedup_2_over_1_alone"].items())
     alone_lines = (
         [
             "",

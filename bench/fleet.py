@@ -387,7 +387,7 @@ def _ints(text: object) -> list[int]:
 
 def speedups(rows: list[dict], beside: str) -> dict[int, float]:
     """Per fleet size: retrains per hour on 2 workers over 1, for the rounds with ``beside``."""
-    by = {(r["robots"], r["workers"]): r for r in rows if r.get("beside", LOADED) == beside}
+    by = {(r["robots"], r["workers"]): r for r in rows if r["beside"] == beside}
     return {
         n: round(by[(n, 2)]["retrains_per_hour"] / by[(n, 1)]["retrains_per_hour"], 2)
         for n in sorted({n for n, _ in by})
