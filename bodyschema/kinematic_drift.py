@@ -2,10 +2,12 @@
 
 The topology diff (:mod:`bodyschema.diff`) sees an IMU that moved to another link; an IMU that turned
 or slid on its own link, or a joint whose axis bent, keeps the topology and shows only in the geometry
-(:mod:`bodyschema.kinematics`). Each estimate carries its own standard deviation, and the systematic
-part of each (a gyro's misalignment, an accelerometer's gain) belongs to the sensor, not to the run, so
-it cancels between two estimates from the same sensors. A change is reported when it exceeds
-``sigmas`` combined standard deviations plus a small floor:
+(:mod:`bodyschema.kinematics`). The axes compared are the ones the gyros report (``gyro_axis``,
+``gyro_axis_in_parent``, with their noise-only standard deviations): a gyro's misalignment leans them,
+but it belongs to the sensor, not to the run, so it cancels between two estimates from the same
+sensors, where the accelerometer-frame axis moves with how much each recording's motion let the
+accelerometers decide. A change is reported when it exceeds ``sigmas`` combined standard deviations
+plus a small floor:
 
 * ``axis_changed`` — a joint's axis seen from its parent IMU turned (``θ > sigmas √(σ₁² + σ₂²) +
   floor``, with twice the variance: both IMUs' errors enter), and that parent IMU was not itself found
@@ -75,6 +77,14 @@ def _both(a: ImuKinematics | None, b: ImuKinematics | None) -> bool:
     )
 
 
+def _reading(k: ImuKinematics) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """The axis, its std and the axis in the parent's frame as the gyro reports them (module docstring);
+    an estimate without them (built by hand) stands for itself."""
+    if k.gyro_axis is None:
+        return k.axis, k.axis_std_deg, k.axis_in_parent  # type: ignore[return-value]
+    return k.gyro_axis, k.gyro_axis_std_deg, k.gyro_axis_in_parent
+
+
 def _confidence(change: float, limit: float) -> float:
     """How far past its limit a change is, as a score in (0.5, 1)."""
     return round(1.0 - 0.5 * limit / max(change, limit), 4)
@@ -97,16 +107,15 @@ def kinematic_findings(
             old, new = baseline.imus.get(name), current.imus.get(name)
             if not _both(old, new):
                 continue
-            assert old is not None and new is not None and old.axis is not None and new.axis is not None
-            limit = o.sigmas * math.hypot(old.axis_std_deg, new.axis_std_deg) + o.floor_deg
+            assert old is not None and new is not None
+            (old_axis, old_std, old_in_p), (new_axis, new_std, new_in_p) = _reading(old), _reading(new)
+            limit = o.sigmas * math.hypot(old_std, new_std) + o.floor_deg
             p = old.parent_imu
             judged = p is not None and p == new.parent_imu and p not in rotated
-            if judged and old.axis_in_parent is not None and new.axis_in_parent is not None:
+            if judged and old_in_p is not None and new_in_p is not None:
                 # both IMUs' axis errors and the rotation between them: twice the variance
-                turn_p = _angle(old.axis_in_parent, new.axis_in_parent)
-                limit_p = (
-                    o.sigmas * math.sqrt(2) * math.hypot(old.axis_std_deg, new.axis_std_deg) + o.floor_deg
-                )
+                turn_p = _angle(old_in_p, new_in_p)
+                limit_p = o.sigmas * math.sqrt(2) * math.hypot(old_std, new_std) + o.floor_deg
                 if turn_p > limit_p:
                     if not bent:
                         out.append(
@@ -119,7 +128,7 @@ def kinematic_findings(
                         )
                     bent = True
                     continue
-            turn = _angle(old.axis, new.axis)
+            turn = _angle(old_axis, new_axis)
             if turn > limit:
                 rotated.add(name)
                 where = "" if p is not None else " (a root joint: its axis bending would read the same)"

@@ -46,13 +46,30 @@ gain error of the differentiated ``α`` (a filter mismatch; or a simulator whose
 its forward-dynamics acceleration while its implicit integrator moves the joints slightly
 differently) would otherwise scale the lever arm.
 
+**The accelerometer's frame.** The gyro reads ``S ω`` with a sensitivity matrix ``S`` (gains within
+3 %, cross-axis terms within 2 % on an MPU-6050), so the axis it reports, ``S u``, leans by up to about
+two degrees, and the gyro alone cannot tell that from its mounting. The accelerometer can: gravity
+turns with the link about the true axis, in the accelerometer's own frame, whose axes are square
+(only its gains are off, and they are fitted). So the accelerometer model is refitted with the axis
+free to lean (and, under a non-root joint, ``R0`` free to turn): nonlinear least squares over those
+angles with the linear parameters projected out (:func:`_refine`), with its sandwich covariance. That
+lean is fused with the gyro's reading, whose prior covariance follows from the datasheet bounds
+(:func:`_gyro_lean_cov`), by inverse covariances (:func:`_fuse`): where the accelerometer sees the axis
+well (gravity turns a lot about it) the answer is the accelerometer frame's, where it does not (an axis
+near vertical) it stays near the gyro's with the gyro's uncertainty. The angular velocities rebuilt for
+the joints below are then in the accelerometer's frame too. ``gyro_axis`` keeps the gyro's reading.
+
 **Uncertainty.** The residuals of band-limited signals are autocorrelated, so the covariance of every
 fit is the heteroscedasticity-and-autocorrelation-consistent (Newey-West) sandwich, with a Bartlett
-window as long as the band's correlation time. ``axis_std_deg`` is the RMS angular error of ``u``,
-``lever_arm_std_m`` the RMS error of ``r``. Both count noise only: a gyro's cross-axis sensitivity
-(up to 2 % on an MPU-6050) tilts the axis it reports by up to about a degree, and no single IMU can tell
-that from its mounting. An answer is ``converged`` when the joint moved enough, the axis gain is
-plausible and both stds are within :class:`KinematicsOptions` bounds.
+window as long as the band's correlation time. ``axis_std_deg`` is the RMS angular error of ``u``: noise
+and what remains of the gyro's lean after the fusion; ``gyro_axis_std_deg`` is the noise of the gyro's
+reading alone (its lean is the same in every recording of one IMU, which is what drift compares).
+``lever_arm_std_m`` is the RMS error of ``r``. Model errors are not in them: on simulated robots,
+MuJoCo's implicit integrator makes the accelerometer report slightly different accelerations than the
+joints move by, which leans the axes of IMUs whose joints turn gravity little by more than their std
+(``bodyhealth bench kinematics`` reports the share within two stds). An
+answer is ``converged`` when the joint moved enough, the axis gain is plausible and both stds (the
+gyro's noise and the lever arm's) are within :class:`KinematicsOptions` bounds.
 
 Example
 -------
@@ -66,14 +83,21 @@ Example
 >>> gyro = (u * qd[:, None])[:, None, :]
 >>> rec = Recording(t=t, joint_names=["j1"], q=q, imu_names=["imu1"], gyro=gyro,
 ...                 acc=np.zeros((3000, 1, 3)))
->>> kin = estimate_kinematics(rec, Topology({"j1": None}, {"imu1": "j1"}))
->>> np.round(kin.imus["imu1"].axis, 3).tolist(), bool(kin.imus["imu1"].axis_std_deg < 0.1)
+>>> k = estimate_kinematics(rec, Topology({"j1": None}, {"imu1": "j1"})).imus["imu1"]
+>>> np.round(k.axis, 3).tolist(), bool(k.gyro_axis_std_deg < 0.1)
 ([0.0, 0.6, 0.8], True)
+
+An accelerometer that reads nothing cannot tell the gyro's lean: the axis keeps the gyro's datasheet
+uncertainty (MPU-6050: about a degree).
+
+>>> bool(0.5 < k.axis_std_deg < 1.5)
+True
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -98,7 +122,7 @@ __all__ = [
 UNOBSERVABLE: tuple[str, ...] = (
     "the IMU's position along its joint's axis (only the perpendicular lever arm is observable)",
     "for a root joint on a fixed base: the axis's direction about gravity (yaw) and its position",
-    "a gyro's cross-axis misalignment, indistinguishable from its mounting rotation",
+    "an accelerometer's cross-axis misalignment: axes are in the accelerometer's frame, taken as square",
 )
 
 
@@ -108,8 +132,14 @@ class KinematicsOptions:
 
     ``band_hz`` is the common band (None: :func:`bodyschema.timing.choose_band`, 10 Hz at most).
     ``min_qd_rms`` (rad/s, in band) is the joint motion below which nothing is claimed. An answer is
-    converged when ``axis_std_deg`` ≤ ``max_axis_std_deg``, ``lever_arm_std_m`` ≤ ``max_lever_std_m`` and
+    converged when ``gyro_axis_std_deg`` ≤ ``max_axis_std_deg``, ``lever_arm_std_m`` ≤ ``max_lever_std_m`` and
     the gyro's gain along the axis lies within ``gain_range``.
+
+    ``accelerometer_frame`` gives axes in the accelerometer's frame, from gyro and accelerometers
+    together (module docstring); False gives the axis the gyro reports. ``gyro_scale_error`` and
+    ``gyro_cross_axis`` are the half-widths of the gyro's sensitivity errors (datasheet: MPU-6050 ±3 %
+    and ±2 %), the prior on how far the gyro's reading of an axis can lean; ``acc_scale_error`` the
+    half-width of the accelerometer's gain errors (±3 %), a prior on the gains those fits leave free.
     """
 
     band_hz: float | None = None
@@ -118,6 +148,10 @@ class KinematicsOptions:
     max_lever_std_m: float = 0.005
     gain_range: tuple[float, float] = (0.8, 1.25)
     imu_bandwidth_hz: float | None = DLPF_GYRO[3][0]
+    accelerometer_frame: bool = True
+    gyro_scale_error: float = 0.03
+    gyro_cross_axis: float = 0.02
+    acc_scale_error: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -129,6 +163,11 @@ class ImuKinematics:
     this IMU's frame at ``q = 0``; ``joint_origin_in_parent`` is the foot of the lever arm on the axis
     in ``parent_imu``'s frame (m); ``up_at_zero`` (root joints) the specific force at ``q = 0``, which
     gives the link's tilt. ``reason`` says why an answer is not converged.
+
+    ``gyro_axis`` is the axis as the gyro reports it (its sensitivity matrix leans it by up to about a
+    degree) and ``gyro_axis_in_parent`` that axis through the gyro-fixed rotation from the parent; with
+    ``gyro_axis_std_deg`` (noise only) they are what :mod:`bodyschema.kinematic_drift` compares: the
+    lean is the same in every recording of the same IMU, so a change beyond the noise is the body's.
     """
 
     imu: str
@@ -145,6 +184,9 @@ class ImuKinematics:
     up_at_zero: np.ndarray | None = None
     converged: bool = False
     reason: str = ""
+    gyro_axis: np.ndarray | None = None
+    gyro_axis_std_deg: float = math.inf
+    gyro_axis_in_parent: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
@@ -159,6 +201,8 @@ class ImuKinematics:
             "lever_arm_std_m": _finite(self.lever_arm_std_m),
             "gain": _finite(self.gain),
             "converged": self.converged,
+            "gyro_axis": vec(self.gyro_axis),
+            "gyro_axis_std_deg": _finite(self.gyro_axis_std_deg),
         }
         if self.rotation_from_parent is not None:
             out["rotation_from_parent"] = [vec(row) for row in self.rotation_from_parent]
@@ -285,29 +329,90 @@ class _Fit:
     resid: np.ndarray
 
 
-def _ls(X: np.ndarray, Y: np.ndarray, lags: int) -> _Fit:
+def _ls(X: np.ndarray, Y: np.ndarray, lags: int, ridge: np.ndarray | None = None) -> _Fit:
     """Stacked least squares ``Y[t] ≈ X[t] @ β`` with X (T, m, p), Y (T, m) and its Newey-West covariance.
 
     Columns are scaled for conditioning; a rank-deficient design (a nuisance block that the data do
     not excite) gets the minimum-norm solution, which leaves the identifiable parameters unchanged.
+    ``ridge`` (p,) adds ``Σ ridge_k β_k²`` to the squared residuals: zero-mean priors (:func:`_prior`).
     """
     T, m, p = X.shape
-    scale = np.sqrt(np.mean(X**2, axis=(0, 1)))
-    scale[scale < 1e-12] = 1.0
-    Xs = X / scale
-    G = np.einsum("tmi,tmj->ij", Xs, Xs)
-    Gi = np.linalg.pinv(G, rcond=1e-10, hermitian=True)
-    beta = Gi @ np.einsum("tmi,tm->i", Xs, Y)
-    e = Y - Xs @ beta
+    Xs, scale, Gi, beta, e = _solve(X, Y, ridge)
     g = np.einsum("tmi,tm->ti", Xs, e)
+    dof = max(T * m - p, 1)
+    cov = Gi @ _newey_west(g, lags) @ Gi * (T * m / dof)
+    return _Fit(coef=beta / scale, cov=cov / np.outer(scale, scale), resid=e)
+
+
+def _solve(
+    X: np.ndarray, Y: np.ndarray, ridge: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The least squares of :func:`_ls` without its covariance: scaled design, column scales, inverse
+    normal matrix, scaled coefficients and residuals (T, m). Flat matrix products keep it on BLAS."""
+    T, m, p = X.shape
+    flat = X.reshape(T * m, p)
+    scale = np.sqrt(np.mean(flat * flat, axis=0))
+    scale[scale < 1e-12] = 1.0
+    Xs = flat / scale
+    G = Xs.T @ Xs
+    if ridge is not None:
+        G = G + np.diag(ridge / scale**2)
+    Gi = np.linalg.pinv(G, rcond=1e-10, hermitian=True)
+    beta = Gi @ (Xs.T @ Y.reshape(T * m))
+    e = (Y.reshape(T * m) - Xs @ beta).reshape(T, m)
+    return Xs.reshape(T, m, p), scale, Gi, beta, e
+
+
+def _resid(X: np.ndarray, Y: np.ndarray, ridge: np.ndarray | None = None) -> np.ndarray:
+    """The residuals (T, m) of :func:`_ls`'s fit, all that a variable projection needs."""
+    return _solve(X, Y, ridge)[4]
+
+
+def _newey_west(g: np.ndarray, lags: int) -> np.ndarray:
+    """The long-run covariance of the scores ``g`` (T, p): Bartlett-weighted autocovariances to ``lags``."""
     S = g.T @ g
     for k in range(1, lags + 1):
         w = 1.0 - k / (lags + 1)
         Gk = g[k:].T @ g[:-k]
         S += w * (Gk + Gk.T)
-    dof = max(T * m - p, 1)
-    cov = Gi @ S @ Gi * (T * m / dof)
-    return _Fit(coef=beta / scale, cov=cov / np.outer(scale, scale), resid=e)
+    return S
+
+
+def _prior(e: np.ndarray, lags: int, sigma: float, cols: list[int], p: int) -> np.ndarray:
+    """The ridge of :func:`_ls` for zero-mean priors of std ``sigma`` on the coefficients ``cols``.
+
+    Weighed against the data, whose residuals ``e`` (T, m) have the variance ``σe²`` and are
+    correlated over about ``κ`` samples (Newey-West long-run variance over the plain one): the data
+    count as ``Σ e² / (κ σe²)``, a prior as ``β² / sigma²``, so its ridge is ``κ σe² / sigma²``.
+    """
+    var = float(np.mean(e * e))
+    long_run = float(np.mean([_newey_west(e[:, i : i + 1], lags)[0, 0] for i in range(e.shape[1])]))
+    kappa = long_run / max(var * e.shape[0], 1e-300)
+    ridge = np.zeros(p)
+    ridge[cols] = kappa * var / sigma**2
+    return ridge
+
+
+def _refine(residual: Callable[[np.ndarray], np.ndarray], n: int, n_linear: int, lags: int) -> _Fit:
+    """Nonlinear least squares over ``n`` small parameters (radians), from zero, and their covariance.
+
+    ``residual(x)`` returns the (T, m) residuals left once the model's ``n_linear`` linear parameters
+    are fitted for ``x`` (variable projection). The covariance is the Newey-West sandwich of the
+    Jacobian at the solution, as in :func:`_ls`. ``coef`` is the solution, ``resid`` its residuals.
+    """
+    from scipy.optimize import least_squares
+
+    e0 = residual(np.zeros(n))
+    T, m = e0.shape
+    sol = least_squares(
+        lambda x: residual(x).ravel(), np.zeros(n), x_scale=0.01, diff_step=1e-4, ftol=1e-6, xtol=1e-4
+    )
+    e = sol.fun.reshape(T, m)
+    J = sol.jac.reshape(T, m, n)
+    Hi = np.linalg.pinv(np.einsum("tmi,tmj->ij", J, J), rcond=1e-10, hermitian=True)
+    g = np.einsum("tmi,tm->ti", J, e)
+    dof = max(T * m - n - n_linear, 1)
+    return _Fit(coef=sol.x, cov=Hi @ _newey_west(g, lags) @ Hi * (T * m / dof), resid=e)
 
 
 def _per_axis(X: np.ndarray, Y: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
@@ -422,7 +527,11 @@ class _LeverFit:
     d: np.ndarray | None = None
     M0: np.ndarray | None = None  # R0 refined by the accelerometers
     up: np.ndarray | None = None  # root joint: the specific force at q = 0 (gravity's tilt, bias in it)
+    turning: np.ndarray | None = None  # root joint: the part of it that turns with q (G1)
     r_tangential: np.ndarray | None = None  # the lever arm the tangential term alone implies
+    axis: np.ndarray | None = None  # child joint: the axis in the accelerometer's frame
+    axis_std_deg: float = math.nan
+    M0_gyro: np.ndarray | None = None  # R0 as the gyro fixed it (before the accelerometers' turn)
 
 
 def _kmats(sig: _Signals, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -445,6 +554,93 @@ def _stack(rows: np.ndarray, shared: list[np.ndarray]) -> np.ndarray:
     return X
 
 
+# ------------------------------------------------------------------- the axis in the accelerometer frame
+def _rotvec(x: np.ndarray) -> np.ndarray:
+    """The rotation by the rotation vector ``x`` (3,)."""
+    angle = float(np.linalg.norm(x))
+    return np.eye(3) if angle < 1e-15 else rotation_about(x / angle, np.array([angle]))[0]
+
+
+def _tilted(u: np.ndarray, U: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """``u`` leaned by the small angles ``theta`` (2,) along the perpendicular basis ``U`` (3, 2)."""
+    v = u + U @ theta
+    return v / np.linalg.norm(v)
+
+
+def _gyro_lean_cov(u: np.ndarray, U: np.ndarray, opts: KinematicsOptions) -> np.ndarray:
+    """Prior covariance (2, 2, rad²) of the lean of the axis a gyro reports, in the basis ``U``.
+
+    The gyro reads ``S ω`` with ``S = I + diag(s) + C`` (scale errors ``s_i`` and cross-axis terms
+    ``C_ij``, uniform within the datasheet's half-widths), so the axis it reports is ``S u``. Along a
+    unit ``e ⊥ u`` that leans by ``Σ_i e_i s_i u_i + Σ_{i≠j} e_i C_ij u_j``, whose covariance between two
+    directions ``e``, ``f`` is ``σs² Σ_i e_i f_i u_i² + σc² Σ_i e_i f_i (1 - u_i²)``.
+    """
+    vs, vc = opts.gyro_scale_error**2 / 3.0, opts.gyro_cross_axis**2 / 3.0
+    return U.T @ np.diag(vs * u**2 + vc * (1.0 - u**2)) @ U
+
+
+def _fuse(
+    u: np.ndarray, noise_var: float, acc: _Fit, at: slice, opts: KinematicsOptions
+) -> tuple[np.ndarray, float]:
+    """The axis from the gyro's reading ``u`` and the accelerometers' lean of it, and its RMS error (°).
+
+    Two estimates of the lean ``θ`` (basis :func:`_perp_basis`): the gyro's, zero with its noise
+    (``noise_var`` per direction) plus the prior of :func:`_gyro_lean_cov`, and the accelerometers'
+    (``acc.coef[at]``, sandwich covariance), combined by their inverse covariances. Where the
+    accelerometers see the axis well the answer is theirs, in their frame; where they do not, it stays
+    near the gyro's with the prior's uncertainty.
+    """
+    U = _perp_basis(u)
+    Cg = _gyro_lean_cov(u, U, opts) + noise_var * np.eye(2)
+    Ca = acc.cov[at, at]
+    Pa = np.linalg.pinv(Ca, rcond=1e-12, hermitian=True)
+    C = np.linalg.inv(np.linalg.inv(Cg) + Pa)
+    theta = C @ Pa @ acc.coef[at]
+    return _tilted(u, U, theta), math.degrees(math.sqrt(max(float(np.trace(C)), 0.0)))
+
+
+def _root_axis_acc(
+    sig: _Signals, j: int, c: int, u: np.ndarray, turning: np.ndarray, gain_std: float
+) -> _Fit:
+    """The lean of a root joint's axis the accelerometer implies (:func:`_refine` over two angles).
+
+    Gravity seen from the link turns about the true axis: ``f_c = D Rot(u, -q) g0 + b + [α]× r_t +
+    [ω]×[ω]× r`` with the accelerometer's gains ``D = I + diag(δ)`` taken to first order about
+    ``turning``, the part of gravity at ``q = 0`` that turns with ``q`` (the part along the axis stays,
+    as does the bias: both are in ``b``). Given ``u`` it is linear in (δ, g0, b, r_t, r). The gains are
+    free, yet the lean is not: ``D⁻¹`` must make the two gravity components that turn with ``q``
+    perpendicular and equally long, two conditions on two gain ratios. That leaves nothing over, so
+    the gains also get the datasheet's prior (``gain_std``, :func:`_prior`). A vertical axis (gravity never
+    turns) leaves the lean to the gyro through a large covariance.
+    """
+    q = sig.rec.q[:, j]  # type: ignore[index]
+    qd = sig.rec.qd[:, j]  # type: ignore[index]
+    # ω = v q̇ under a root joint: [α]× = q̈ [v]×, [ω]×[ω]× = q̇² [v]×², so the band limit of every
+    # regressor is that of a scalar signal times a constant matrix, for any leaned axis v
+    rows = sig.band_limit(np.c_[np.ones_like(q), np.cos(q), np.sin(q), sig.derivative(qd), qd * qd])
+    o, cq, sq, qdd, qd2 = (rows[:, k][:, None, None] for k in range(5))
+    U = _perp_basis(u)
+    Y = sig.band_limit(sig.rec.acc[:, c])
+    eye = np.eye(3)
+    ridge: np.ndarray | None = None
+
+    def resid(theta: np.ndarray) -> np.ndarray:
+        v = _tilted(u, U, theta)
+        vx = skew(v)
+        Uv = _perp_basis(v)
+        Rq = cq * eye + (o - cq) * np.outer(v, v) - sq * vx  # band-limited Rot(v, -q)
+        X = np.zeros((Y.shape[0], 3, 13))
+        X[:, :, 0:3] = (Rq @ turning)[:, :, None] * eye
+        X[:, :, 3:6] = Rq
+        X[:, :, 6:9] = o * eye
+        X[:, :, 9:11] = qdd * (vx @ Uv)
+        X[:, :, 11:13] = qd2 * (vx @ vx @ Uv)
+        return _resid(X, Y, ridge)
+
+    ridge = _prior(resid(np.zeros(2)), sig.lags, gain_std, [0, 1, 2], 13)
+    return _refine(resid, 2, 13, sig.lags)
+
+
 def _lever_root(sig: _Signals, j: int, c: int, u: np.ndarray, omega_c: np.ndarray) -> _LeverFit:
     """Root joint, fixed base: ``f_c = G0 + G1 cos q + G2 sin q + [α]× r_t + [ω]×[ω]× r`` with ``r ⊥ u``."""
     r = sig.rec
@@ -460,8 +656,15 @@ def _lever_root(sig: _Signals, j: int, c: int, u: np.ndarray, omega_c: np.ndarra
         r=U @ f.coef[-2:],
         std_m=math.sqrt(max(float(np.trace(cov_r)), 0.0)),
         up=G[:, 0] + G[:, 1],
+        turning=G[:, 1],
         r_tangential=U @ f.coef[-4:-2],
     )
+
+
+#: The child model's linear parameters (:func:`_lever_child`): δ_c 0:3, b_c 3:6, b_p 6:9, δ_p 9:12,
+#: d_t 12:15, d 15:18, r_t 18:20, r 20:22; the gains are δ_c and δ_p.
+_CHILD_COLS = 22
+_CHILD_GAINS = [0, 1, 2, 9, 10, 11]
 
 
 def _lever_child(
@@ -475,17 +678,27 @@ def _lever_child(
     R0: np.ndarray,
     span_rank: int,
     parent_axis: np.ndarray,
+    opts: KinematicsOptions,
+    noise_var: float,
 ) -> _LeverFit:
     """Child of a link with an IMU: the accelerometer model with ``R(q) = Rot(u, -q) R0`` a rotation.
 
-    ``f_c = R(q) (f_p + δ_p ⊙ f_p + K_p d) + δ_c ⊙ R(q) f_p + b(q) + K_c r``: the two accelerometers'
-    gains to first order (``δ``, a few %), intercepts ``b(q) = b0 + b1 cos q + b2 sin q`` for the biases
-    seen through the turning joint. Given ``R0`` it is linear in (δ_c, b, δ_p, d, r). The gyro fixes
+    ``f_c = R(q) (f_p + δ_p ⊙ f_p + K_p d) + δ_c ⊙ R(q) f_p + b_c + R(q) b_p + K_c r``: the two
+    accelerometers' gains to first order (``δ``, a few %) and their biases, the parent's seen through
+    the turning joint. Given ``R0`` it is linear in (δ_c, b_c, b_p, δ_p, d, r). (Free intercepts
+    ``b1 cos q + b2 sin q`` in place of ``R(q) b_p`` would also absorb most of the gravity the child sees
+    turn, which is what tells the axis apart from its accelerometer's gains.) The gyro fixes
     ``R0`` on the directions the parent link turned about; when that is one axis (a root parent),
     the remaining turn about its image is the one that minimises the accelerometer residual (variable
     projection over one angle: a coarse grid, then a bounded search), which gravity decides unless
     the parent's axis is vertical. A general matrix in place of ``R(q)`` would keep the model linear
     but can absorb the ``K_p d`` term through the parent's own dynamics in ``f_p``.
+
+    With ``opts.accelerometer_frame``, the accelerometers then decide the child's frame: ``R0`` turned
+    by a rotation vector and ``u`` leaned by two angles (:func:`_refine` over five), the lean fused
+    with the gyro's reading (:func:`_fuse`), and ``R0`` refitted for the fused axis. A rotation of the
+    child's frame moves ``u`` and ``R0`` together, and the child's accelerometer, whose gains are free
+    but whose axes are square, sees it in the gravity it reads.
     """
     from scipy.optimize import minimize_scalar
 
@@ -493,37 +706,37 @@ def _lever_child(
     q = r.q[:, j]  # type: ignore[index]
     mods = (np.ones_like(q), np.cos(q), np.sin(q))
     U = _perp_basis(u)
-    Kca, Kcw = _kmats(sig, omega_c)
-    KcU = np.concatenate([sig.band_limit(Kca @ U), sig.band_limit(Kcw @ U)], axis=2)
+    kc = _kmats(sig, omega_c)
+    KcU = _lever_basis(sig, kc, U)
     fp = r.acc[:, p]
     Fm = [sig.band_limit(m[:, None] * fp) for m in mods]
     Kp = np.concatenate(_kmats(sig, omega_p), axis=2)  # (T, 3, 6): d_t then d
     Km = [sig.band_limit(m[:, None, None] * Kp) for m in mods]
-    ones = sig.band_limit(np.stack(mods, axis=1))
+    ones = [sig.band_limit(m) for m in mods]
     Y = sig.band_limit(r.acc[:, c])
-    uu, ux = np.outer(u, u), skew(u)
 
-    def design(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def design(R: np.ndarray, axis: np.ndarray, kcu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uu, ux = np.outer(axis, axis), skew(axis)
         P = (uu @ R, (np.eye(3) - uu) @ R, -ux @ R)
-        RF = sum(np.einsum("ij,tj->ti", Pm, F) for Pm, F in zip(P, Fm, strict=True))
+        RF = sum(F @ Pm.T for Pm, F in zip(P, Fm, strict=True))
         Dp = sum(Pm[None, :, :] * F[:, None, :] for Pm, F in zip(P, Fm, strict=True))
-        RK = sum(np.einsum("ij,tjk->tik", Pm, K) for Pm, K in zip(P, Km, strict=True))
-        n = RF.shape[0]
-        X = np.zeros((n, 3, 12 + 3 + 6 + 4))
-        for i in range(3):
-            X[:, i, 4 * i] = RF[:, i]
-            X[:, i, 4 * i + 1 : 4 * i + 4] = ones
-        X[:, :, 12:15] = Dp
-        X[:, :, 15:21] = RK
-        X[:, :, 21:25] = KcU
+        RK = sum(np.matmul(Pm, K) for Pm, K in zip(P, Km, strict=True))
+        X = np.zeros((RF.shape[0], 3, _CHILD_COLS))
+        X[:, :, 0:3] = RF[:, :, None] * np.eye(3)
+        X[:, :, 3:6] = ones[0][:, None, None] * np.eye(3)
+        X[:, :, 6:9] = sum(Pm[None, :, :] * o[:, None, None] for Pm, o in zip(P, ones, strict=True))
+        X[:, :, 9:12] = Dp
+        X[:, :, 12:18] = RK
+        X[:, :, 18:22] = kcu
         return X, Y - RF
 
     def fit(R: np.ndarray) -> tuple[float, float]:
         """Residual sum of squares, and the largest gain correction it needed."""
-        X, Yr = design(R)
-        f = _ls(X, Yr, 0)
-        gains = np.r_[f.coef[[0, 4, 8]], f.coef[12:15]]
-        return float(np.sum(f.resid * f.resid)), float(np.max(np.abs(gains)))
+        X, Yr = design(R, u, KcU)
+        _, scale, _, beta, e = _solve(X, Yr, None)
+        coef = beta / scale
+        gains = coef[_CHILD_GAINS]
+        return float(np.sum(e * e)), float(np.max(np.abs(gains)))
 
     R = R0
     if span_rank == 1:
@@ -547,16 +760,57 @@ def _lever_child(
             ).x
             found.append((fit(turn(float(phi)))[1], float(phi)))
         R = turn(min(found)[1])
-    X, Yr = design(R)
+    R_gyro, axis, axis_std = R, u, math.nan
+    if opts.accelerometer_frame:
+        axis, axis_std, R, U, KcU = _child_frame(design, R_gyro, u, kc, sig, opts, noise_var)
+    X, Yr = design(R, axis, KcU)
     f = _ls(X, Yr, sig.lags)
     cov_r = U @ f.cov[-2:, -2:] @ U.T
     return _LeverFit(
         r=U @ f.coef[-2:],
         std_m=math.sqrt(max(float(np.trace(cov_r)), 0.0)),
-        d=f.coef[18:21],
+        d=f.coef[15:18],
         M0=R,
         r_tangential=U @ f.coef[-4:-2],
+        axis=axis,
+        axis_std_deg=axis_std,
+        M0_gyro=R_gyro,
     )
+
+
+def _lever_basis(sig: _Signals, kc: tuple[np.ndarray, np.ndarray], U: np.ndarray) -> np.ndarray:
+    """The band-limited tangential and centripetal regressors (T, 3, 4) of a lever arm in the plane ``U``."""
+    return np.concatenate([sig.band_limit(kc[0] @ U), sig.band_limit(kc[1] @ U)], axis=2)
+
+
+def _child_frame(
+    design: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    R: np.ndarray,
+    u: np.ndarray,
+    kc: tuple[np.ndarray, np.ndarray],
+    sig: _Signals,
+    opts: KinematicsOptions,
+    noise_var: float,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """A child link's accelerometer frame (:func:`_lever_child`): the axis, its std, ``R0``, the lever-arm
+    plane and its regressors. ``design(R0, axis, lever regressors)`` is the child model's."""
+    U = _perp_basis(u)
+    KcU = _lever_basis(sig, kc, U)
+    ridge = _prior(
+        _resid(*design(R, u, KcU)), sig.lags, opts.acc_scale_error / math.sqrt(3.0), _CHILD_GAINS, _CHILD_COLS
+    )
+
+    def lean(x: np.ndarray) -> np.ndarray:
+        return _resid(*design(_rotvec(x[:3]) @ R, _tilted(u, U, x[3:]), KcU), ridge)
+
+    axis, std = _fuse(u, noise_var, _refine(lean, 5, _CHILD_COLS, sig.lags), slice(3, 5), opts)
+    U = _perp_basis(axis)
+    KcU = _lever_basis(sig, kc, U)
+
+    def turned(x: np.ndarray) -> np.ndarray:
+        return _resid(*design(_rotvec(x) @ R, axis, KcU), ridge)
+
+    return axis, std, _rotvec(_refine(turned, 3, _CHILD_COLS, 0).coef) @ R, U, KcU
 
 
 # ------------------------------------------------------------------------------------ same link
@@ -583,15 +837,13 @@ def _order(topo: Topology) -> list[str]:
     seen: set[str | None] = {None}
     todo = list(topo.joint_parent)
     while todo:
-        rest = [j for j in todo if topo.joint_parent[j] not in seen]
-        for j in todo:
-            if topo.joint_parent[j] in seen:
-                out.append(j)
-                seen.add(j)
-        if len(rest) == len(todo):
-            out.extend(rest)
+        ready = [j for j in todo if topo.joint_parent[j] in seen]
+        if not ready:
+            out.extend(todo)
             break
-        todo = rest
+        out.extend(ready)
+        seen.update(ready)
+        todo = [j for j in todo if j not in seen]
     return out
 
 
@@ -728,12 +980,20 @@ def _one_imu(
     IMU of the parent link (None: a root joint on the fixed base)."""
     al = sig.rec
     q, qd = al.q[:, j], al.qd[:, j]  # type: ignore[index]
-    R0 = d = None
+    R0 = d = R0_gyro = None
     best_p = parent
     if parent is None:
         fit = _axis_fit(sig, j, c, None)
+        axis, axis_std = fit.axis, fit.std_deg
         om = fit.axis * qd[:, None]
         lever = _lever_root(sig, j, c, fit.axis, om)
+        if opts.accelerometer_frame:
+            noise_var = math.radians(fit.std_deg) ** 2 / 2.0
+            gain_std = opts.acc_scale_error / math.sqrt(3.0)
+            acc = _root_axis_acc(sig, j, c, fit.axis, lever.turning, gain_std)  # type: ignore[arg-type]
+            axis, axis_std = _fuse(fit.axis, noise_var, acc, slice(0, 2), opts)
+            om = axis * qd[:, None]
+            lever = _lever_root(sig, j, c, axis, om)
     else:
         fit = _axis_fit(sig, j, c, omega[parent])
         u = fit.axis
@@ -743,12 +1003,19 @@ def _one_imu(
         om = np.einsum("tij,tj->ti", rotation_about(u, -q), om) + u * qd[:, None]
         rank = round(float(np.trace(fit.span)))  # type: ignore[arg-type]
         p_axis = np.linalg.eigh(fit.span)[1][:, -1]  # type: ignore[arg-type]
-        lever = _lever_child(sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis)
-        R0, d = lever.M0, lever.d
+        noise_var = math.radians(fit.std_deg) ** 2 / 2.0
+        lever = _lever_child(sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis, opts, noise_var)
+        R0, d, R0_gyro = lever.M0, lever.d, lever.M0_gyro
+        axis, axis_std = u, fit.std_deg
+        if opts.accelerometer_frame:
+            # the child's frame is now its accelerometer's: rebuild ω_c in it for the joints below
+            axis, axis_std = lever.axis, lever.axis_std_deg  # type: ignore[assignment]
+            om = np.einsum("ij,tj->ti", R0, omega[best_p])  # type: ignore[arg-type]
+            om = np.einsum("tij,tj->ti", rotation_about(axis, -q), om) + axis * qd[:, None]
     lo, hi = opts.gain_range
     why = []
     if fit.std_deg > opts.max_axis_std_deg:
-        why.append(f"axis std {fit.std_deg:.2f} deg > {opts.max_axis_std_deg:g}")
+        why.append(f"gyro axis std {fit.std_deg:.2f} deg > {opts.max_axis_std_deg:g}")
     if lever.std_m > opts.max_lever_std_m:
         why.append(f"lever-arm std {lever.std_m * 1e3:.1f} mm > {opts.max_lever_std_m * 1e3:g}")
     if not lo <= fit.gain <= hi:
@@ -758,17 +1025,20 @@ def _one_imu(
             imu=imu,
             joint=jn,
             parent_imu=best_p,
-            axis=fit.axis,
+            axis=axis,
             lever_arm=lever.r,
-            axis_std_deg=fit.std_deg,
+            axis_std_deg=axis_std,
             lever_arm_std_m=lever.std_m,
             gain=fit.gain,
             rotation_from_parent=R0,
-            axis_in_parent=None if R0 is None else R0.T @ fit.axis,
+            axis_in_parent=None if R0 is None else R0.T @ axis,
             joint_origin_in_parent=d,
             up_at_zero=lever.up,
             converged=not why,
             reason="; ".join(why),
+            gyro_axis=fit.axis,
+            gyro_axis_std_deg=fit.std_deg,
+            gyro_axis_in_parent=None if R0_gyro is None else R0_gyro.T @ fit.axis,
         ),
         om,
     )
