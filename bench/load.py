@@ -123,10 +123,33 @@ def _locust(host: str, rps: float, users: int, seconds: float, prefix: Path) -> 
         "--loglevel",
         "WARNING",
     ]
-    subprocess.run(cmd, env=env, check=False, capture_output=True, timeout=seconds + 120)
-    with open(f"{prefix}_stats.csv", newline="") as fh:
-        rows = {r["Name"]: r for r in csv.DictReader(fh)}
-    return rows["Aggregated"]
+    done = subprocess.run(cmd, env=env, check=False, capture_output=True, text=True, timeout=seconds + 120)
+    return _aggregate(Path(f"{prefix}_stats.csv"), f"{rps:g} rps from {users} locust users", done.stderr)
+
+
+def _aggregate(stats: Path, what: str, stderr: str = "") -> dict[str, str]:
+    r"""The ``Aggregated`` row of a locust stats CSV, or a RuntimeError that says why there is none.
+
+    Locust writes ``N/A`` percentiles when no request completed (a client starved of CPU, a service
+    that never answered); that is a failed run, said in words, not a number to plot.
+
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "s.csv"
+    >>> _ = p.write_text("Type,Name,Request Count,50%\n,Aggregated,0,N/A\n")
+    >>> _aggregate(p, "50 rps")
+    Traceback (most recent call last):
+    ...
+    RuntimeError: locust completed no request at 50 rps; nothing to report for that run
+    """
+    try:
+        with open(stats, newline="") as fh:
+            rows = {r["Name"]: r for r in csv.DictReader(fh)}
+    except FileNotFoundError:
+        raise RuntimeError(f"locust wrote no statistics at {what}: {stderr.strip()[-2000:]}") from None
+    agg = rows.get("Aggregated")
+    if agg is None or agg.get("Request Count", "0") in ("", "0") or "N/A" in agg.values():
+        raise RuntimeError(f"locust completed no request at {what}; nothing to report for that run")
+    return agg
 
 
 def read_mix(
