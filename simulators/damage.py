@@ -13,6 +13,16 @@ the physics (and in the ground truth read back from the compiled model):
 Sensor damage acts on the readings: ``imu_dead`` (``frozen`` or ``zero`` output) and
 ``encoder_fault`` (``stuck`` at its current value or a constant ``offset``).
 
+Geometry drift keeps the topology and shows only in the kinematics (:mod:`bodyschema.kinematic_drift`),
+each with its magnitude (:data:`DRIFT_DAMAGES`):
+
+* ``imu_rotated``   the IMU turns on its mount by ``angle_deg`` about a random axis of its frame (or
+  ``about``, a 3-vector in it);
+* ``imu_shifted``   the IMU slides on its link by ``meters``, perpendicular to its joint's axis (a slide
+  along the axis moves nothing a recording can see);
+* ``axis_changed``  the joint's axis bends by ``angle_deg`` towards a random perpendicular (a bent link,
+  a loose bearing).
+
 Every call returns a :class:`bodyschema.findings.Diff` with one finding; omitted arguments are picked
 with the simulation's damage generator (seeded, reproducible).
 
@@ -40,7 +50,7 @@ from simulators.builder import LOOSE_PREFIX, surface_frames
 from simulators.imu_model import ImuStream
 from simulators.robot import Robot
 
-__all__ = ["DAMAGES", "DamageTarget", "apply_damage", "parse_damage"]
+__all__ = ["DAMAGES", "DRIFT_DAMAGES", "DamageTarget", "apply_damage", "parse_damage"]
 
 DAMAGES: tuple[str, ...] = (
     "imu_moved",
@@ -50,6 +60,9 @@ DAMAGES: tuple[str, ...] = (
     "encoder_fault",
     "link_lost",
 )
+
+#: Geometry drift: the topology stays, the kinematics change (see the module docstring).
+DRIFT_DAMAGES: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed")
 
 
 class DamageTarget(Protocol):
@@ -88,8 +101,8 @@ def parse_damage(text: str) -> tuple[str, dict[str, Any]]:
     """
     kind, _, rest = text.partition(":")
     kind = kind.strip()
-    if kind not in DAMAGES:
-        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")
+    if kind not in _HANDLERS:
+        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(_HANDLERS)}")
     kw: dict[str, Any] = {}
     for part in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, value = part.partition("=")
@@ -258,6 +271,61 @@ def _link_lost(sim: DamageTarget, joint: str | None = None) -> Finding:
     return Finding(kind="link_lost", joint=joint, detail=f"the subtree from {body!r} hangs loose")
 
 
+def _perpendicular(rng: np.random.Generator, axis: np.ndarray | None) -> np.ndarray:
+    """A random unit vector, perpendicular to ``axis`` when one is given."""
+    v = rng.normal(size=3)
+    if axis is not None:
+        a = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+        v -= a * float(a @ v)
+    return v / np.linalg.norm(v)
+
+
+def _imu_rotated(
+    sim: DamageTarget, imu: str | None = None, angle_deg: float = 2.0, about: Any = None
+) -> Finding:
+    r = sim.robot
+    _check(imu, r.imu_names, "IMU")
+    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    site = r.spec.site(imu)
+    turn, quat = np.empty(4), np.empty(4)
+    axis = _perpendicular(sim.damage_rng, None) if about is None else np.asarray(about, dtype=float)
+    mujoco.mju_axisAngle2Quat(turn, axis / np.linalg.norm(axis), np.radians(float(angle_deg)))
+    mujoco.mju_mulQuat(quat, np.asarray(site.quat, dtype=float), turn)
+    site.quat = quat
+    sim.recompile()
+    joint = _imu_joint(sim, imu)
+    return Finding(kind="imu_rotated", imu=imu, joint=joint, detail=f"turned {angle_deg:g} deg")
+
+
+def _imu_shifted(sim: DamageTarget, imu: str | None = None, meters: float = 0.005) -> Finding:
+    r = sim.robot
+    _check(imu, r.imu_names, "IMU")
+    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    joint = _imu_joint(sim, imu)
+    m = r.model
+    axis = None
+    if joint is not None and int(m.site_bodyid[m.site(imu).id]) == int(m.jnt_bodyid[m.joint(joint).id]):
+        axis = np.asarray(r.spec.joint(joint).axis, dtype=float)  # in the body frame, as the site's pos
+    site = r.spec.site(imu)
+    site.pos = np.asarray(site.pos, dtype=float) + float(meters) * _perpendicular(sim.damage_rng, axis)
+    sim.recompile()
+    return Finding(kind="imu_shifted", imu=imu, joint=joint, detail=f"slid {1e3 * float(meters):g} mm")
+
+
+def _axis_changed(sim: DamageTarget, joint: str | None = None, angle_deg: float = 2.0) -> Finding:
+    r = sim.robot
+    _check(joint, r.joint_names, "joint")
+    joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
+    spec_joint = r.spec.joint(joint)
+    a = np.asarray(spec_joint.axis, dtype=float)
+    a /= np.linalg.norm(a)
+    b = _perpendicular(sim.damage_rng, a)
+    angle = np.radians(float(angle_deg))
+    spec_joint.axis = np.cos(angle) * a + np.sin(angle) * b
+    sim.recompile()
+    return Finding(kind="axis_changed", joint=joint, detail=f"bent {angle_deg:g} deg")
+
+
 _HANDLERS = {
     "imu_moved": _imu_moved,
     "imu_detached": _imu_detached,
@@ -265,13 +333,16 @@ _HANDLERS = {
     "joint_locked": _joint_locked,
     "encoder_fault": _encoder_fault,
     "link_lost": _link_lost,
+    "imu_rotated": _imu_rotated,
+    "imu_shifted": _imu_shifted,
+    "axis_changed": _axis_changed,
 }
 
 
 def apply_damage(sim: DamageTarget, kind: str, **kwargs: Any) -> Diff:
     """Apply damage ``kind`` to ``sim`` now; return its ground-truth diff (also kept by ``sim``)."""
     if kind not in _HANDLERS:
-        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(DAMAGES)}")
+        raise ValueError(f"unknown damage {kind!r}; expected one of {', '.join(_HANDLERS)}")
     sim.sync()  # act at the last returned sample, not at the end of any read-ahead
     sim.last_kwargs = dict(kwargs)
     try:

@@ -13,6 +13,7 @@ about 2°).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -35,11 +36,21 @@ class Case:
     robot: Robot
 
 
-def record(robot: Robot, seconds: float, seed: int, imu_model: str = "mpu6050", lock: str = "") -> Case:
-    """``seconds`` of ``robot`` at 1 kHz physics, then the ``robot`` sensing preset."""
+def record(
+    robot: Robot,
+    seconds: float,
+    seed: int,
+    imu_model: str = "mpu6050",
+    lock: str = "",
+    damage: tuple[str, dict[str, Any]] | None = None,
+) -> Case:
+    """``seconds`` of ``robot`` at 1 kHz physics, then the ``robot`` sensing preset; ``damage`` (a kind of
+    :mod:`simulators.damage` and its arguments) is applied first."""
     sim = Simulation(robot, seed=seed, rate=1000.0, imu_model=imu_model)
     if lock:
         sim.apply_damage("joint_locked", joint=lock)
+    if damage is not None:
+        sim.apply_damage(damage[0], **damage[1])
     fine = sim.advance(seconds=seconds)
     rec = apply_sensing(fine, "robot", np.random.default_rng(seed + 1000))
     return Case(rec=rec, truth=kinematics_truth(robot), robot=robot)

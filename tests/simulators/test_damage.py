@@ -174,3 +174,29 @@ def test_damage_does_not_import_the_simulation() -> None:
         a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
     }
     assert "simulators.simulation" not in imported
+
+
+@pytest.mark.parametrize("angle_deg", [2.0, 5.0])
+def test_drift_damages_change_the_geometry_by_their_magnitude(angle_deg: float, seed: int) -> None:
+    """The geometry-drift catalog, read back from the model: a turn about an axis perpendicular to the
+    joint's turns the axis seen from the IMU by that angle; a slide moves the lever arm by its length
+    (perpendicular to the axis, all of it visible); a bend turns the joint's world axis by its angle."""
+    from simulators.kinematics_truth import axis_error_deg, kinematics_truth
+
+    sim = _sim(seed)
+    before = kinematics_truth(sim.robot)
+    u = before["imu3"].axis
+    about = np.cross(u, [1.0, 0.0, 0.0])
+    sim.apply_damage("imu_rotated", imu="imu3", angle_deg=angle_deg, about=about.tolist())
+    sim.apply_damage("imu_shifted", imu="imu2", meters=angle_deg * 1e-3)
+    world = sim.robot.data.xaxis[sim.robot.model.joint("j3").id].copy()
+    diff = sim.apply_damage("axis_changed", joint="j3", angle_deg=angle_deg)
+    after = kinematics_truth(sim.robot)
+    assert axis_error_deg(after["imu3"].axis, u) == pytest.approx(angle_deg, abs=1e-6)
+    shift = after["imu2"].lever_arm - before["imu2"].lever_arm
+    assert float(np.linalg.norm(shift)) == pytest.approx(angle_deg * 1e-3, abs=1e-9)
+    sim.advance(1)  # the bent axis in the world, after the physics has run on the new model
+    bent = sim.robot.data.xaxis[sim.robot.model.joint("j3").id]
+    assert axis_error_deg(bent, world) == pytest.approx(angle_deg, abs=0.5)
+    assert [f.kind for f in sim.findings] == ["imu_rotated", "imu_shifted", "axis_changed"]
+    assert diff.findings[0].joint == "j3" and "bent" in diff.findings[0].detail
