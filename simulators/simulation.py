@@ -58,7 +58,9 @@ class Simulation:
     ``rate`` is the sample rate unless the IMU model sets ``sample_rate``. :meth:`advance` continues
     time from the previous chunk; :meth:`apply_damage` applies damage now. ``readahead`` (s) simulates at
     least that much per physics call and serves small chunks from the buffer, which saves the
-    per-call cost when chunks are small; the returned data are the same either way.
+    per-call cost when chunks are small; the returned data are the same either way. ``imu_seed``, when
+    given, draws the IMUs' errors (biases, gains, misalignments) from a seed of their own: a real IMU
+    keeps them from run to run while the motion changes, which comparing two runs of one body needs.
     """
 
     def __init__(
@@ -70,12 +72,16 @@ class Simulation:
         excitation: str | Excitation = "observable",
         rate: float = 100.0,
         readahead: float = 0.0,
+        imu_seed: int | Sequence[int] | np.random.SeedSequence | None = None,
     ) -> None:
         model = resolve_imu_model(imu_model)
         self.rate = float(model.rate or rate)
         self.robot, self.source = _make_robot(robot, self.rate)
         ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
         exc_ss, par_ss, noise_ss, dmg_ss = ss.spawn(4)
+        if imu_seed is not None:
+            own = isinstance(imu_seed, np.random.SeedSequence)
+            par_ss = imu_seed if own else np.random.SeedSequence(imu_seed)  # type: ignore[arg-type]
         self.imu_model = model
         self.params = model.instantiate(self.robot.imu_names, np.random.default_rng(par_ss))
         self.stream = ImuStream(self.params, self.rate, self.robot.model.opt.gravity.copy())
