@@ -11,7 +11,10 @@ plus a small floor:
 
 * ``axis_changed`` — a joint's axis seen from its parent IMU turned (``θ > sigmas √(σ₁² + σ₂²) +
   floor``, with twice the variance: both IMUs' errors enter), and that parent IMU was not itself found
-  turned;
+  turned. Where the parent link turns about one axis only, the gyros fix the joint's axis against
+  that axis but not its turn about it (the accelerometers' part, which moves with the motion by more
+  than its noise): then ``θ`` is the change of the angle between the two axes, and a bend about the
+  parent's axis reads as ``imu_rotated``, which says so;
 * ``imu_rotated`` — otherwise, the axis seen from the IMU turned: the IMU turned on its link (a turned
   child IMU leaves the axis in the *parent's* frame as it was). Under a root joint nothing tells the two
   apart, and the finding says so;
@@ -85,6 +88,13 @@ def _reading(k: ImuKinematics) -> tuple[np.ndarray, float, np.ndarray | None]:
     return k.gyro_axis, k.gyro_axis_std_deg, k.gyro_axis_in_parent
 
 
+def _between(axis: np.ndarray, parent_axis: np.ndarray) -> float:
+    """The angle between a joint's axis and its parent link's single axis, 0..90° (that one's sign is
+    arbitrary)."""
+    c = abs(float(axis @ parent_axis)) / (np.linalg.norm(axis) * np.linalg.norm(parent_axis))
+    return math.degrees(math.acos(min(c, 1.0)))
+
+
 def _confidence(change: float, limit: float) -> float:
     """How far past its limit a change is, as a score in (0.5, 1)."""
     return round(1.0 - 0.5 * limit / max(change, limit), 4)
@@ -112,9 +122,16 @@ def kinematic_findings(
             limit = o.sigmas * math.hypot(old_std, new_std) + o.floor_deg
             p = old.parent_imu
             judged = p is not None and p == new.parent_imu and p not in rotated
-            if judged and old_in_p is not None and new_in_p is not None:
+            one_axis = old.gyro_parent_axis is not None and new.gyro_parent_axis is not None
+            if judged and (one_axis or (old_in_p is not None and new_in_p is not None)):
                 # both IMUs' axis errors and the rotation between them: twice the variance
-                turn_p = _angle(old_in_p, new_in_p)
+                if one_axis:  # the parent turns about one axis: only the angle to it is the gyro's
+                    turn_p = abs(
+                        _between(old_axis, old.gyro_parent_axis)  # type: ignore[arg-type]
+                        - _between(new_axis, new.gyro_parent_axis)  # type: ignore[arg-type]
+                    )
+                else:
+                    turn_p = _angle(old_in_p, new_in_p)  # type: ignore[arg-type]
                 limit_p = o.sigmas * math.sqrt(2) * math.hypot(old_std, new_std) + o.floor_deg
                 if turn_p > limit_p:
                     if not bent:
@@ -123,7 +140,12 @@ def kinematic_findings(
                                 kind="axis_changed",
                                 joint=jn,
                                 confidence=_confidence(turn_p, limit_p),
-                                detail=f"axis in {p}'s frame turned {turn_p:.2f} deg (limit {limit_p:.2f})",
+                                detail=(
+                                    f"axis's angle to the axis {p}'s link turns about changed"
+                                    if one_axis
+                                    else f"axis in {p}'s frame turned"
+                                )
+                                + f" {turn_p:.2f} deg (limit {limit_p:.2f})",
                             )
                         )
                     bent = True
@@ -131,7 +153,14 @@ def kinematic_findings(
             turn = _angle(old_axis, new_axis)
             if turn > limit:
                 rotated.add(name)
-                where = "" if p is not None else " (a root joint: its axis bending would read the same)"
+                where = (
+                    " (a root joint: its axis bending would read the same)"
+                    if p is None
+                    else " (its parent link turns about one axis: the joint's axis bending about that axis "
+                    "would read the same)"
+                    if one_axis
+                    else ""
+                )
                 out.append(
                     Finding(
                         kind="imu_rotated",

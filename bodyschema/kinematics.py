@@ -168,6 +168,10 @@ class ImuKinematics:
     degree) and ``gyro_axis_in_parent`` that axis through the gyro-fixed rotation from the parent; with
     ``gyro_axis_std_deg`` (noise only) they are what :mod:`bodyschema.kinematic_drift` compares: the
     lean is the same in every recording of the same IMU, so a change beyond the noise is the body's.
+    Where the parent link turns about one axis only, the gyro fixes ``R0`` on that axis and the turn
+    about it is the accelerometers' (which moves with the motion by more than its noise):
+    ``gyro_parent_axis`` is then the parent's axis as this IMU's gyro sees it (sign arbitrary), and only
+    the angle between it and ``gyro_axis`` is the gyro's.
     """
 
     imu: str
@@ -187,6 +191,7 @@ class ImuKinematics:
     gyro_axis: np.ndarray | None = None
     gyro_axis_std_deg: float = math.inf
     gyro_axis_in_parent: np.ndarray | None = None
+    gyro_parent_axis: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
@@ -980,7 +985,7 @@ def _one_imu(
     IMU of the parent link (None: a root joint on the fixed base)."""
     al = sig.rec
     q, qd = al.q[:, j], al.qd[:, j]  # type: ignore[index]
-    R0 = d = R0_gyro = None
+    R0 = d = R0_gyro = parent_axis_seen = None
     best_p = parent
     if parent is None:
         fit = _axis_fit(sig, j, c, None)
@@ -1003,6 +1008,9 @@ def _one_imu(
         om = np.einsum("tij,tj->ti", rotation_about(u, -q), om) + u * qd[:, None]
         rank = round(float(np.trace(fit.span)))  # type: ignore[arg-type]
         p_axis = np.linalg.eigh(fit.span)[1][:, -1]  # type: ignore[arg-type]
+        if rank == 1:
+            seen = fit.H @ p_axis  # type: ignore[operator]
+            parent_axis_seen = seen / max(float(np.linalg.norm(seen)), 1e-12)
         noise_var = math.radians(fit.std_deg) ** 2 / 2.0
         lever = _lever_child(sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis, opts, noise_var)
         R0, d, R0_gyro = lever.M0, lever.d, lever.M0_gyro
@@ -1039,6 +1047,7 @@ def _one_imu(
             gyro_axis=fit.axis,
             gyro_axis_std_deg=fit.std_deg,
             gyro_axis_in_parent=None if R0_gyro is None else R0_gyro.T @ fit.axis,
+            gyro_parent_axis=parent_axis_seen,
         ),
         om,
     )

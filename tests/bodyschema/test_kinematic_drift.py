@@ -1,9 +1,11 @@
 """Geometry drift (:mod:`bodyschema.kinematic_drift`): an IMU turned or slid on its link, a bent axis.
 
 A random five-joint tree (j2 hangs under j1 and carries imu2 and imu3; imu1 rides j1) is recorded
-twice on the realistic sensing preset with different motion, once healthy and once with one edit to
-its model. Ideal IMUs: a real IMU keeps its own misalignment from run to run, which the simulator
-would otherwise redraw.
+twice on the realistic sensing preset with different motion, once healthy and once with one damage of
+the simulators' drift catalog. First with ideal IMUs, then with MPU-6050 IMUs whose errors are drawn
+once (``imu_seed``) and kept across the two runs, as a real IMU keeps its misalignment from run to
+run: a turned IMU or a bent axis of 2° must be found, the same body with other motion must give
+nothing.
 """
 
 from __future__ import annotations
@@ -59,5 +61,40 @@ def test_slid_imu(baseline: Kinematics) -> None:
 
 def test_bent_axis(baseline: Kinematics) -> None:
     found = kinematic_findings(baseline, learn(seed=5, damage=BEND))
+    assert ("axis_changed", "j2") in kinds(found)
+    assert not any(f.kind == "imu_rotated" for f in found)
+
+
+def learn_mpu(seed: int, damage: tuple[str, dict[str, Any]] | None = None) -> Kinematics:
+    """:func:`learn` with MPU-6050 IMUs, their errors drawn from one seed for every run."""
+    robot = random_robot(np.random.default_rng(3), 5, rate=1000.0)
+    case = record(robot, 20.0, seed=seed, damage=damage, imu_seed=11)
+    return estimate_kinematics(case.rec, truth_topology(case.rec))
+
+
+@pytest.fixture(scope="module")
+def mpu_baseline() -> Kinematics:
+    return learn_mpu(seed=1)
+
+
+def test_mpu6050_same_body_other_motion_gives_nothing(mpu_baseline: Kinematics) -> None:
+    assert kinematic_findings(mpu_baseline, learn_mpu(seed=5)) == ()
+
+
+def test_mpu6050_imu_turned_two_degrees(mpu_baseline: Kinematics) -> None:
+    from simulators.kinematics_truth import kinematics_truth
+
+    u = kinematics_truth(random_robot(np.random.default_rng(3), 5, rate=1000.0))["imu2"].axis
+    about = np.cross(u, [1.0, 0.0, 0.0])  # a turn that moves the axis seen from the IMU by all of it
+    turn = ("imu_rotated", {"imu": "imu2", "angle_deg": 2.0, "about": about})
+    found = kinematic_findings(mpu_baseline, learn_mpu(seed=5, damage=turn))
+    assert kinds(found) == [("imu_rotated", "imu2")]
+    assert "turned 2.0" in found[0].detail or "turned 1.9" in found[0].detail
+
+
+def test_mpu6050_axis_bent_two_degrees(mpu_baseline: Kinematics) -> None:
+    found = kinematic_findings(
+        mpu_baseline, learn_mpu(seed=5, damage=("axis_changed", {"joint": "j2", "angle_deg": 2.0}))
+    )
     assert ("axis_changed", "j2") in kinds(found)
     assert not any(f.kind == "imu_rotated" for f in found)

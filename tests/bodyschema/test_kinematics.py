@@ -43,10 +43,12 @@ def record(
     imu_model: str = "mpu6050",
     lock: str = "",
     damage: tuple[str, dict[str, Any]] | None = None,
+    imu_seed: int | None = None,
 ) -> Case:
     """``seconds`` of ``robot`` at 1 kHz physics, then the ``robot`` sensing preset; ``damage`` (a kind of
-    :mod:`simulators.damage` and its arguments) is applied first."""
-    sim = Simulation(robot, seed=seed, rate=1000.0, imu_model=imu_model)
+    :mod:`simulators.damage` and its arguments) is applied first; ``imu_seed`` keeps the IMUs' errors
+    from one run to the next."""
+    sim = Simulation(robot, seed=seed, rate=1000.0, imu_model=imu_model, imu_seed=imu_seed)
     if lock:
         sim.apply_damage("joint_locked", joint=lock)
     if damage is not None:
