@@ -64,12 +64,13 @@ fit is the heteroscedasticity-and-autocorrelation-consistent (Newey-West) sandwi
 window as long as the band's correlation time. ``axis_std_deg`` is the RMS angular error of ``u``: noise
 and what remains of the gyro's lean after the fusion; ``gyro_axis_std_deg`` is the noise of the gyro's
 reading alone (its lean is the same in every recording of one IMU, which is what drift compares).
-``lever_arm_std_m`` is the RMS error of ``r``. Model errors are not in them: on simulated robots,
+``lever_arm_std_m`` is the RMS error of ``r``. Model errors are not in them: on simulated robots some
+accelerometer-decided leans are off by several stds, consistently across windows, most likely because
 MuJoCo's implicit integrator makes the accelerometer report slightly different accelerations than the
-joints move by, which leans the axes of IMUs whose joints turn gravity little by more than their std
-(``bodyhealth bench kinematics`` reports the share within two stds). An
-answer is ``converged`` when the joint moved enough, the axis gain is plausible and both stds (the
-gyro's noise and the lever arm's) are within :class:`KinematicsOptions` bounds.
+joints move by (with RK4, within 1 to 2 stds on the robot checked); ``bodyhealth bench kinematics``
+reports the share of axes within two stds. An answer is ``converged`` when the joint moved enough, the
+axis gain is plausible and both stds (the gyro's noise and the lever arm's) are within
+:class:`KinematicsOptions` bounds.
 
 Example
 -------
@@ -164,8 +165,8 @@ class ImuKinematics:
     in ``parent_imu``'s frame (m); ``up_at_zero`` (root joints) the specific force at ``q = 0``, which
     gives the link's tilt. ``reason`` says why an answer is not converged.
 
-    ``gyro_axis`` is the axis as the gyro reports it (its sensitivity matrix leans it by up to about a
-    degree) and ``gyro_axis_in_parent`` that axis through the gyro-fixed rotation from the parent; with
+    ``gyro_axis`` is the axis as the gyro reports it (its sensitivity matrix leans it by up to about 2°)
+    and ``gyro_axis_in_parent`` that axis through the gyro-fixed rotation from the parent; with
     ``gyro_axis_std_deg`` (noise only) they are what :mod:`bodyschema.kinematic_drift` compares: the
     lean is the same in every recording of the same IMU, so a change beyond the noise is the body's.
     Where the parent link turns about one axis only, the gyro fixes ``R0`` on that axis and the turn
