@@ -24,9 +24,10 @@ DAMAGE_KINDS: tuple[str, ...] = (
     "joint_reparented",
     "link_lost",
 )
-#: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift`). Not yet damage: the
+#: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift` finds the first three;
+#: ``backlash``, a dead band between encoder and link, is the simulators' so far). Not yet damage: the
 #: service's alerts and damage API know only :data:`DAMAGE_KINDS`.
-KINEMATIC_KINDS: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed")
+KINEMATIC_KINDS: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed", "backlash")
 FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation", *KINEMATIC_KINDS)
 
 

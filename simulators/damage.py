@@ -21,7 +21,9 @@ each with its magnitude (:data:`DRIFT_DAMAGES`):
 * ``imu_shifted``   the IMU slides on its link by ``meters``, perpendicular to its joint's axis (a slide
   along the axis moves nothing a recording can see);
 * ``axis_changed``  the joint's axis bends by ``angle_deg`` towards a random perpendicular (a bent link,
-  a loose bearing).
+  a loose bearing);
+* ``backlash``      a dead band of ``deg`` between the motor, whose encoder is read, and the link the
+  IMUs ride: the encoder leads the link by half of it in the direction of motion.
 
 Every call returns a :class:`bodyschema.findings.Diff` with one finding; omitted arguments are picked
 with the simulation's damage generator (seeded, reproducible).
@@ -62,7 +64,7 @@ DAMAGES: tuple[str, ...] = (
 )
 
 #: Geometry drift: the topology stays, the kinematics change (see the module docstring).
-DRIFT_DAMAGES: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed")
+DRIFT_DAMAGES: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed", "backlash")
 
 
 class DamageTarget(Protocol):
@@ -80,7 +82,7 @@ class DamageTarget(Protocol):
     locked: set[str]
     #: Joints whose link broke off so far.
     lost: set[str]
-    #: Encoder faults so far: joint -> (``stuck`` or ``offset``, value).
+    #: Encoder faults so far: joint -> (``stuck``, ``offset`` or ``backlash``, value).
     encoder_faults: dict[str, tuple[str, float]]
 
     def sync(self) -> None:
@@ -326,6 +328,16 @@ def _axis_changed(sim: DamageTarget, joint: str | None = None, angle_deg: float 
     return Finding(kind="axis_changed", joint=joint, detail=f"bent {angle_deg:g} deg")
 
 
+def _backlash(sim: DamageTarget, joint: str | None = None, deg: float = 1.0) -> Finding:
+    r = sim.robot
+    _check(joint, r.joint_names, "joint")
+    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.encoder_faults], "joint")
+    if not float(deg) > 0.0:
+        raise ValueError("backlash deg must be positive")
+    sim.encoder_faults[joint] = ("backlash", float(np.radians(float(deg))))
+    return Finding(kind="backlash", joint=joint, detail=f"dead band {float(deg):g} deg")
+
+
 _HANDLERS = {
     "imu_moved": _imu_moved,
     "imu_detached": _imu_detached,
@@ -336,6 +348,7 @@ _HANDLERS = {
     "imu_rotated": _imu_rotated,
     "imu_shifted": _imu_shifted,
     "axis_changed": _axis_changed,
+    "backlash": _backlash,
 }
 
 

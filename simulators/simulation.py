@@ -89,6 +89,7 @@ class Simulation:
         self.damage_rng = np.random.default_rng(dmg_ss)
         self.excitation = make_excitation(excitation).bind(self.robot, np.random.default_rng(exc_ss))
         self.encoder_faults: dict[str, tuple[str, float]] = {}
+        self._backlash_side: dict[str, float] = {}
         self.locked: set[str] = set()
         self.lost: set[str] = set()
         self.findings: list[Finding] = []
@@ -213,10 +214,30 @@ class Simulation:
                     q[:, j] = value
                     qd[:, j] = 0.0
                     qdd[:, j] = 0.0
+                elif mode == "backlash":
+                    q[:, j] += 0.5 * value * self._motor_side(joint, s.qd[:, j])
                 else:
                     q[:, j] += value
         self._samples += n
         return {"t": t, "q": q, "qd": qd, "qdd": qdd, "acc": acc, "gyro": gyro, "qd_body": s.qd}
+
+    def _motor_side(self, joint: str, qd: np.ndarray) -> np.ndarray:
+        """Backlash: the side of the dead band the motor (and its encoder) is on, +1 or -1 per sample.
+
+        The motor drives the link through the gap, so while the link moves the motor leads it by half
+        the gap in the direction of motion; when the link rests the motor stays where it was. (The
+        simulated link does not wait while the motor crosses the gap at a reversal: the encoder jumps
+        by the gap there, the dead band as the IMU sees it.) The side carries over between chunks.
+        """
+        moving = np.abs(qd) > 1e-3
+        side = np.where(moving, np.sign(qd), 0.0)
+        last = self._backlash_side.get(joint, 1.0)
+        idx = np.where(moving, np.arange(len(qd)), -1)
+        np.maximum.accumulate(idx, out=idx)
+        out = np.where(idx >= 0, side[np.maximum(idx, 0)], last)
+        if len(out):
+            self._backlash_side[joint] = float(out[-1])
+        return out
 
     # ------------------------------------------------------------------ read-ahead
     def _buffered(self) -> int:

@@ -200,3 +200,22 @@ def test_drift_damages_change_the_geometry_by_their_magnitude(angle_deg: float, 
     assert axis_error_deg(bent, world) == pytest.approx(angle_deg, abs=0.5)
     assert [f.kind for f in sim.findings] == ["imu_rotated", "imu_shifted", "axis_changed"]
     assert diff.findings[0].joint == "j3" and "bent" in diff.findings[0].detail
+
+
+def test_backlash_encoder_leads_the_link_by_half_the_dead_band(seed: int) -> None:
+    """``backlash``: the body moves as before; the encoder is half the dead band ahead of the link in the
+    direction of motion, on both sides of every reversal, and keeps its side across chunks."""
+    healthy = _sim(seed).advance(400)
+    sim = _sim(seed)
+    diff = sim.apply_damage("backlash", joint="j3", deg=2.0)
+    first, second = sim.advance(200), sim.advance(200)
+    j = first.joint_names.index("j3")
+    assert np.allclose(np.concatenate([first.gyro, second.gyro]), healthy.gyro)  # the body is the same
+    lead = np.concatenate([first.q[:, j], second.q[:, j]]) - healthy.q[:, j]
+    assert np.allclose(np.abs(lead), np.radians(1.0))
+    moving = np.abs(healthy.qd[:, j]) > 0.01
+    assert np.array_equal(np.sign(lead[moving]), np.sign(healthy.qd[moving, j]))
+    assert set(np.sign(lead).tolist()) == {-1.0, 1.0}  # the joint reversed in the run
+    others = [i for i in range(healthy.q.shape[1]) if i != j]
+    assert np.array_equal(first.q[:, others], healthy.q[:200, others])
+    assert diff.findings[0].kind == "backlash" and diff.findings[0].joint == "j3"
