@@ -128,6 +128,18 @@ def _check(name: str | None, known: tuple[str, ...], what: str) -> None:
         raise ValueError(f"unknown {what} {name!r}")
 
 
+def _the_imu(sim: DamageTarget, imu: str | None) -> str:
+    """``imu`` checked, or an attached live IMU picked by the damage generator."""
+    _check(imu, sim.robot.imu_names, "IMU")
+    return imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+
+
+def _the_joint(sim: DamageTarget, joint: str | None, options: list[str]) -> str:
+    """``joint`` checked, or one of ``options`` picked by the damage generator."""
+    _check(joint, sim.robot.joint_names, "joint")
+    return joint or _pick(sim.damage_rng, options, "joint")
+
+
 def _joint_body(sim: DamageTarget, joint: str | None) -> str:
     m = sim.robot.model
     if joint is None:
@@ -163,8 +175,7 @@ def _move_site(sim: DamageTarget, imu: str, body: str, pos: np.ndarray, quat: np
 
 def _imu_moved(sim: DamageTarget, imu: str | None = None, to: str | None = None) -> Finding:
     r = sim.robot
-    _check(imu, r.imu_names, "IMU")
-    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    imu = _the_imu(sim, imu)
     src = _imu_joint(sim, imu)
     if "to" not in sim.last_kwargs:
         to = _pick(sim.damage_rng, [j for j in r.joint_names if j != src], "joint")
@@ -184,8 +195,7 @@ def _imu_moved(sim: DamageTarget, imu: str | None = None, to: str | None = None)
 
 def _imu_detached(sim: DamageTarget, imu: str | None = None, tether: float = 0.05) -> Finding:
     r = sim.robot
-    _check(imu, r.imu_names, "IMU")
-    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    imu = _the_imu(sim, imu)
     src = _imu_joint(sim, imu)
     m = r.model
     sid = m.site(imu).id
@@ -210,8 +220,7 @@ def _imu_detached(sim: DamageTarget, imu: str | None = None, tether: float = 0.0
 
 def _imu_dead(sim: DamageTarget, imu: str | None = None, mode: str = "frozen") -> Finding:
     r = sim.robot
-    _check(imu, r.imu_names, "IMU")
-    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    imu = _the_imu(sim, imu)
     sim.stream.kill(r.imu_names.index(imu), mode)
     return Finding(kind="imu_dead", imu=imu, from_=_imu_joint(sim, imu), detail=mode)
 
@@ -222,8 +231,7 @@ def _movable_joints(sim: DamageTarget) -> list[str]:
 
 def _joint_locked(sim: DamageTarget, joint: str | None = None) -> Finding:
     r = sim.robot
-    _check(joint, r.joint_names, "joint")
-    joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
+    joint = _the_joint(sim, joint, _movable_joints(sim))
     q = float(r.q()[r.joint_names.index(joint)])
     data = [q] + [0.0] * 11
     r.spec.add_equality(
@@ -246,8 +254,7 @@ def _encoder_fault(
     sim: DamageTarget, joint: str | None = None, mode: str = "stuck", value: float = 0.3
 ) -> Finding:
     r = sim.robot
-    _check(joint, r.joint_names, "joint")
-    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.encoder_faults], "joint")
+    joint = _the_joint(sim, joint, [j for j in r.joint_names if j not in sim.encoder_faults])
     if mode == "stuck":
         value = float(r.q()[r.joint_names.index(joint)])
         detail = f"stuck at {value:.3f} rad"
@@ -261,8 +268,7 @@ def _encoder_fault(
 
 def _link_lost(sim: DamageTarget, joint: str | None = None) -> Finding:
     r = sim.robot
-    _check(joint, r.joint_names, "joint")
-    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.lost], "joint")
+    joint = _the_joint(sim, joint, [j for j in r.joint_names if j not in sim.lost])
     body = _joint_body(sim, joint)
     r.spec.body(body).add_joint(
         name=f"{LOOSE_PREFIX}{joint}", type=mujoco.mjtJoint.mjJNT_BALL, damping=0.01, armature=1e-4
@@ -286,8 +292,7 @@ def _imu_rotated(
     sim: DamageTarget, imu: str | None = None, angle_deg: float = 2.0, about: Any = None
 ) -> Finding:
     r = sim.robot
-    _check(imu, r.imu_names, "IMU")
-    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    imu = _the_imu(sim, imu)
     site = r.spec.site(imu)
     turn, quat = np.empty(4), np.empty(4)
     axis = _perpendicular(sim.damage_rng, None) if about is None else np.asarray(about, dtype=float)
@@ -301,8 +306,7 @@ def _imu_rotated(
 
 def _imu_shifted(sim: DamageTarget, imu: str | None = None, meters: float = 0.005) -> Finding:
     r = sim.robot
-    _check(imu, r.imu_names, "IMU")
-    imu = imu or _pick(sim.damage_rng, _attached_imus(sim), "IMU")
+    imu = _the_imu(sim, imu)
     joint = _imu_joint(sim, imu)
     m = r.model
     axis = None
@@ -316,8 +320,7 @@ def _imu_shifted(sim: DamageTarget, imu: str | None = None, meters: float = 0.00
 
 def _axis_changed(sim: DamageTarget, joint: str | None = None, angle_deg: float = 2.0) -> Finding:
     r = sim.robot
-    _check(joint, r.joint_names, "joint")
-    joint = joint or _pick(sim.damage_rng, _movable_joints(sim), "joint")
+    joint = _the_joint(sim, joint, _movable_joints(sim))
     spec_joint = r.spec.joint(joint)
     a = np.asarray(spec_joint.axis, dtype=float)
     a /= np.linalg.norm(a)
@@ -330,8 +333,7 @@ def _axis_changed(sim: DamageTarget, joint: str | None = None, angle_deg: float 
 
 def _backlash(sim: DamageTarget, joint: str | None = None, deg: float = 1.0) -> Finding:
     r = sim.robot
-    _check(joint, r.joint_names, "joint")
-    joint = joint or _pick(sim.damage_rng, [j for j in r.joint_names if j not in sim.encoder_faults], "joint")
+    joint = _the_joint(sim, joint, [j for j in r.joint_names if j not in sim.encoder_faults])
     if not float(deg) > 0.0:
         raise ValueError("backlash deg must be positive")
     sim.encoder_faults[joint] = ("backlash", float(np.radians(float(deg))))
