@@ -6,23 +6,28 @@ or slid on its own link, or a joint whose axis bent, keeps the topology and show
 ``gyro_axis_in_parent``, with their noise-only standard deviations): a gyro's misalignment leans them,
 but it belongs to the sensor, not to the run, so it cancels between two estimates from the same
 sensors, where the accelerometer-frame axis moves with how much each recording's motion let the
-accelerometers decide. A change is reported when it exceeds ``sigmas`` combined standard deviations
-plus a small floor:
+accelerometers decide. (Each reading comes from the IMU's gyro regressed on its parent's gyro as that
+reads: regressed on the parent's motion rebuilt down the tree, the axis in the parent's frame moved by
+up to 14° between two 30 s windows of a healthy UR5e.) A change is reported when it exceeds ``sigmas``
+combined standard deviations plus a small floor:
 
 * ``axis_changed`` — a joint's axis seen from its parent IMU turned (``θ > sigmas √(σ₁² + σ₂²) +
-  floor``, with twice the variance: both IMUs' errors enter), and that parent IMU was not itself found
-  turned. Where the parent link turns about one axis only, the gyros fix the joint's axis against
-  that axis but not its turn about it (the accelerometers' part, which moves with the motion by more
-  than its noise): then ``θ`` is the change of the angle between the two axes, and a bend about the
-  parent's axis reads as ``imu_rotated``, which says so;
+  floor``, with the stds of the axis in the parent's frame, which carry the error of the gyro-fixed
+  rotation as well as the axis's), and that parent IMU was not itself found turned. Where the parent
+  link turns about one axis only, the gyros fix the joint's axis against that axis but not its turn
+  about it (the accelerometers' part, which moves with the motion by more than its noise): then ``θ``
+  is the change of the angle between the two axes (its limit with twice the variance: both IMUs' axis
+  errors enter), and a bend about the parent's axis reads as ``imu_rotated``, which says so. Also
+  when every IMU on the joint's link (two or more) sees the axis turn: several mounts knocked alike
+  at once are far less likely than a bent link. The IMUs' own turns are then the bend's;
 * ``imu_rotated`` — otherwise, the axis seen from the IMU turned: the IMU turned on its link (a turned
-  child IMU leaves the axis in the *parent's* frame as it was). Under a root joint nothing tells the two
-  apart, and the finding says so;
+  child IMU leaves the axis in the *parent's* frame as it was). Under a root joint with one IMU on its
+  link nothing tells the two apart, and the finding says so;
 * ``imu_shifted`` — the lever arm changed by more than its combined std plus a floor (for an IMU that
   also turned, only its length is compared: a turn alone rotates the vector, not its length).
 
-Only IMUs that converged in both estimates on the same joint are compared; an IMU on another joint is
-the topology diff's ``imu_moved``.
+Only IMUs whose axis converged in both estimates on the same joint are compared, and their lever
+arms only where those converged too; an IMU on another joint is the topology diff's ``imu_moved``.
 
 Example
 -------
@@ -69,23 +74,25 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _both(a: ImuKinematics | None, b: ImuKinematics | None) -> bool:
+    """Both estimates found the IMU's axis (its lever arm may still be loose) on the same joint."""
     return (
         a is not None
         and b is not None
-        and a.converged
-        and b.converged
+        and (a.converged or a.axis_converged)
+        and (b.converged or b.axis_converged)
         and a.joint == b.joint
         and a.axis is not None
         and b.axis is not None
     )
 
 
-def _reading(k: ImuKinematics) -> tuple[np.ndarray, float, np.ndarray | None]:
-    """The axis, its std and the axis in the parent's frame as the gyro reports them (module docstring);
-    an estimate without them (built by hand) stands for itself."""
+def _reading(k: ImuKinematics) -> tuple[np.ndarray, float, np.ndarray | None, float]:
+    """The axis, its std, the axis in the parent's frame and that one's std as the gyro reports them
+    (module docstring); an estimate without them (built by hand) stands for itself, with twice the
+    axis's variance for the axis in the parent's frame (both IMUs' errors enter it)."""
     if k.gyro_axis is None:
-        return k.axis, k.axis_std_deg, k.axis_in_parent  # type: ignore[return-value]
-    return k.gyro_axis, k.gyro_axis_std_deg, k.gyro_axis_in_parent
+        return k.axis, k.axis_std_deg, k.axis_in_parent, math.sqrt(2.0) * k.axis_std_deg  # type: ignore[return-value]
+    return k.gyro_axis, k.gyro_axis_std_deg, k.gyro_axis_in_parent, k.gyro_axis_in_parent_std_deg
 
 
 def _between(axis: np.ndarray, parent_axis: np.ndarray) -> float:
@@ -100,85 +107,139 @@ def _confidence(change: float, limit: float) -> float:
     return round(1.0 - 0.5 * limit / max(change, limit), 4)
 
 
+@dataclass(frozen=True)
+class _Seen:
+    """One IMU's two readings of its joint: the turn of the axis seen from it and of the axis in its
+    parent's frame (None: not judged there), each with its limit."""
+
+    old: ImuKinematics
+    new: ImuKinematics
+    turn: float
+    limit: float
+    turn_p: float | None
+    limit_p: float
+    one_axis: bool
+
+
+def _seen(old: ImuKinematics, new: ImuKinematics, rotated: set[str], o: DriftOptions) -> _Seen:
+    (old_axis, old_std, old_in_p, old_p_std), (new_axis, new_std, new_in_p, new_p_std) = (
+        _reading(old),
+        _reading(new),
+    )
+    p = old.parent_imu
+    judged = p is not None and p == new.parent_imu and p not in rotated
+    one_axis = old.gyro_parent_axis is not None and new.gyro_parent_axis is not None
+    turn_p: float | None = None
+    limit_p = math.inf
+    if judged and one_axis:  # the parent turns about one axis: only the angle to it is the gyro's
+        turn_p = abs(
+            _between(old_axis, old.gyro_parent_axis)  # type: ignore[arg-type]
+            - _between(new_axis, new.gyro_parent_axis)  # type: ignore[arg-type]
+        )
+        # both IMUs' axis errors enter the angle: twice the variance
+        limit_p = o.sigmas * math.sqrt(2) * math.hypot(old_std, new_std) + o.floor_deg
+    elif judged and old_in_p is not None and new_in_p is not None:
+        turn_p = _angle(old_in_p, new_in_p)
+        limit_p = o.sigmas * math.hypot(old_p_std, new_p_std) + o.floor_deg
+    return _Seen(
+        old=old,
+        new=new,
+        turn=_angle(old_axis, new_axis),
+        limit=o.sigmas * math.hypot(old_std, new_std) + o.floor_deg,
+        turn_p=turn_p,
+        limit_p=limit_p,
+        one_axis=one_axis,
+    )
+
+
 def kinematic_findings(
     baseline: Kinematics, current: Kinematics, options: DriftOptions | None = None
 ) -> tuple[Finding, ...]:
     """``imu_rotated``, ``imu_shifted`` and ``axis_changed`` findings from ``baseline`` to ``current``.
 
-    Joints are visited parents first, so a parent IMU found turned is known before its children's axes
-    are judged in its frame.
+    Per joint: its axis bent when the axis in the parent's frame turned as one of its IMUs sees it, or
+    when every IMU on its link (two or more) sees the axis turn (a knock that turns several mounts
+    the same way at once is far less likely than a bent link); the IMUs' own turns are then the bend's
+    and are not reported again. Otherwise each IMU whose axis turned is ``imu_rotated``. Joints are
+    visited parents first, so a parent IMU found turned is known before its children's axes are judged
+    in its frame.
     """
     o = options or DriftOptions()
     out: list[Finding] = []
     rotated: set[str] = set()
     for jn, joint in baseline.joints.items():
-        bent = False
-        for name in joint.imus:
-            old, new = baseline.imus.get(name), current.imus.get(name)
-            if not _both(old, new):
-                continue
-            assert old is not None and new is not None
-            (old_axis, old_std, old_in_p), (new_axis, new_std, new_in_p) = _reading(old), _reading(new)
-            limit = o.sigmas * math.hypot(old_std, new_std) + o.floor_deg
-            p = old.parent_imu
-            judged = p is not None and p == new.parent_imu and p not in rotated
-            one_axis = old.gyro_parent_axis is not None and new.gyro_parent_axis is not None
-            if judged and (one_axis or (old_in_p is not None and new_in_p is not None)):
-                # both IMUs' axis errors and the rotation between them: twice the variance
-                if one_axis:  # the parent turns about one axis: only the angle to it is the gyro's
-                    turn_p = abs(
-                        _between(old_axis, old.gyro_parent_axis)  # type: ignore[arg-type]
-                        - _between(new_axis, new.gyro_parent_axis)  # type: ignore[arg-type]
-                    )
-                else:
-                    turn_p = _angle(old_in_p, new_in_p)  # type: ignore[arg-type]
-                limit_p = o.sigmas * math.sqrt(2) * math.hypot(old_std, new_std) + o.floor_deg
-                if turn_p > limit_p:
-                    if not bent:
-                        out.append(
-                            Finding(
-                                kind="axis_changed",
-                                joint=jn,
-                                confidence=_confidence(turn_p, limit_p),
-                                detail=(
-                                    f"axis's angle to the axis {p}'s link turns about changed"
-                                    if one_axis
-                                    else f"axis in {p}'s frame turned"
-                                )
-                                + f" {turn_p:.2f} deg (limit {limit_p:.2f})",
-                            )
-                        )
-                    bent = True
-                    continue
-            turn = _angle(old_axis, new_axis)
-            if turn > limit:
-                rotated.add(name)
-                where = (
-                    " (a root joint: its axis bending would read the same)"
-                    if p is None
-                    else " (its parent link turns about one axis: the joint's axis bending about that axis "
-                    "would read the same)"
-                    if one_axis
-                    else ""
-                )
-                out.append(
-                    Finding(
-                        kind="imu_rotated",
-                        imu=name,
-                        joint=jn,
-                        confidence=_confidence(turn, limit),
-                        detail=f"axis seen from {name} turned {turn:.2f} deg (limit {limit:.2f}){where}",
-                    )
-                )
-            shifted = _shifted(old, new, name in rotated, o)
+        seen = [
+            _seen(old, new, rotated, o)
+            for name in joint.imus
+            if _both(old := baseline.imus.get(name), new := current.imus.get(name))
+        ]
+        bend = [x for x in seen if x.turn_p is not None and x.turn_p > x.limit_p]
+        every = len(seen) >= 2 and all(x.turn > x.limit for x in seen)
+        if bend or every:
+            out.append(_bent(jn, bend, seen))
+        for x in seen:
+            turned = x.turn > x.limit
+            if turned and not (bend or every):
+                rotated.add(x.old.imu)
+                out.append(_rotated(jn, x))
+            shifted = _shifted(x.old, x.new, turned, o)
             if shifted is not None:
                 out.append(shifted)
     return tuple(out)
 
 
+def _bent(jn: str, bend: list[_Seen], seen: list[_Seen]) -> Finding:
+    """``axis_changed`` of joint ``jn``: from the parent's frame (``bend``), else from all its IMUs."""
+    if bend:
+        x = max(bend, key=lambda b: b.turn_p / b.limit_p)  # type: ignore[operator]
+        assert x.turn_p is not None
+        p = x.old.parent_imu
+        what = (
+            f"axis's angle to the axis {p}'s link turns about changed"
+            if x.one_axis
+            else f"axis in {p}'s frame turned"
+        )
+        return Finding(
+            kind="axis_changed",
+            joint=jn,
+            confidence=_confidence(x.turn_p, x.limit_p),
+            detail=f"{what} {x.turn_p:.2f} deg (limit {x.limit_p:.2f})",
+        )
+    lo, hi = min(x.turn for x in seen), max(x.turn for x in seen)
+    return Finding(
+        kind="axis_changed",
+        joint=jn,
+        confidence=min(_confidence(x.turn, x.limit) for x in seen),
+        detail=(
+            f"axis seen from all {len(seen)} IMUs on its link turned {lo:.2f} to {hi:.2f} deg "
+            f"(limits {max(x.limit for x in seen):.2f} at most): a bend, or every mount turned alike"
+        ),
+    )
+
+
+def _rotated(jn: str, x: _Seen) -> Finding:
+    """``imu_rotated`` of the IMU of ``x``."""
+    p = x.old.parent_imu
+    where = (
+        " (a root joint: its axis bending would read the same)"
+        if p is None
+        else " (its parent link turns about one axis: the joint's axis bending about that axis "
+        "would read the same)"
+        if x.one_axis
+        else ""
+    )
+    return Finding(
+        kind="imu_rotated",
+        imu=x.old.imu,
+        joint=jn,
+        confidence=_confidence(x.turn, x.limit),
+        detail=f"axis seen from {x.old.imu} turned {x.turn:.2f} deg (limit {x.limit:.2f}){where}",
+    )
+
+
 def _shifted(old: ImuKinematics, new: ImuKinematics, turned: bool, o: DriftOptions) -> Finding | None:
     """``imu_shifted`` when the lever arm changed beyond its uncertainty (its length only, if turned)."""
-    if old.lever_arm is None or new.lever_arm is None:
+    if old.lever_arm is None or new.lever_arm is None or not (old.converged and new.converged):
         return None
     if turned:
         shift = abs(float(np.linalg.norm(new.lever_arm) - np.linalg.norm(old.lever_arm)))

@@ -98,3 +98,58 @@ def test_mpu6050_axis_bent_two_degrees(mpu_baseline: Kinematics) -> None:
     )
     assert ("axis_changed", "j2") in kinds(found)
     assert not any(f.kind == "imu_rotated" for f in found)
+
+
+def test_findings_survive_the_json_round_trip(mpu_baseline: Kinematics) -> None:
+    """What the service keeps (the kinematics JSON) judges as the estimate itself did."""
+    bent = learn_mpu(seed=5, damage=("axis_changed", {"joint": "j2", "angle_deg": 2.0}))
+    topo = mpu_baseline.topology
+    back = Kinematics.from_json(mpu_baseline.to_json(), topo)
+    assert kinds(kinematic_findings(back, Kinematics.from_json(bent.to_json(), topo))) == kinds(
+        kinematic_findings(mpu_baseline, bent)
+    )
+    assert kinematic_findings(back, mpu_baseline) == ()
+
+
+def _two_on_a_link(turn_a: float, turn_b: float) -> tuple[Kinematics, Kinematics]:
+    """j2 under j1, with imu1 on j1's link and imu2, imu3 on j2's; the axis seen from imu2 and imu3
+    turned by ``turn_a`` and ``turn_b`` degrees (axis std 0.05°, limit 0.55°), nothing in the parent's
+    frame to judge a bend by."""
+    from bodyschema.kinematics import ImuKinematics, JointKinematics
+    from bodyschema.topology import Topology
+
+    topo = Topology({"j1": None, "j2": "j1"}, {"imu1": "j1", "imu2": "j2", "imu3": "j2"})
+
+    def kin(a: float, b: float) -> Kinematics:
+        def imu(name: str, joint: str, parent: str | None, deg: float) -> ImuKinematics:
+            t = np.radians(deg)
+            return ImuKinematics(
+                name,
+                joint,
+                parent,
+                axis=np.array([0.0, np.sin(t), np.cos(t)]),
+                axis_std_deg=0.05,
+                converged=True,
+            )
+
+        imus = {
+            "imu1": imu("imu1", "j1", None, 0.0),
+            "imu2": imu("imu2", "j2", "imu1", a),
+            "imu3": imu("imu3", "j2", "imu1", b),
+        }
+        joints = {
+            "j1": JointKinematics("j1", None, ("imu1",), "imu1"),
+            "j2": JointKinematics("j2", "j1", ("imu2", "imu3"), "imu2"),
+        }
+        return Kinematics(imus, joints, (), 10.0, 0.0, 100, topo)
+
+    return kin(0.0, 0.0), kin(turn_a, turn_b)
+
+
+def test_every_imu_on_a_link_turned_is_a_bend_and_one_is_a_turned_mount() -> None:
+    base, both = _two_on_a_link(2.0, 2.0)
+    found = kinematic_findings(base, both)
+    assert kinds(found) == [("axis_changed", "j2")]
+    assert "all 2 IMUs" in found[0].detail and "2.00 to 2.00 deg" in found[0].detail
+    assert kinds(kinematic_findings(*_two_on_a_link(2.0, 0.0))) == [("imu_rotated", "imu2")]
+    assert kinematic_findings(*_two_on_a_link(0.5, 0.5)) == ()  # under 5 std + 0.2° floor (0.55°)
