@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["DAMAGE_KINDS", "FINDING_KINDS", "KINEMATIC_KINDS", "Diff", "Finding"]
+__all__ = ["ALERT_KINDS", "DAMAGE_KINDS", "FINDING_KINDS", "KINEMATIC_KINDS", "Diff", "Finding"]
 
 #: Kinds that are damage. ``insufficient_excitation`` is a finding but not a damage.
 DAMAGE_KINDS: tuple[str, ...] = (
@@ -25,10 +25,12 @@ DAMAGE_KINDS: tuple[str, ...] = (
     "link_lost",
 )
 #: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift` finds the first three;
-#: ``backlash``, a dead band between encoder and link, is the simulators' so far). Not yet damage: the
-#: service's alerts and damage API know only :data:`DAMAGE_KINDS`.
+#: ``backlash``, a dead band between encoder and link, is the simulators' so far). The simulated-damage
+#: API knows only :data:`DAMAGE_KINDS`.
 KINEMATIC_KINDS: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed", "backlash")
 FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation", *KINEMATIC_KINDS)
+#: Kinds the service raises as alerts: the topology's damages and the geometry drift found so far.
+ALERT_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, *KINEMATIC_KINDS[:3])
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ class Diff:
 
     @property
     def changed(self) -> bool | None:
-        if any(f.kind in DAMAGE_KINDS for f in self.findings):
+        if any(f.kind in ALERT_KINDS for f in self.findings):
             return True
         return None if self.reasons else False
 

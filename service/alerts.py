@@ -28,7 +28,7 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from bodyschema.findings import DAMAGE_KINDS, Finding
+from bodyschema.findings import ALERT_KINDS, Finding
 
 __all__ = ["AlertKey", "AlertTracker", "Transition"]
 
@@ -84,7 +84,7 @@ class AlertTracker:
         estimate): their tracks are left as they are instead of counting the cycle as "gone".
         """
         held = set(hold)
-        now = {(robot, f.kind, f.part): f for f in findings if f.kind in DAMAGE_KINDS}
+        now = {(robot, f.kind, f.part): f for f in findings if f.kind in ALERT_KINDS}
         out: list[Transition] = []
         with self._lock:
             for key, f in now.items():

@@ -102,6 +102,13 @@ class Settings(BaseSettings):
         description="retrain a robot's sensor networks at once when the fast method's diff against the "
         "baseline shows a new finding (needs network_interval_cycles > 0)",
     )
+    kinematics_interval_cycles: int = Field(
+        6,
+        ge=0,
+        description="estimate every robot's joint axes and IMU lever arms every N worker cycles (6 at "
+        "the default 5 s interval and 30 s window: each estimate on a window of its own) and compare "
+        "them with the geometry learned on its baseline (drift alerts); 0 = never",
+    )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")
     retrain_min_interval_seconds: float = Field(

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from bodyschema.diff import deciding_joints, diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
-from bodyschema.findings import DAMAGE_KINDS, Diff
+from bodyschema.findings import ALERT_KINDS, Diff
 from bodyschema.topology import Topology
 from service.store import AlertRecord, Store, TopologyRecord
 
@@ -215,7 +215,7 @@ def judge(
     if diff is not None and not ambiguous:
         # a difference already pending as an alert is reported once, above
         seen = {a.part for a in pending}
-        unconfirmed = [f for f in diff.findings if f.kind in DAMAGE_KINDS and f.part not in seen]
+        unconfirmed = [f for f in diff.findings if f.kind in ALERT_KINDS and f.part not in seen]
         if unconfirmed:
             reasons.append(
                 "the newest estimate differs from the baseline, not yet confirmed by the worker: "

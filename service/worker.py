@@ -25,7 +25,13 @@ One cycle, for every robot the store knows:
    newest network topology, learned from a window that ended at or after the cycle that first saw it,
    also shows a structural change of that part; until then its kind is held (neither raised nor
    cleared) and a network retrain is asked for; a network topology that shows no change there drops
-   it (:meth:`Worker._confirmed`);
+   it (:meth:`Worker._confirmed`). Every ``kinematics_interval_cycles`` cycles (staggered per robot),
+   when the diff holds no finding, the robot's geometry is estimated
+   (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
+   under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
+   with it (:func:`bodyschema.kinematic_drift.kinematic_findings`) and their ``imu_rotated``,
+   ``imu_shifted`` and ``axis_changed`` findings join the diff; in the cycles between, those kinds are
+   held (:meth:`Worker._drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The sensor-network methods run in another process when the worker is given a
@@ -44,6 +50,7 @@ import functools
 import logging
 import threading
 import time
+import zlib
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,7 +59,7 @@ from typing import Any
 import numpy as np
 
 from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
-from bodyschema.findings import Diff, Finding
+from bodyschema.findings import KINEMATIC_KINDS, Diff, Finding
 from bodyschema.health import (
     BaselineFingerprints,
     SignalHealth,
@@ -107,6 +114,8 @@ class CycleResult:
     diff: Diff | None = None
     baseline_set: bool = False
     transitions: list[Transition] = field(default_factory=list)
+    #: the cycle compared the robot's geometry with its baseline's (the drift findings are in ``diff``)
+    drift_judged: bool = False
 
 
 class Worker:
@@ -393,6 +402,12 @@ class Worker:
         if self.networks_on:
             res.diff, unconfirmed = self._confirmed(robot, res.diff, base.topology, window_end)
             hold = tuple(sorted({*hold, *unconfirmed}))
+        drift = self._drift(robot, rec, fast, base, res.diff, window_end)
+        if drift is None:
+            hold = tuple(sorted({*hold, *KINEMATIC_KINDS}))
+        else:
+            res.drift_judged = True
+            res.diff = Diff(findings=(*res.diff.findings, *drift), reasons=res.diff.reasons)
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
         for tr in res.transitions:
@@ -409,6 +424,41 @@ class Worker:
                 },
             )
         return res
+
+    def _drift(
+        self, robot: str, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff, window_end: float
+    ) -> tuple[Finding, ...] | None:
+        """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5);
+        None when this cycle does not judge it (not its turn, the body differs from the baseline, or
+        no geometry is kept yet: then this one is kept, once an IMU's axis converged).
+
+        Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a fleet's
+        estimates spread over the cycles; on the raw window (the estimate band-limits its signals, and
+        the impact removal's gaps would break its filters).
+        """
+        n = self.settings.kinematics_interval_cycles
+        if not n or (self.cycles + zlib.crc32(robot.encode())) % n:
+            return None
+        if diff.findings or is_ambiguous(fast):
+            return None  # another body, or one not decided: its geometry is not the baseline's
+        from bodyschema.kinematic_drift import kinematic_findings
+        from bodyschema.kinematics import Kinematics, KinematicsOptions, estimate_kinematics
+
+        t0 = time.perf_counter()
+        # drift compares what the gyros read: the accelerometer-frame refinement, a tenth of the cost
+        # on a 60-IMU robot, is left out
+        options = KinematicsOptions(accelerometer_frame=False)
+        kin = self.compute(estimate_kinematics, rec, fast, options)
+        self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
+        kept = self.store.kinematics_baseline(robot, base.id)
+        if kept is None:
+            if any(k.axis_converged for k in kin.imus.values()):
+                self.store.save_kinematics(
+                    robot, base.id, kin.to_json(), wall_time=self.clock(), window_end_t=window_end
+                )
+                log.info("geometry baseline kept", extra={"robot": robot, "baseline_id": base.id})
+            return None
+        return kinematic_findings(Kinematics.from_json(kept.data, base.topology), kin)
 
     @property
     def networks_on(self) -> bool:

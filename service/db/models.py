@@ -43,6 +43,7 @@ __all__ = [
     "Heartbeat",
     "Imu",
     "Joint",
+    "KinematicsRow",
     "NetworkWeightsRow",
     "Robot",
     "TopologyRow",
@@ -186,6 +187,22 @@ class NetworkWeightsRow(Base):
     imus: Mapped[list[str]]
     joints: Mapped[list[str]]
     data: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class KinematicsRow(Base):
+    """A robot's geometry (the kinematics JSON of docs/kinematics.md: joint axes, lever arms) as it was
+    when ``baseline_id`` was current: the reference drift alerts compare against
+    (:mod:`service.store.kinematics`)."""
+
+    __tablename__ = "kinematics"
+    __table_args__ = (Index("ix_kinematics_robot_baseline", "robot_id", "baseline_id"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    baseline_id: Mapped[int] = mapped_column(BigId)
+    wall_time: Mapped[float]
+    window_end_t: Mapped[float | None]
+    data: Mapped[dict[str, Any]]
 
 
 class Alert(Base):

@@ -20,6 +20,8 @@ layer. The schema is created and upgraded by the Alembic migrations only, and on
 :mod:`service.store.topologies` learned topologies, baselines, ``approve_baseline``
 :mod:`service.store.alerts`     alerts and their life cycle
 :mod:`service.store.heartbeats` components' last sign of life
+:mod:`service.store.weights`    trained network weights (warm starts)
+:mod:`service.store.kinematics` geometry baselines (drift alerts)
 =============================== ===========================================================
 
 Thread-safe: one writer at a time (a lock), any number of readers. Several processes may share one
@@ -51,6 +53,7 @@ from service.store.alerts import ALERT_STATES, AlertRecord, AlertsMixin, Unknown
 from service.store.chunks import build_chunks
 from service.store.frames import FramesMixin
 from service.store.heartbeats import HeartbeatsMixin
+from service.store.kinematics import KinematicsMixin, StoredKinematics
 from service.store.retention import RetentionMixin
 from service.store.robots import RobotInfo, RobotLimitReached, UnknownRobot
 from service.store.schema import SchemaMismatch
@@ -65,6 +68,7 @@ __all__ = [
     "RobotLimitReached",
     "SchemaMismatch",
     "Store",
+    "StoredKinematics",
     "StoredWeights",
     "TopologyRecord",
     "UnknownAlert",
@@ -74,7 +78,15 @@ __all__ = [
 ]
 
 
-class Store(FramesMixin, RetentionMixin, TopologiesMixin, AlertsMixin, HeartbeatsMixin, WeightsMixin):
+class Store(
+    FramesMixin,
+    RetentionMixin,
+    TopologiesMixin,
+    AlertsMixin,
+    HeartbeatsMixin,
+    WeightsMixin,
+    KinematicsMixin,
+):
     """The service's data layer on one database (SQLite file, in-memory SQLite or PostgreSQL).
 
     Constructing a store opens the engine and nothing more: it does not migrate. Its first use checks

@@ -24,6 +24,7 @@ import sqlite3
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -113,11 +114,16 @@ def run_robot(
     kinds: tuple[str, ...] = DAMAGES,
     post_cycles: int = POST_CYCLES,
     nominal_cycles: int = NOMINAL_CYCLES,
+    damage_kwargs: dict[str, dict[str, Any]] | None = None,
+    settings: Settings | None = None,
+    healthy_cycles: int = 1,
 ) -> RobotRuns:
     """Run the healthy history, the nominal continuation and each damage of ``kinds`` (see the module
-    doc) for one catalog robot; a damage run stops at its first alert."""
+    doc) for one catalog robot; a damage run stops at its first alert. ``damage_kwargs`` gives a kind's
+    parts and magnitude (default: the robot's seeded picks); ``settings`` default to production's."""
     cpu0 = time.process_time()
-    settings = Settings(database_url="sqlite://")  # production window, interval, K and M
+    # production window, interval, K and M
+    settings = settings or Settings(database_url="sqlite://")
     interval = settings.worker_interval_seconds
     farm = Farm({ROBOT: catalog_name}, seed=seed, sensing=sensing)
     path = tmp / f"{catalog_name}-{sensing}.db"
@@ -131,8 +137,9 @@ def run_robot(
         _feed(farm, store, interval)
         _cycle(worker, history, nominal_alerts)
     baseline_cycle = len(history)
-    _feed(farm, store, interval)  # one healthy cycle on the baseline: the worker learns its fingerprints
-    _cycle(worker, history, nominal_alerts)
+    for _ in range(healthy_cycles):  # healthy cycles on the baseline: the worker learns its fingerprints
+        _feed(farm, store, interval)
+        _cycle(worker, history, nominal_alerts)
 
     damages: dict[str, DamageRun] = {}
     for kind in kinds:
@@ -142,7 +149,7 @@ def run_robot(
         with Store(f"sqlite:///{copy}", settings=settings) as bstore:  # a copy of an upgraded file
             bworker = Worker(bstore, settings)
             bworker.fingerprints_ = dict(worker.fingerprints_)
-            (truth,) = branch.apply_damage(ROBOT, kind).findings
+            (truth,) = branch.apply_damage(ROBOT, kind, **(damage_kwargs or {}).get(kind, {})).findings
             run = DamageRun(kind, truth.part, truth.to_json())
             while run.first is None and len(run.findings) < post_cycles:
                 _feed(branch, bstore, interval)

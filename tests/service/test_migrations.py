@@ -27,6 +27,7 @@ TABLES = {
     "alerts",
     "heartbeats",
     "network_weights",
+    "kinematics",
 }
 
 

@@ -1,0 +1,100 @@
+"""A robot's geometry baseline: the joint axes and IMU lever arms its drift alerts compare against.
+
+The worker estimates a robot's kinematics (:func:`bodyschema.kinematics.estimate_kinematics`) once its
+topology baseline stands and a window shows that same body; that estimate is kept here, tied to the
+topology baseline that was current (``baseline_id``), and later estimates are compared with it
+(:func:`bodyschema.kinematic_drift.kinematic_findings`). A new topology baseline is a new body: its
+geometry is learned afresh, and the rows of older baselines stay as their history. Kept as the
+kinematics JSON (docs/kinematics.md), read back with :meth:`bodyschema.kinematics.Kinematics.from_json`.
+
+Example
+-------
+>>> import numpy as np
+>>> from service.frames import FrameBatch
+>>> from service.store import open_store
+>>> store = open_store("sqlite://")
+>>> store.write(FrameBatch("arm", np.arange(3.0), ("j1",), np.zeros((3, 1)), ("i1",),
+...                        np.ones((3, 1, 3)), np.zeros((3, 1, 3))))
+3
+>>> store.save_kinematics("arm", 7, {"imus": {}}, wall_time=1.0, window_end_t=2.0) > 0
+True
+>>> store.kinematics_baseline("arm", 7).data, store.kinematics_baseline("arm", 8) is None
+({'imus': {}}, True)
+>>> store.close()
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import insert, select
+
+from service.db.models import KinematicsRow
+from service.store.robots import robot_id
+from service.store.schema import StoreBase
+
+__all__ = ["KinematicsMixin", "StoredKinematics"]
+
+
+@dataclass(frozen=True)
+class StoredKinematics:
+    """A kept geometry estimate of one robot under one topology baseline."""
+
+    id: int
+    robot: str
+    baseline_id: int
+    wall_time: float
+    window_end_t: float | None
+    data: dict[str, Any]
+
+
+class KinematicsMixin(StoreBase):
+    """Keeping the robots' geometry baselines."""
+
+    def save_kinematics(
+        self,
+        robot: str,
+        baseline_id: int,
+        data: dict[str, Any],
+        *,
+        wall_time: float,
+        window_end_t: float | None = None,
+    ) -> int:
+        """Keep ``data`` (a kinematics JSON) as ``robot``'s geometry under ``baseline_id``; returns its id."""
+        with self._session() as s, s.begin():
+            rid = robot_id(s, robot)
+            return int(
+                s.scalar(
+                    insert(KinematicsRow)
+                    .values(
+                        robot_id=rid,
+                        baseline_id=int(baseline_id),
+                        wall_time=float(wall_time),
+                        window_end_t=None if window_end_t is None else float(window_end_t),
+                        data=data,
+                    )
+                    .returning(KinematicsRow.id)
+                )
+            )
+
+    def kinematics_baseline(self, robot: str, baseline_id: int) -> StoredKinematics | None:
+        """The geometry kept for ``robot`` under ``baseline_id`` (the first kept), None before one is."""
+        with self._session() as s:
+            rid = robot_id(s, robot)
+            r = s.scalar(
+                select(KinematicsRow)
+                .where(KinematicsRow.robot_id == rid, KinematicsRow.baseline_id == int(baseline_id))
+                .order_by(KinematicsRow.id)
+                .limit(1)
+            )
+        if r is None:
+            return None
+        return StoredKinematics(
+            id=int(r.id),
+            robot=robot,
+            baseline_id=int(r.baseline_id),
+            wall_time=float(r.wall_time),
+            window_end_t=r.window_end_t,
+            data=dict(r.data),
+        )
