@@ -24,13 +24,13 @@ DAMAGE_KINDS: tuple[str, ...] = (
     "joint_reparented",
     "link_lost",
 )
-#: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift` finds the first three;
-#: ``backlash``, a dead band between encoder and link, is the simulators' so far). The simulated-damage
-#: API knows only :data:`DAMAGE_KINDS`.
+#: Geometry drift on an unchanged topology (:mod:`bodyschema.kinematic_drift`); ``backlash`` is a
+#: dead band grown between a joint's encoder and its link. The simulated-damage API knows only
+#: :data:`DAMAGE_KINDS`.
 KINEMATIC_KINDS: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed", "backlash")
 FINDING_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, "insufficient_excitation", *KINEMATIC_KINDS)
-#: Kinds the service raises as alerts: the topology's damages and the geometry drift found so far.
-ALERT_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, *KINEMATIC_KINDS[:3])
+#: Kinds the service raises as alerts: the topology's damages and the geometry drift.
+ALERT_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, *KINEMATIC_KINDS)
 
 
 @dataclass(frozen=True)

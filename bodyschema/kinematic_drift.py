@@ -24,7 +24,10 @@ combined standard deviations plus a small floor:
   child IMU leaves the axis in the *parent's* frame as it was). Under a root joint with one IMU on its
   link nothing tells the two apart, and the finding says so;
 * ``imu_shifted`` — the lever arm changed by more than its combined std plus a floor (for an IMU that
-  also turned, only its length is compared: a turn alone rotates the vector, not its length).
+  also turned, only its length is compared: a turn alone rotates the vector, not its length);
+* ``backlash`` — the dead band between a joint's encoder and its link changed: the encoder steps by
+  the band at each reversal and the gyros do not (``ImuKinematics.backlash_deg``, read by the joint's
+  IMU whose two estimates are surest; limit ``sigmas`` combined stds plus ``floor_backlash_deg``).
 
 Only IMUs whose axis converged in both estimates on the same joint are compared, and their lever
 arms only where those converged too; an IMU on another joint is the topology diff's ``imu_moved``.
@@ -66,6 +69,7 @@ class DriftOptions:
     sigmas: float = 5.0
     floor_deg: float = 0.2
     floor_m: float = 0.002
+    floor_backlash_deg: float = 0.1
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -155,7 +159,8 @@ def _seen(old: ImuKinematics, new: ImuKinematics, rotated: set[str], o: DriftOpt
 def kinematic_findings(
     baseline: Kinematics, current: Kinematics, options: DriftOptions | None = None
 ) -> tuple[Finding, ...]:
-    """``imu_rotated``, ``imu_shifted`` and ``axis_changed`` findings from ``baseline`` to ``current``.
+    """``imu_rotated``, ``imu_shifted``, ``axis_changed`` and ``backlash`` findings from ``baseline`` to
+    ``current``.
 
     Per joint: its axis bent when the axis in the parent's frame turned as one of its IMUs sees it, or
     when every IMU on its link (two or more) sees the axis turn (a knock that turns several mounts
@@ -185,7 +190,38 @@ def kinematic_findings(
             shifted = _shifted(x.old, x.new, turned, o)
             if shifted is not None:
                 out.append(shifted)
+        slack = _backlash(jn, seen, o)
+        if slack is not None:
+            out.append(slack)
     return tuple(out)
+
+
+def _backlash(jn: str, seen: list[_Seen], o: DriftOptions) -> Finding | None:
+    """``backlash`` of joint ``jn`` when the dead band its encoder's steps tell changed beyond its
+    uncertainty, read by the joint's IMU whose two estimates are surest."""
+    pairs = [
+        (x.old, x.new)
+        for x in seen
+        if math.isfinite(
+            x.old.backlash_deg + x.new.backlash_deg + x.old.backlash_std_deg + x.new.backlash_std_deg
+        )
+    ]
+    if not pairs:
+        return None
+    old, new = min(pairs, key=lambda p: math.hypot(p[0].backlash_std_deg, p[1].backlash_std_deg))
+    change = new.backlash_deg - old.backlash_deg
+    limit = o.sigmas * math.hypot(old.backlash_std_deg, new.backlash_std_deg) + o.floor_backlash_deg
+    if abs(change) <= limit:
+        return None
+    return Finding(
+        kind="backlash",
+        joint=jn,
+        confidence=_confidence(abs(change), limit),
+        detail=(
+            f"dead band {'grew' if change > 0 else 'shrank'} from {old.backlash_deg:.2f} to "
+            f"{new.backlash_deg:.2f} deg (change limit {limit:.2f}; read by {old.imu})"
+        ),
+    )
 
 
 def _bent(jn: str, bend: list[_Seen], seen: list[_Seen]) -> Finding:

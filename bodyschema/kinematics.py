@@ -59,6 +59,13 @@ well (gravity turns a lot about it) the answer is the accelerometer frame's, whe
 near vertical) it stays near the gyro's with the gyro's uncertainty. The angular velocities rebuilt for
 the joints below are then in the accelerometer's frame too. ``gyro_axis`` keeps the gyro's reading.
 
+**The gyros' reading, for drift.** Each IMU's gyro is also regressed on its parent IMU's gyro as that
+reads (:func:`_gyro_reading`), with the intercepts the parent gyro's bias needs through the joint and
+one regressor for the encoder's steps at reversals (a dead band, :func:`_band_side`): ``gyro_axis``,
+``gyro_axis_in_parent`` and ``backlash_deg`` then depend on two gyros' sensitivity matrices, which the
+same IMUs repeat, and on noise, where the answers above carry every ancestor's, with errors that move
+with the motion.
+
 **Uncertainty.** The residuals of band-limited signals are autocorrelated, so the covariance of every
 fit is the heteroscedasticity-and-autocorrelation-consistent (Newey-West) sandwich, with a Bartlett
 window as long as the band's correlation time. ``axis_std_deg`` is the RMS angular error of ``u``: noise
@@ -197,6 +204,8 @@ class ImuKinematics:
     gyro_parent_axis: np.ndarray | None = None
     gyro_axis_in_parent_std_deg: float = math.inf
     axis_converged: bool = False
+    backlash_deg: float = math.nan
+    backlash_std_deg: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
         def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
@@ -221,6 +230,9 @@ class ImuKinematics:
             out["gyro_parent_axis"] = vec(self.gyro_parent_axis)
         if self.axis_converged and not self.converged:
             out["axis_converged"] = True
+        if math.isfinite(self.backlash_deg):
+            out["backlash_deg"] = _finite(self.backlash_deg)
+            out["backlash_std_deg"] = _finite(self.backlash_std_deg)
         if self.rotation_from_parent is not None:
             out["rotation_from_parent"] = [vec(row) for row in self.rotation_from_parent]
         if self.joint_origin_in_parent is not None:
@@ -260,6 +272,8 @@ class ImuKinematics:
             gyro_axis_in_parent=arr("gyro_axis_in_parent"),
             gyro_axis_in_parent_std_deg=std("gyro_axis_in_parent_std_deg"),
             gyro_parent_axis=arr("gyro_parent_axis"),
+            backlash_deg=math.nan if d.get("backlash_deg") is None else float(d["backlash_deg"]),
+            backlash_std_deg=math.nan if d.get("backlash_std_deg") is None else float(d["backlash_std_deg"]),
         )
 
 
@@ -583,6 +597,8 @@ class _AxisFit:
     span: np.ndarray | None  # projector onto that span
     coef: np.ndarray  # the per-output-axis fit (p, 3) and its covariances (3, p, p)
     cov: np.ndarray
+    backlash_deg: float = math.nan  # the dead band the encoder's steps at reversals tell (drift reading)
+    backlash_std_deg: float = math.nan
 
 
 def _span(x: np.ndarray, rel: float = 1e-3) -> np.ndarray:
@@ -596,10 +612,11 @@ def _axis_fit(sig: _Signals, j: int, c: int, omega_p: np.ndarray | None, measure
     """Fit the exact gyro model of the module docstring for child IMU ``c`` of joint ``j``.
 
     ``omega_p`` is the parent link's angular velocity rebuilt from the encoders (no gyro bias or gain
-    in it); None under a root joint on the fixed base. ``measured``: ``omega_p`` is the parent gyro's
-    reading instead, whose bias, seen through the turning joint, needs the intercepts ``cos q`` and
-    ``sin q`` too, and whose noise floor a direction of the parent's motion must clear (1 % of the
-    strongest's power) to count as excited.
+    in it); None under a root joint on the fixed base. ``measured`` is the drift reading
+    (:func:`_gyro_reading`): ``omega_p`` is the parent gyro's reading instead, whose bias, seen through
+    the turning joint, needs the intercepts ``cos q`` and ``sin q`` too, and whose noise floor a
+    direction of the parent's motion must clear (1 % of the strongest's power) to count as excited; and
+    the encoder's steps at reversals, a dead band's, get a regressor of their own (:func:`_band_side`).
     """
     r = sig.rec
     q = r.q[:, j]  # type: ignore[index]
@@ -610,8 +627,12 @@ def _axis_fit(sig: _Signals, j: int, c: int, omega_p: np.ndarray | None, measure
         X = np.c_[omega_p, omega_p * np.cos(q)[:, None], omega_p * np.sin(q)[:, None], qd, np.ones_like(qd)]
         if measured:
             X = np.c_[X, np.cos(q), np.sin(q)]
-    Xb = sig.band_limit(X)
     Yb = sig.band_limit(r.gyro[:, c])
+    if measured:
+        X = np.c_[
+            X, sig.derivative(_band_side(sig, _link_rate(sig, X, r.gyro[:, c], 0 if omega_p is None else 9)))
+        ]
+    Xb = sig.band_limit(X)
     coef, cov = _per_axis(Xb, Yb, sig.lags)
     var = _variances(cov)
     ia = 0 if omega_p is None else 9
@@ -625,9 +646,58 @@ def _axis_fit(sig: _Signals, j: int, c: int, omega_p: np.ndarray | None, measure
         # a gyro's bias is a constant the intercepts take: only the motion about it spans directions
         span = _span(Xb[:, :3] - Xb[:, :3].mean(axis=0), 1e-2) if measured else _span(Xb[:, :3])
         H = (coef[0:3] + coef[3:6]).T @ span
+    backlash = backlash_std = math.nan
+    if measured:  # ω = u (q̇_enc - (b/2) ṡ): the side's coefficient is -(b/2) a
+        backlash = -2.0 * float(coef[-1] @ u) / max(gain, 1e-12)
+        backlash_std = 2.0 * math.sqrt(float(np.sum(u * u * var[-1]))) / max(gain, 1e-12)
     return _AxisFit(
-        axis=u, gain=gain, std_deg=math.degrees(math.sqrt(var_perp)), H=H, span=span, coef=coef, cov=cov
+        axis=u,
+        gain=gain,
+        std_deg=math.degrees(math.sqrt(var_perp)),
+        H=H,
+        span=span,
+        coef=coef,
+        cov=cov,
+        backlash_deg=math.degrees(backlash),
+        backlash_std_deg=math.degrees(backlash_std),
     )
+
+
+def _link_rate(sig: _Signals, X: np.ndarray, gyro: np.ndarray, ia: int) -> np.ndarray:
+    """The joint's rate as the gyros see the link turn, in the common band: the gyro model fitted
+    without the encoder's dead-band steps, everything but its ``q̇`` column taken out of the child's
+    gyro and the rest read along the axis. Unlike the encoder's velocity it turns where the link turns."""
+    coef, _ = _per_axis(sig.band_limit(X), sig.band_limit(gyro), sig.lags)
+    a = coef[ia]
+    gain = max(float(np.linalg.norm(a)), 1e-12)
+    others = [k for k in range(X.shape[1]) if k != ia]
+    rest = gyro - X[:, others] @ coef[others]
+    return lowpass(rest @ (a / gain**2), sig.rate, sig.band)
+
+
+def _band_side(sig: _Signals, rate: np.ndarray) -> np.ndarray:
+    """The side of its dead band a joint's encoder is on, +1 or -1 per sample.
+
+    Through a dead band of width ``b`` the motor, and its encoder, lead the link by ``b/2`` in the
+    direction of motion, and where the link rests they stay on the side they last moved to: the encoder
+    reads ``q_link + (b/2) s`` and steps by ``b`` at each reversal, which the gyros never see. ``s`` is
+    the sign of the link's ``rate`` (:func:`_link_rate`) where that exceeds 5 % of its RMS, and the
+    last such sign where it does not (+1 before the first motion); each change of side is put at the
+    rate's last zero crossing before it, where the link turned.
+    """
+    v = rate
+    moving = np.abs(v) > 0.05 * math.sqrt(float(np.mean(v * v)))
+    idx = np.where(moving, np.arange(len(v)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    side = np.where(idx >= 0, np.sign(v)[np.maximum(idx, 0)], 1.0)
+    changes = np.flatnonzero(np.diff(side)) + 1
+    crossings = np.flatnonzero(np.diff(np.sign(v))) + 1
+    before = np.searchsorted(crossings, changes, side="right") - 1
+    out = side.copy()
+    for k, i in zip(changes, before, strict=True):
+        if i >= 0:
+            out[crossings[i] : k] = side[k]
+    return out
 
 
 #: Draws of the gyro fit's coefficients behind :func:`_in_parent_std` (the RMS of 400 draws is within
@@ -1136,7 +1206,7 @@ def _one_imu(
         fit = _axis_fit(sig, j, c, None)
         axis, axis_std = fit.axis, fit.std_deg
         om = fit.axis * qd[:, None]
-        gyro = _GyroReading(fit)
+        gyro = _gyro_reading(sig, j, c, None)
         lever = _lever_root(sig, j, c, fit.axis, om)
         if opts.accelerometer_frame:
             noise_var = math.radians(fit.std_deg) ** 2 / 2.0
@@ -1195,6 +1265,8 @@ def _one_imu(
             gyro_axis_in_parent=gyro.in_parent,
             gyro_parent_axis=gyro.parent_axis,
             gyro_axis_in_parent_std_deg=gyro.in_parent_std_deg,
+            backlash_deg=gyro.fit.backlash_deg,
+            backlash_std_deg=gyro.fit.backlash_std_deg,
         ),
         om,
     )
@@ -1223,7 +1295,7 @@ def _gyro_reading(sig: _Signals, j: int, c: int, p: int | None) -> _GyroReading:
     accelerometer-frame chain.
     """
     if p is None:
-        return _GyroReading(_axis_fit(sig, j, c, None))
+        return _GyroReading(_axis_fit(sig, j, c, None, measured=True))
     fit = _axis_fit(sig, j, c, sig.rec.gyro[:, p], measured=True)
     R0 = project_rotation(fit.H)  # type: ignore[arg-type]
     if round(float(np.trace(fit.span))) >= 2:  # type: ignore[arg-type]

@@ -30,8 +30,8 @@ One cycle, for every robot the store knows:
    (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
    with it (:func:`bodyschema.kinematic_drift.kinematic_findings`) and their ``imu_rotated``,
-   ``imu_shifted`` and ``axis_changed`` findings join the diff; in the cycles between, those kinds are
-   held (:meth:`Worker._drift`);
+   ``imu_shifted``, ``axis_changed`` and ``backlash`` findings join the diff; in the cycles between,
+   those kinds are held (:meth:`Worker._drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The sensor-network methods run in another process when the worker is given a
@@ -46,6 +46,7 @@ is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one c
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import threading
@@ -434,13 +435,16 @@ class Worker:
 
         Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a fleet's
         estimates spread over the cycles; on the raw window (the estimate band-limits its signals, and
-        the impact removal's gaps would break its filters).
+        the impact removal's gaps would break its filters), on the baseline's tree with this window's
+        encoder timing. The baseline's tree, not this cycle's fast one: the diff holding no finding
+        says the body is the baseline's, while a fault the geometry is there to find (a dead band's
+        encoder steps) can leave the fast screen unable to place a joint's IMUs at all.
         """
         n = self.settings.kinematics_interval_cycles
         if not n or (self.cycles + zlib.crc32(robot.encode())) % n:
             return None
-        if diff.findings or is_ambiguous(fast):
-            return None  # another body, or one not decided: its geometry is not the baseline's
+        if diff.findings:
+            return None  # another body: its geometry is not the baseline's
         from bodyschema.kinematic_drift import kinematic_findings
         from bodyschema.kinematics import Kinematics, KinematicsOptions, estimate_kinematics
 
@@ -448,7 +452,8 @@ class Worker:
         # drift compares what the gyros read: the accelerometer-frame refinement, a tenth of the cost
         # on a 60-IMU robot, is left out
         options = KinematicsOptions(accelerometer_frame=False)
-        kin = self.compute(estimate_kinematics, rec, fast, options)
+        tree = dataclasses.replace(base.topology, timing=dict(fast.timing))
+        kin = self.compute(estimate_kinematics, rec, tree, options)
         self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
         kept = self.store.kinematics_baseline(robot, base.id)
         if kept is None:

@@ -153,3 +153,17 @@ def test_every_imu_on_a_link_turned_is_a_bend_and_one_is_a_turned_mount() -> Non
     assert "all 2 IMUs" in found[0].detail and "2.00 to 2.00 deg" in found[0].detail
     assert kinds(kinematic_findings(*_two_on_a_link(2.0, 0.0))) == [("imu_rotated", "imu2")]
     assert kinematic_findings(*_two_on_a_link(0.5, 0.5)) == ()  # under 5 std + 0.2° floor (0.55°)
+
+
+def test_mpu6050_backlash_one_degree(mpu_baseline: Kinematics) -> None:
+    """A 1° dead band on j2 is read back within 15 % by both IMUs of its link, and is the one finding;
+    the healthy body reads no band (within 5 std)."""
+    found = kinematic_findings(
+        mpu_baseline, (slack := learn_mpu(seed=5, damage=("backlash", {"joint": "j2", "deg": 1.0})))
+    )
+    assert kinds(found) == [("backlash", "j2")]
+    assert "grew" in found[0].detail
+    for name in ("imu2", "imu3"):
+        k = slack.imus[name]
+        assert abs(k.backlash_deg - 1.0) < 0.15, (name, k.backlash_deg)
+        assert abs(mpu_baseline.imus[name].backlash_deg) < 5 * mpu_baseline.imus[name].backlash_std_deg + 0.01

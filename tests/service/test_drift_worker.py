@@ -1,12 +1,13 @@
-"""Geometry drift through the worker's real cycle: a turned IMU and a bent axis raise their alerts.
+"""Geometry drift through the worker's real cycle: a turned IMU, a bent axis and a dead band raise
+their alerts.
 
 A UR5e runs in the simulated farm on the ``robot`` sensing preset with MPU-6050 IMUs (their errors
 drawn once and kept, as a real IMU keeps its misalignment), its frames go into a real store, and a
 worker with the production settings learns the topology baseline, then the geometry on it (joint
 axes and lever arms, every ``kinematics_interval_cycles`` = 6 cycles of 5 s: each estimate on a 30 s
-window of its own). Then one drift damage of 2° is injected (the simulators' catalog) and cycles run
-until the first alert. Asserted: the nominal run raises no alert and no finding at all, ever; each
-damage's first alert is of its kind, on its part.
+window of its own). Then one drift damage is injected (the simulators' catalog: a 2° turn, a 2° bend,
+a 1° dead band) and cycles run until the first alert. Asserted: the nominal run raises no alert and
+no finding at all, ever; each damage's first alert is of its kind, on its part.
 
 A turned IMU is seen through the axis it reports, so the turn is about a direction perpendicular to
 the joint's axis in the IMU's frame (a turn about the axis itself leaves the axis where it was and
@@ -48,6 +49,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> RobotRuns:
     kwargs = {
         "imu_rotated": {"imu": "imu7", "angle_deg": 2.0, "about": _turn_about(u)},
         "axis_changed": {"joint": "wrist_1", "angle_deg": 2.0},
+        "backlash": {"joint": "wrist_1", "deg": 1.0},
     }
     return run_robot(
         "ur5e",
@@ -66,8 +68,11 @@ def test_nominal_run_raises_nothing(runs: RobotRuns) -> None:
     assert all(f == [] for f in runs.nominal_findings[runs.baseline_cycle :]), runs.nominal_findings
 
 
-@pytest.mark.parametrize(("kind", "part"), [("imu_rotated", "imu:imu7"), ("axis_changed", "joint:wrist_1")])
-def test_two_degrees_alert_first_with_their_kind(runs: RobotRuns, kind: str, part: str) -> None:
+@pytest.mark.parametrize(
+    ("kind", "part"),
+    [("imu_rotated", "imu:imu7"), ("axis_changed", "joint:wrist_1"), ("backlash", "joint:wrist_1")],
+)
+def test_drift_alerts_first_with_its_kind(runs: RobotRuns, kind: str, part: str) -> None:
     run = runs.damages[kind]
     print(kind, run.first, run.first_finding, run.findings)
     assert run.first is not None, run.findings
