@@ -206,6 +206,7 @@ class ImuKinematics:
     axis_converged: bool = False
     backlash_deg: float = math.nan
     backlash_std_deg: float = math.nan
+    parent_rank: int = 0
 
     def to_json(self) -> dict[str, Any]:
         def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
@@ -228,6 +229,8 @@ class ImuKinematics:
             out["gyro_axis_in_parent_std_deg"] = _finite(self.gyro_axis_in_parent_std_deg)
         if self.gyro_parent_axis is not None:
             out["gyro_parent_axis"] = vec(self.gyro_parent_axis)
+        if self.parent_rank:
+            out["parent_rank"] = self.parent_rank
         if self.axis_converged and not self.converged:
             out["axis_converged"] = True
         if math.isfinite(self.backlash_deg):
@@ -272,6 +275,7 @@ class ImuKinematics:
             gyro_axis_in_parent=arr("gyro_axis_in_parent"),
             gyro_axis_in_parent_std_deg=std("gyro_axis_in_parent_std_deg"),
             gyro_parent_axis=arr("gyro_parent_axis"),
+            parent_rank=int(d.get("parent_rank", 0)),
             backlash_deg=math.nan if d.get("backlash_deg") is None else float(d["backlash_deg"]),
             backlash_std_deg=math.nan if d.get("backlash_std_deg") is None else float(d["backlash_std_deg"]),
         )
@@ -1265,6 +1269,7 @@ def _one_imu(
             gyro_axis_in_parent=gyro.in_parent,
             gyro_parent_axis=gyro.parent_axis,
             gyro_axis_in_parent_std_deg=gyro.in_parent_std_deg,
+            parent_rank=gyro.parent_rank,
             backlash_deg=gyro.fit.backlash_deg,
             backlash_std_deg=gyro.fit.backlash_std_deg,
         ),
@@ -1281,6 +1286,7 @@ class _GyroReading:
     in_parent: np.ndarray | None = None
     in_parent_std_deg: float = math.inf
     parent_axis: np.ndarray | None = None  # the parent's one axis as this gyro sees it (sign arbitrary)
+    parent_rank: int = 0  # how many independent axes the parent link turned about (0: a root joint)
 
 
 def _gyro_reading(sig: _Signals, j: int, c: int, p: int | None) -> _GyroReading:
@@ -1298,8 +1304,9 @@ def _gyro_reading(sig: _Signals, j: int, c: int, p: int | None) -> _GyroReading:
         return _GyroReading(_axis_fit(sig, j, c, None, measured=True))
     fit = _axis_fit(sig, j, c, sig.rec.gyro[:, p], measured=True)
     R0 = project_rotation(fit.H)  # type: ignore[arg-type]
-    if round(float(np.trace(fit.span))) >= 2:  # type: ignore[arg-type]
+    rank = round(float(np.trace(fit.span)))  # type: ignore[arg-type]
+    if rank >= 2:
         std = _in_parent_std(fit.coef, fit.cov, fit.span)  # type: ignore[arg-type]
-        return _GyroReading(fit, in_parent=R0.T @ fit.axis, in_parent_std_deg=std)
+        return _GyroReading(fit, in_parent=R0.T @ fit.axis, in_parent_std_deg=std, parent_rank=rank)
     seen = fit.H @ np.linalg.eigh(fit.span)[1][:, -1]  # type: ignore[index, operator]
-    return _GyroReading(fit, parent_axis=seen / max(float(np.linalg.norm(seen)), 1e-12))
+    return _GyroReading(fit, parent_axis=seen / max(float(np.linalg.norm(seen)), 1e-12), parent_rank=rank)
