@@ -55,7 +55,10 @@ __all__ = [
     "choose_band",
     "derivative_noise",
     "edge_margin",
+    "encoders_moved",
     "estimate_lag",
+    "lag_moved",
+    "lag_search_centre",
     "lowpass",
     "median_rate",
     "position_noise",
@@ -290,6 +293,50 @@ def robust_lag(
 def edge_margin(fc: float) -> float:
     """Seconds at each end (and around each long gap) where :func:`lowpass` still rings: 2 / fc."""
     return 2.0 / fc
+
+
+def encoders_moved(rec: Recording, seconds: float) -> Recording:
+    """``rec`` with its encoder stamps ``seconds`` later: the IMU then lags them by that much less.
+
+    For a monitor that knows the lag it last measured between a robot's two clocks: the estimators
+    search the lag within ±100 ms (:class:`bodyschema.fast.FastOptions`), and two free-running clocks
+    30 ppm apart drift 108 ms an hour; on a robot whose motion repeats (a gait) a search that misses
+    the true peak finds a wrong one inside its range. Moving the stamps by the last lag keeps the true
+    one near the middle; :func:`lag_moved` puts the move back into what the estimate reports. A
+    single-clock ``rec`` is returned as it is.
+
+    >>> import numpy as np
+    >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
+    ...                 acc=np.zeros((4, 0, 3)), gyro=np.zeros((4, 0, 3)), t_q=np.arange(4.0))
+    >>> encoders_moved(rec, 0.25).t_q.tolist(), lag_moved({"lag_ms": 3.0, "skew_ms": 1.0}, 0.25)
+    ([0.25, 1.25, 2.25, 3.25], {'lag_ms': 253.0, 'skew_ms': 251.0})
+    """
+    from dataclasses import replace
+
+    if rec.t_q is None or seconds == 0.0:
+        return rec
+    return replace(rec, t_q=rec.t_q + float(seconds))
+
+
+def lag_search_centre(last_lag: float, max_lag: float = 0.1) -> float:
+    """How far to move the encoder stamps (:func:`encoders_moved`) given the lag last measured between
+    the two clocks (s): all of it once it lies more than half the search range ``max_lag`` from zero,
+    else nothing (the search as it is).
+
+    >>> lag_search_centre(0.013), lag_search_centre(-0.08)
+    (0.0, -0.08)
+    """
+    return float(last_lag) if abs(last_lag) > 0.5 * max_lag else 0.0
+
+
+def lag_moved(timing: dict[str, float], seconds: float) -> dict[str, float]:
+    """``timing`` (a topology's) of a recording whose encoder stamps :func:`encoders_moved` moved by
+    ``seconds``, as the original stamps see it."""
+    out = dict(timing)
+    for key in ("lag_ms", "skew_ms"):
+        if key in out:
+            out[key] = float(out[key]) + 1e3 * float(seconds)
+    return out
 
 
 def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: float = 0.0) -> Recording:

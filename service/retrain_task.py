@@ -68,6 +68,9 @@ class RetrainJob:
     warm_start: bool = True
     #: nice value the training thread is raised to (0: left as it is); see :func:`lower_priority`
     nice: int = 0
+    #: the encoder stamps are moved by this lag (s) first, and the move put back into the timing
+    #: reported (:func:`bodyschema.timing.encoders_moved`; 0: not moved)
+    lag_hint: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -146,8 +149,11 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     baseline, on the same IMUs and joints (:mod:`service.store.weights`), when ``job.warm_start``;
     the weights trained come back in the result, for the service to store.
     """
+    from dataclasses import replace
+
     from bodyschema.estimate import fit_topology
     from bodyschema.health import drop_impacts
+    from bodyschema.timing import encoders_moved, lag_moved
     from service.store import Store
     from service.store.weights import pack_weights
 
@@ -170,8 +176,11 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     kw = dict(job.options)
     if job.method in WARM_METHODS:
         kw["warm_start"] = stored.weights if stored is not None else None
-    fit = fit_topology(drop_impacts(rec), method=job.method, timer=time.process_time, seed=job.seed, **kw)
+    learn = encoders_moved(drop_impacts(rec), job.lag_hint)
+    fit = fit_topology(learn, method=job.method, timer=time.process_time, seed=job.seed, **kw)
     topo = fit.topology
+    if job.lag_hint and topo.timing:
+        topo = replace(topo, timing=lag_moved(topo.timing, job.lag_hint))
     training = topo.training or {}
     converged = training.get("converged")
     return RetrainResult(

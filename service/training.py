@@ -218,6 +218,17 @@ class RemoteRetrains:
         self.metrics.retrain_failures.labels(method=method).inc()
         log.warning("retrain failed: %s", why, extra={"robot": robot, "method": method, "key": key})
 
+    def _lag_hint(self, robot: str) -> float:
+        """The lag of the robot's newest fast topology (s) when it lies more than half the lag search's
+        range from zero, as the worker centres its own estimates (:meth:`service.worker.Worker._lag_hint`);
+        else 0."""
+        from bodyschema.fast import FastOptions
+        from bodyschema.timing import lag_search_centre
+
+        rec = self.store.latest_topology(robot, "fast")
+        lag = 1e-3 * float(rec.topology.timing.get("lag_ms", 0.0)) if rec is not None else 0.0
+        return lag_search_centre(lag, FastOptions.max_lag)
+
     def _job(self, robot: str, method: str) -> RetrainJob | None:
         try:
             info = self.store.robot(robot)
@@ -231,6 +242,7 @@ class RemoteRetrains:
             return None
         base = self.store.baseline(robot) if self.options.warm_start else None
         return RetrainJob(
+            lag_hint=self._lag_hint(robot),
             database_url=self.database_url,
             robot=robot,
             method=method,

@@ -60,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
+from bodyschema.fast import FastOptions
 from bodyschema.findings import KINEMATIC_KINDS, Diff, Finding
 from bodyschema.health import (
     BaselineFingerprints,
@@ -69,6 +70,7 @@ from bodyschema.health import (
     signal_health,
 )
 from bodyschema.recording import Recording, RecordingError
+from bodyschema.timing import encoders_moved, lag_moved, lag_search_centre
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
 from service.metrics import Metrics
@@ -179,6 +181,8 @@ class Worker:
         self._activity: dict[str, tuple[float | None, float]] = {}
         #: Per robot: the device clock epoch of the last cycle (see :meth:`_epoch_seen`).
         self._epochs: dict[str, int] = {}
+        #: Per robot: the encoder-to-IMU lag (s) of its last fast topology (see :meth:`_lag_hint`).
+        self._lags: dict[str, float] = {}
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
         self._stop = threading.Event()
@@ -320,6 +324,7 @@ class Worker:
         resolve them."""
         if self._epochs.get(robot, epoch) != epoch:
             self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
+            self._lags[robot] = 0.0
             log.info(
                 "device clock went back: analysing the new epoch", extra={"robot": robot, "epoch": epoch}
             )
@@ -363,12 +368,13 @@ class Worker:
         fast: Topology | None = None
         # velocity jumps at stops read as contradictions to the estimators
         learn = self.compute(drop_impacts, rec)
+        hint = self._lag_hint(robot)
         for method in self._methods(robot):
             if method != "fast" and self.remote is not None:
                 self.remote.want(robot, method)  # submitted at the end of the cycle, stored when done
                 continue
             t0 = time.perf_counter()
-            topo = self.estimator(learn, method)
+            topo = self._estimate(learn, method, hint)
             self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)
             self.store.save_topology(robot, topo, self.clock(), window_end)
             res.methods.append(method)
@@ -376,6 +382,8 @@ class Worker:
                 fast = topo
         if fast is None:
             return res
+        if "lag_ms" in fast.timing:
+            self._lags[robot] = 1e-3 * float(fast.timing["lag_ms"])
         res.health = self.compute(
             signal_health,
             rec,
@@ -425,6 +433,25 @@ class Worker:
                 },
             )
         return res
+
+    def _lag_hint(self, robot: str) -> float:
+        """Where to centre the search for ``robot``'s encoder-to-IMU lag (s): the lag last measured, when
+        it lies more than half the search range (``FastOptions.max_lag``) from zero; else 0, the search
+        as it is. From the newest stored fast topology after a restart; 0 after the device clock went
+        back (:meth:`_epoch_seen`: the clocks may have restarted apart)."""
+        if robot not in self._lags:
+            rec = self.store.latest_topology(robot, "fast")
+            self._lags[robot] = 1e-3 * float(rec.topology.timing.get("lag_ms", 0.0)) if rec else 0.0
+        return lag_search_centre(self._lags[robot], FastOptions.max_lag)
+
+    def _estimate(self, rec: Recording, method: str, hint: float) -> Topology:
+        """``self.estimator`` on ``rec``, its encoder stamps moved by the lag ``hint`` (s) and the move put
+        back into the timing reported (:func:`bodyschema.timing.encoders_moved`): a lag that drifted
+        past the search range stays in it."""
+        if not hint or rec.t_q is None:
+            return self.estimator(rec, method)
+        topo = self.estimator(encoders_moved(rec, hint), method)
+        return dataclasses.replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
 
     def _drift(
         self, robot: str, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff, window_end: float
