@@ -32,6 +32,7 @@ BENCHMARKS: tuple[str, ...] = (
     "fleet",
     "import_",
     "kinematics",
+    "drift",
     "docs",
 )
 

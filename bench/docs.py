@@ -1239,6 +1239,59 @@ def _kinematics(b: _Bench) -> str:
     return "\n".join(lines)
 
 
+def _drift(b: _Bench) -> str:
+    from bench.drift import _change
+
+    d = b.json("drift.json")
+    assert isinstance(d, dict)
+    cat = d["catalog"]
+    windows = sum(r["nominal_windows"] for r in cat)
+    false = sum(len(n) for r in cat for n in r["nominal_findings"])
+    parts = []
+    for kind, label in (("imu_rotated", "turn of one IMU"), ("axis_changed", "bend of its joint's axis")):
+        runs = [g for r in cat for g in r["damages"] if g["kind"] == kind]
+        seen = [
+            c for g in runs if g["first_right"] and (c := _change(g["findings"][0]["detail"])) is not None
+        ]
+        mag = runs[0]["magnitude"] if runs else 0
+        right = sum(g["first_right"] for g in runs)
+        text = f"a {mag:g}° {label}: first found on its part on {right} of {len(runs)}"
+        if seen:
+            text += (
+                f" (change seen {min(c[0] for c in seen):.2f} to {max(c[0] for c in seen):.2f}°, "
+                f"limits {min(c[1] for c in seen):.2f} to {max(c[1] for c in seen):.2f}°)"
+            )
+        parts.append(text)
+    slack = [g for r in cat for g in r["damages"] if g["kind"] == "backlash"]
+    if slack:
+        parts.append(
+            f"a {slack[0]['magnitude']:g}° dead band in that joint: first found on its part on "
+            f"{sum(g['first_right'] for g in slack)} of {len(slack)}"
+        )
+    for mm in sorted({g["magnitude"] for r in cat for g in r["damages"] if g["kind"] == "imu_shifted"}):
+        runs = [g for r in cat for g in r["damages"] if g["kind"] == "imu_shifted" and g["magnitude"] == mm]
+        parts.append(
+            f"a {mm:g} mm slide of that IMU: found on {sum(g['found'] for g in runs)} of {len(runs)}"
+        )
+    lines = [
+        f"Measured with {b.provenance('drift')}: {len(cat)} catalog robots "
+        f"({', '.join(r['robot'] for r in cat)}), `robot` sensing preset, MPU-6050 IMUs kept across the "
+        f"run, {d['window_s']:g} s windows: {false} false findings in {windows} healthy windows compared "
+        "with each robot's first; " + "; ".join(parts) + "."
+    ]
+    s = d["service"]
+    if s is not None:
+        lines += [
+            "",
+            f"The worker's real cycle on a healthy fleet ({', '.join(s['fleet'].values())}) for "
+            f"{s['hours']:g} h of simulated time ({s['cycles']} cycles, geometry every "
+            f"{s['kinematics_interval_cycles']} cycles, sensor networks off): {s['geometry_comparisons']} "
+            f"geometry comparisons, {s['drift_findings']} drift findings, {len(s['alerts_raised'])} alerts "
+            f"raised, {s['cpu_s']:.0f} CPU s.",
+        ]
+    return "\n".join(lines)
+
+
 @dataclass(frozen=True)
 class Figure:
     """One marked block: which doc, which marker id, which bench file it is rendered from, and how."""
@@ -1286,6 +1339,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/recording-format.md", "import", "import.json", _import_doc),
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),
+    _f("docs/kinematics.md", "drift", "drift.json", _drift),
     _f("docs/scale.md", "fleet", "fleet.json", _scale_doc),
 )
 

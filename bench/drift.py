@@ -1,0 +1,338 @@
+"""Geometry drift: what the worker's drift comparison sees on every catalog robot, and what its drift
+alerts raise on a healthy fleet over a long run.
+
+Two parts, both on the simulated farm with the realistic ``robot`` sensing preset and MPU-6050 IMUs
+(their errors drawn once per robot and kept, as a real IMU keeps its misalignment):
+
+* **catalog**: every robot of ``--robots`` (default: the whole catalog) in 30 s windows as the worker
+  reads them, each window's geometry estimated as the worker does
+  (:func:`bodyschema.kinematics.estimate_kinematics` without the accelerometer-frame refinement, on
+  the first window's tree with each window's encoder timing). The first window's geometry is the
+  baseline; the next ``--nominal`` windows are compared with it
+  (:func:`bodyschema.kinematic_drift.kinematic_findings`: any finding is false). Then each drift
+  damage of the simulators' catalog is injected on a fork of the farm, and the first window wholly
+  after it is compared: a turn of ``--angle-deg`` of one IMU (about a direction perpendicular to its
+  joint's axis in its frame: a turn about the axis itself leaves the axis where it was), a bend of
+  ``--angle-deg`` of that IMU's joint, a dead band of ``--backlash-deg`` in that joint, slides of
+  ``--slide-mm`` of that IMU. Reported per robot and damage: the findings, whether the first is the
+  damage's kind on its part, the change against its limit.
+* **service**: the worker's real cycle (:class:`service.worker.Worker`, production settings but the
+  sensor networks off: fast estimator, hysteresis M = 2, geometry every 6 cycles) on a healthy farm of
+  ``--fleet`` robots for ``--hours`` of simulated time, unpaced, on an SQLite file. Every alert it
+  raises is false; reported with the geometry comparisons made and the CPU seconds.
+
+Writes ``drift.md``, ``drift.json`` and ``drift.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench import RESULTS_DIR, machine_note
+from bodyschema.progress import progress
+from sim2real.figures import save_figure
+
+__all__ = ["add_arguments", "run"]
+
+#: Device seconds of one window, as the worker's default.
+WINDOW = 30.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robots", default="", help="catalog robots of the catalog part (default: all)")
+    parser.add_argument("--nominal", type=int, default=6, help="healthy windows compared per robot")
+    parser.add_argument("--angle-deg", type=float, default=2.0, help="turn and bend injected, deg")
+    parser.add_argument("--slide-mm", default="5,20", help="IMU slides injected, mm")
+    parser.add_argument("--backlash-deg", type=float, default=1.0, help="dead band injected, deg")
+    parser.add_argument("--fleet", default="ur5e,paper-1,quadruped", help="robots of the service part")
+    parser.add_argument("--hours", type=float, default=1.0, help="simulated hours of the service part")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+
+
+def _geometry(rec: Any, tree: Any = None) -> Any:
+    """The window's geometry as the worker estimates it: on ``tree`` (the baseline's; None: the one the
+    fast estimator learns from the window) with the encoder timing the fast estimator finds in it."""
+    from dataclasses import replace
+
+    from bodyschema.estimate import estimate_topology
+    from bodyschema.health import drop_impacts
+    from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
+
+    topo = estimate_topology(drop_impacts(rec), method="fast")
+    if tree is not None:
+        topo = replace(tree, timing=dict(topo.timing))
+    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=False))
+
+
+def _window(farm: Any, seconds: float = WINDOW) -> Any:
+    """The next ``seconds`` of the farm's one robot, as one recording."""
+    return farm.advance(seconds)["r"]
+
+
+def _perpendicular(axis: np.ndarray) -> list[float]:
+    e = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    v = np.cross(axis, e)
+    return [float(x) for x in v / np.linalg.norm(v)]
+
+
+def _found(findings: tuple, kind: str, part: str) -> dict:
+    """What a damaged window's comparison gave: its findings, and whether the first names the damage."""
+    first = findings[0] if findings else None
+    return {
+        "findings": [{"kind": f.kind, "part": f.part, "detail": f.detail} for f in findings],
+        "first_right": first is not None and (first.kind, first.part) == (kind, part),
+        "found": any((f.kind, f.part) == (kind, part) for f in findings),
+    }
+
+
+def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
+    from bodyschema.kinematic_drift import kinematic_findings
+    from simulators.farm import Farm
+    from simulators.kinematics_truth import kinematics_truth
+
+    cpu0 = time.process_time()
+    farm = Farm({"r": name}, seed=args.seed, sensing="robot")
+    base = _geometry(_window(farm))
+    tree = base.topology
+    nominal = [kinematic_findings(base, _geometry(_window(farm), tree)) for _ in range(args.nominal)]
+    sim = farm.simulation("r")
+    truth = kinematics_truth(sim.robot)
+    # the damaged IMU: the robot's last IMU on a moving link whose axis converged in the baseline
+    imu = next(
+        k
+        for k in reversed(sim.robot.imu_names)
+        if base.imus.get(k) is not None and base.imus[k].axis_converged
+    )
+    joint = truth[imu].joint
+    damages: list[tuple[str, str, dict]] = [
+        (
+            "imu_rotated",
+            f"imu:{imu}",
+            {"imu": imu, "angle_deg": args.angle_deg, "about": _perpendicular(truth[imu].axis)},  # type: ignore[arg-type]
+        ),
+        ("axis_changed", f"joint:{joint}", {"joint": joint, "angle_deg": args.angle_deg}),
+        ("backlash", f"joint:{joint}", {"joint": joint, "deg": args.backlash_deg}),
+    ]
+    damages += [
+        ("imu_shifted", f"imu:{imu}", {"imu": imu, "meters": float(mm) / 1e3})
+        for mm in _floats(args.slide_mm)
+    ]
+    out = []
+    for kind, part, kw in damages:
+        branch = farm.fork()
+        branch.apply_damage("r", kind, **kw)
+        got = _found(kinematic_findings(base, _geometry(_window(branch), tree)), kind, part)
+        magnitude = kw.get("angle_deg", kw.get("deg", 1e3 * kw.get("meters", 0.0)))
+        out.append({"kind": kind, "part": part, "magnitude": magnitude, **got})
+    return {
+        "robot": name,
+        "imus_on_links": sum(1 for t in truth.values() if t.joint is not None),
+        "axis_converged": sum(1 for k in base.imus.values() if k.joint is not None and k.axis_converged),
+        "nominal_windows": args.nominal,
+        "nominal_findings": [
+            [{"kind": f.kind, "part": f.part, "detail": f.detail} for f in n] for n in nominal
+        ],
+        "damages": out,
+        "cpu_s": round(time.process_time() - cpu0, 1),
+    }
+
+
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x.strip()]
+
+
+def _service(args: argparse.Namespace) -> dict:
+    """The worker's real cycle on a healthy farm for ``args.hours`` of simulated time."""
+    from bodyschema.findings import KINEMATIC_KINDS
+    from service.ingest.replay import recording_batch
+    from service.settings import Settings
+    from service.store import open_store
+    from service.worker import Worker
+    from simulators.farm import Farm
+
+    fleet = [x for x in args.fleet.split(",") if x.strip()]
+    robots = {f"{name}-{i}": name for i, name in enumerate(fleet)}
+    cpu0 = time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        url = f"sqlite:///{Path(tmp) / 'drift.db'}"
+        settings = Settings(database_url=url, network_interval_cycles=0)
+        store = open_store(url, settings=settings)
+        worker = Worker(store, settings)
+        farm = Farm(robots, seed=args.seed, sensing="robot")
+        interval = settings.worker_interval_seconds
+        cycles = round(args.hours * 3600.0 / interval)
+        raised: list[dict] = []
+        judged = found = 0
+        baselines: dict[str, int] = {}
+        for cycle in progress(range(cycles), desc="bench drift: service", unit="cycle"):
+            for name, rec in farm.advance(interval).items():
+                store.write(recording_batch(name, rec))
+            for name, res in worker.run_cycle().items():
+                if res.baseline_set:
+                    baselines[name] = cycle + 1
+                judged += res.drift_judged
+                if res.drift_judged and res.diff is not None:
+                    found += sum(1 for f in res.diff.findings if f.kind in KINEMATIC_KINDS)
+                raised += [
+                    {"robot": name, "kind": t.kind, "part": t.part, "cycle": cycle + 1}
+                    for t in res.transitions
+                    if t.state == "active"
+                ]
+            if cycle % 60 == 59:
+                store.prune()
+        kept = {
+            name: store.kinematics_baseline(name, store.baseline(name).id) is not None
+            for name in robots
+            if store.baseline(name)
+        }
+        store.close()
+    return {
+        "fleet": robots,
+        "hours": args.hours,
+        "cycles": cycles,
+        "interval_s": interval,
+        "kinematics_interval_cycles": settings.kinematics_interval_cycles,
+        "baseline_cycle": baselines,
+        "geometry_kept": kept,
+        "geometry_comparisons": judged,
+        "drift_findings": found,
+        "alerts_raised": raised,
+        "cpu_s": round(time.process_time() - cpu0, 1),
+    }
+
+
+def run(args: argparse.Namespace) -> Path:
+    from bodyschema.threads import blas_threads
+    from simulators.catalog import CATALOG
+
+    names = [x for x in args.robots.split(",") if x.strip()] or sorted(CATALOG)
+    with blas_threads(1):
+        catalog = [
+            _catalog_robot(n, args) for n in progress(names, desc="bench drift: catalog", unit="robot")
+        ]
+        service = _service(args) if args.hours > 0 else None
+    command = (
+        f"bodyhealth bench drift --robots {','.join(names)} --nominal {args.nominal} "
+        f"--angle-deg {args.angle_deg:g} --slide-mm {args.slide_mm} --backlash-deg {args.backlash_deg:g} "
+        f"--fleet {args.fleet} "
+        f"--hours {args.hours:g} --seed {args.seed}"
+    )
+    data = {
+        "machine": machine_note(),
+        "command": command,
+        "window_s": WINDOW,
+        "catalog": catalog,
+        "service": service,
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "drift.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    _plot(catalog, out / "drift.png")
+    path = out / "drift.md"
+    path.write_text(_markdown(data), encoding="utf-8")
+    return path
+
+
+def _change(detail: str) -> tuple[float, float] | None:
+    """The change and its limit in a finding's detail ("... 1.99 deg (limit 0.23)")."""
+    import re
+
+    m = re.search(r"([0-9.]+) (?:deg|mm) \(limits? ([0-9.]+)", detail)
+    return (float(m.group(1)), float(m.group(2))) if m else None
+
+
+def _markdown(d: dict) -> str:
+    lines = [
+        "# Benchmark: geometry drift",
+        "",
+        f"`{d['command']}`",
+        "",
+        f"Machine: {d['machine']}. Simulated farm, `robot` sensing preset, MPU-6050 IMUs kept across "
+        f"the run; {d['window_s']:g} s windows; each window's geometry as the worker estimates it (gyro "
+        "readings, no accelerometer-frame refinement, on the first window's tree learned by `fast`). "
+        "Nominal: healthy windows compared with the first (any finding is false). Damages: injected on "
+        "a fork, the first window wholly after compared with the first; *first right*: the first "
+        "finding is the damage's kind on its part.",
+        "",
+        "| robot | axes converged | false findings (windows) | damage | first right | findings | CPU s |",
+        "|---|---:|---:|---|---|---|---:|",
+    ]
+    for r in d["catalog"]:
+        false = sum(len(n) for n in r["nominal_findings"])
+        for i, g in enumerate(r["damages"]):
+            unit = "mm" if g["kind"] == "imu_shifted" else "°"
+            shown = "; ".join(f"{f['kind']} {f['part']}: {f['detail']}" for f in g["findings"][:2]) or "none"
+            if len(g["findings"]) > 2:
+                shown += f" (+{len(g['findings']) - 2})"
+            lead = (
+                [
+                    r["robot"],
+                    f"{r['axis_converged']} / {r['imus_on_links']}",
+                    f"{false} ({r['nominal_windows']})",
+                ]
+                if i == 0
+                else ["", "", ""]
+            )
+            cells = [
+                *lead,
+                f"{g['kind']} {g['magnitude']:g} {unit} {g['part']}",
+                "yes" if g["first_right"] else "no",
+                shown,
+                f"{r['cpu_s']:.0f}" if i == 0 else "",
+            ]
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    s = d["service"]
+    if s is not None:
+        robots = ", ".join(f"{k} ({v})" for k, v in s["fleet"].items())
+        lines += [
+            "",
+            f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
+            f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, networks off): "
+            f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
+            f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
+            f"{s['cpu_s']:.0f} CPU s.",
+        ]
+        for a in s["alerts_raised"]:
+            lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
+    lines += ["", "![drift](drift.png)", ""]
+    return "\n".join(lines)
+
+
+def _plot(catalog: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.8))
+    kinds = ("imu_rotated", "axis_changed")
+    for k, kind in enumerate(kinds):
+        xs, ys, lims = [], [], []
+        for i, r in enumerate(catalog):
+            for g in r["damages"]:
+                if g["kind"] != kind:
+                    continue
+                hit = next((f for f in g["findings"] if f["part"] == g["part"]), None)
+                got = _change(hit["detail"]) if hit else None
+                if got is not None:
+                    xs.append(i + (k - 0.5) * 0.25)
+                    ys.append(got[0])
+                    lims.append(got[1])
+        ax.bar(xs, ys, width=0.25, label=f"{kind}: change seen")
+        ax.plot(xs, lims, "k_", markersize=12)
+    ax.plot([], [], "k_", label="its limit (5 std + 0.2°)")
+    ax.axhline(2.0, color="tab:red", lw=0.8, ls="--", label="injected, 2°")
+    ax.set_xticks(range(len(catalog)))
+    ax.set_xticklabels([r["robot"] for r in catalog], rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("deg")
+    ax.legend(fontsize=7)
+    ax.grid(True, axis="y", alpha=0.3)
+    save_figure(fig, path, dpi=100)
