@@ -72,6 +72,11 @@ class DriftOptions:
     floor_m: float = 0.002
     floor_backlash_deg: float = 0.1
 
+    def limit(self, std_a: float, std_b: float, floor: float) -> float:
+        """The change two estimates of stds ``std_a`` and ``std_b`` must exceed: ``sigmas`` combined
+        stds plus ``floor``."""
+        return self.sigmas * math.hypot(std_a, std_b) + floor
+
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
     c = float(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))
@@ -145,15 +150,15 @@ def _seen(old: ImuKinematics, new: ImuKinematics, rotated: set[str], o: DriftOpt
             - _between(new_axis, new.gyro_parent_axis)  # type: ignore[arg-type]
         )
         # both IMUs' axis errors enter the angle: twice the variance
-        limit_p = o.sigmas * math.sqrt(2) * math.hypot(old_std, new_std) + o.floor_deg
+        limit_p = o.limit(math.sqrt(2) * old_std, math.sqrt(2) * new_std, o.floor_deg)
     elif judged and old_in_p is not None and new_in_p is not None:
         turn_p = _angle(old_in_p, new_in_p)
-        limit_p = o.sigmas * math.hypot(old_p_std, new_p_std) + o.floor_deg
+        limit_p = o.limit(old_p_std, new_p_std, o.floor_deg)
     return _Seen(
         old=old,
         new=new,
         turn=_angle(old_axis, new_axis),
-        limit=o.sigmas * math.hypot(old_std, new_std) + o.floor_deg,
+        limit=o.limit(old_std, new_std, o.floor_deg),
         turn_p=turn_p,
         limit_p=limit_p,
         one_axis=one_axis,
@@ -214,7 +219,7 @@ def _backlash(jn: str, seen: list[_Seen], o: DriftOptions) -> Finding | None:
         return None
     old, new = min(pairs, key=lambda p: math.hypot(p[0].backlash_std_deg, p[1].backlash_std_deg))
     change = new.backlash_deg - old.backlash_deg
-    limit = o.sigmas * math.hypot(old.backlash_std_deg, new.backlash_std_deg) + o.floor_backlash_deg
+    limit = o.limit(old.backlash_std_deg, new.backlash_std_deg, o.floor_backlash_deg)
     if abs(change) <= limit:
         return None
     return Finding(
@@ -285,7 +290,7 @@ def _shifted(old: ImuKinematics, new: ImuKinematics, turned: bool, o: DriftOptio
         shift = abs(float(np.linalg.norm(new.lever_arm) - np.linalg.norm(old.lever_arm)))
     else:
         shift = float(np.linalg.norm(new.lever_arm - old.lever_arm))
-    limit = o.sigmas * math.hypot(old.lever_arm_std_m, new.lever_arm_std_m) + o.floor_m
+    limit = o.limit(old.lever_arm_std_m, new.lever_arm_std_m, o.floor_m)
     if shift <= limit:
         return None
     return Finding(

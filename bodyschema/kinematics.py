@@ -252,8 +252,8 @@ class ImuKinematics:
         def arr(key: str) -> np.ndarray | None:
             return None if d.get(key) is None else np.asarray(d[key], dtype=float)
 
-        def std(key: str) -> float:
-            return math.inf if d.get(key) is None else float(d[key])
+        def num(key: str, missing: float = math.inf) -> float:
+            return missing if d.get(key) is None else float(d[key])
 
         converged = bool(d.get("converged", False))
         return cls(
@@ -262,22 +262,22 @@ class ImuKinematics:
             parent_imu=d.get("parent_imu"),
             axis=arr("axis"),
             lever_arm=arr("lever_arm"),
-            axis_std_deg=std("axis_std_deg"),
-            lever_arm_std_m=std("lever_arm_std_m"),
-            gain=math.nan if d.get("gain") is None else float(d["gain"]),
+            axis_std_deg=num("axis_std_deg"),
+            lever_arm_std_m=num("lever_arm_std_m"),
+            gain=num("gain", math.nan),
             rotation_from_parent=arr("rotation_from_parent"),
             joint_origin_in_parent=arr("joint_origin_in_parent"),
             converged=converged,
             axis_converged=converged or bool(d.get("axis_converged", False)),
             reason=d.get("reason", ""),
             gyro_axis=arr("gyro_axis"),
-            gyro_axis_std_deg=std("gyro_axis_std_deg"),
+            gyro_axis_std_deg=num("gyro_axis_std_deg"),
             gyro_axis_in_parent=arr("gyro_axis_in_parent"),
-            gyro_axis_in_parent_std_deg=std("gyro_axis_in_parent_std_deg"),
+            gyro_axis_in_parent_std_deg=num("gyro_axis_in_parent_std_deg"),
             gyro_parent_axis=arr("gyro_parent_axis"),
             parent_rank=int(d.get("parent_rank", 0)),
-            backlash_deg=math.nan if d.get("backlash_deg") is None else float(d["backlash_deg"]),
-            backlash_std_deg=math.nan if d.get("backlash_std_deg") is None else float(d["backlash_std_deg"]),
+            backlash_deg=num("backlash_deg", math.nan),
+            backlash_std_deg=num("backlash_std_deg", math.nan),
         )
 
 
@@ -419,10 +419,10 @@ def rotation_about(u: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 
 def project_rotation(M: np.ndarray) -> np.ndarray:
-    """The rotation nearest ``M`` (Frobenius), by SVD."""
+    """The rotation nearest ``M`` (Frobenius), by SVD; of each matrix of a stack (..., 3, 3)."""
     U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
 
 
 def _perp_basis(u: np.ndarray) -> np.ndarray:
@@ -605,6 +605,11 @@ class _AxisFit:
     backlash_std_deg: float = math.nan
 
 
+def _span_axes(span: np.ndarray) -> tuple[int, np.ndarray]:
+    """How many directions a :func:`_span` projector holds, and its strongest direction."""
+    return round(float(np.trace(span))), np.linalg.eigh(span)[1][:, -1]
+
+
 def _span(x: np.ndarray, rel: float = 1e-3) -> np.ndarray:
     """Projector onto the directions a (T, 3) signal excites (second-moment eigenvalues above ``rel``)."""
     lam, V = np.linalg.eigh(x.T @ x)
@@ -632,11 +637,11 @@ def _axis_fit(sig: _Signals, j: int, c: int, omega_p: np.ndarray | None, measure
         if measured:
             X = np.c_[X, np.cos(q), np.sin(q)]
     Yb = sig.band_limit(r.gyro[:, c])
-    if measured:
-        X = np.c_[
-            X, sig.derivative(_band_side(sig, _link_rate(sig, X, r.gyro[:, c], 0 if omega_p is None else 9)))
-        ]
     Xb = sig.band_limit(X)
+    if measured:
+        rate = _link_rate(sig, X, Xb, r.gyro[:, c], Yb, 0 if omega_p is None else 9)
+        side = sig.band_limit(sig.derivative(_band_side(sig, rate))[:, None])
+        Xb = np.c_[Xb, side]
     coef, cov = _per_axis(Xb, Yb, sig.lags)
     var = _variances(cov)
     ia = 0 if omega_p is None else 9
@@ -667,11 +672,14 @@ def _axis_fit(sig: _Signals, j: int, c: int, omega_p: np.ndarray | None, measure
     )
 
 
-def _link_rate(sig: _Signals, X: np.ndarray, gyro: np.ndarray, ia: int) -> np.ndarray:
+def _link_rate(
+    sig: _Signals, X: np.ndarray, Xb: np.ndarray, gyro: np.ndarray, Yb: np.ndarray, ia: int
+) -> np.ndarray:
     """The joint's rate as the gyros see the link turn, in the common band: the gyro model fitted
-    without the encoder's dead-band steps, everything but its ``q̇`` column taken out of the child's
-    gyro and the rest read along the axis. Unlike the encoder's velocity it turns where the link turns."""
-    coef, _ = _per_axis(sig.band_limit(X), sig.band_limit(gyro), sig.lags)
+    (on the band-limited ``Xb``, ``Yb``) without the encoder's dead-band steps, everything but its ``q̇``
+    column taken out of the child's ``gyro`` and the rest read along the axis. Unlike the encoder's
+    velocity it turns where the link turns."""
+    coef, _ = _per_axis(Xb, Yb, sig.lags)
     a = coef[ia]
     gain = max(float(np.linalg.norm(a)), 1e-12)
     others = [k for k in range(X.shape[1]) if k != ia]
@@ -709,14 +717,7 @@ def _band_side(sig: _Signals, rate: np.ndarray) -> np.ndarray:
 _DRAWS = 400
 
 
-def _rotations(M: np.ndarray) -> np.ndarray:
-    """:func:`project_rotation` of a stack (K, 3, 3)."""
-    U, _, Vt = np.linalg.svd(M)
-    U[:, :, 2] *= np.sign(np.linalg.det(U @ Vt))[:, None]
-    return U @ Vt
-
-
-def _in_parent_std(coef: np.ndarray, cov: np.ndarray, span: np.ndarray) -> float:
+def _in_parent_std(coef: np.ndarray, cov: np.ndarray, span: np.ndarray, ref: np.ndarray) -> float:
     """The std (deg, RMS angle) of the gyro's axis in the parent's frame, ``R0ᵀ u``.
 
     Both factors come from the one gyro fit (``u`` from the ``q̇`` column, ``R0`` the rotation nearest
@@ -724,7 +725,7 @@ def _in_parent_std(coef: np.ndarray, cov: np.ndarray, span: np.ndarray) -> float
     that nonlinear map. With a parent that turned mostly about one axis and a little about another, the
     rotation about the weak direction is barely fixed, and the axis in the parent's frame moves with it
     by far more than ``u``'s own std: the coefficients are drawn from their Gaussian (each output axis's
-    fit on its own, as fitted) and the map applied to each draw.
+    fit on its own, as fitted) and the map applied to each draw; ``ref`` is the map of the fit itself.
     """
     rng = np.random.default_rng(0)
     p = coef.shape[0]
@@ -736,8 +737,7 @@ def _in_parent_std(coef: np.ndarray, cov: np.ndarray, span: np.ndarray) -> float
     a = draws[:, 9]
     u = a / np.linalg.norm(a, axis=1, keepdims=True)
     H = np.swapaxes(draws[:, 0:3] + draws[:, 3:6], 1, 2) @ span
-    v = np.einsum("kji,kj->ki", _rotations(H), u)
-    ref = project_rotation((coef[0:3] + coef[3:6]).T @ span).T @ (coef[9] / np.linalg.norm(coef[9]))
+    v = np.einsum("kji,kj->ki", project_rotation(H), u)
     cos = np.clip(v @ ref, -1.0, 1.0)
     return math.degrees(math.sqrt(float(np.mean(np.arccos(cos) ** 2))))
 
@@ -1226,8 +1226,7 @@ def _one_imu(
         Rg = project_rotation(fit.H)  # type: ignore[arg-type]
         om = np.einsum("ij,tj->ti", Rg, omega[best_p])
         om = np.einsum("tij,tj->ti", rotation_about(u, -q), om) + u * qd[:, None]
-        rank = round(float(np.trace(fit.span)))  # type: ignore[arg-type]
-        p_axis = np.linalg.eigh(fit.span)[1][:, -1]  # type: ignore[arg-type]
+        rank, p_axis = _span_axes(fit.span)  # type: ignore[arg-type]
         noise_var = math.radians(fit.std_deg) ** 2 / 2.0
         lever = _lever_child(sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis, opts, noise_var)
         R0, d = lever.M0, lever.d
@@ -1303,10 +1302,10 @@ def _gyro_reading(sig: _Signals, j: int, c: int, p: int | None) -> _GyroReading:
     if p is None:
         return _GyroReading(_axis_fit(sig, j, c, None, measured=True))
     fit = _axis_fit(sig, j, c, sig.rec.gyro[:, p], measured=True)
-    R0 = project_rotation(fit.H)  # type: ignore[arg-type]
-    rank = round(float(np.trace(fit.span)))  # type: ignore[arg-type]
+    rank, p_axis = _span_axes(fit.span)  # type: ignore[arg-type]
     if rank >= 2:
-        std = _in_parent_std(fit.coef, fit.cov, fit.span)  # type: ignore[arg-type]
-        return _GyroReading(fit, in_parent=R0.T @ fit.axis, in_parent_std_deg=std, parent_rank=rank)
-    seen = fit.H @ np.linalg.eigh(fit.span)[1][:, -1]  # type: ignore[index, operator]
+        in_parent = project_rotation(fit.H).T @ fit.axis
+        std = _in_parent_std(fit.coef, fit.cov, fit.span, in_parent)  # type: ignore[arg-type]
+        return _GyroReading(fit, in_parent=in_parent, in_parent_std_deg=std, parent_rank=rank)
+    seen = fit.H @ p_axis  # type: ignore[operator]
     return _GyroReading(fit, parent_axis=seen / max(float(np.linalg.norm(seen)), 1e-12), parent_rank=rank)

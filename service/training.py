@@ -225,9 +225,7 @@ class RemoteRetrains:
         from bodyschema.fast import FastOptions
         from bodyschema.timing import lag_search_centre
 
-        rec = self.store.latest_topology(robot, "fast")
-        lag = 1e-3 * float(rec.topology.timing.get("lag_ms", 0.0)) if rec is not None else 0.0
-        return lag_search_centre(lag, FastOptions.max_lag)
+        return lag_search_centre(self.store.last_lag(robot), FastOptions.max_lag)
 
     def _job(self, robot: str, method: str) -> RetrainJob | None:
         try:

@@ -440,8 +440,7 @@ class Worker:
         as it is. From the newest stored fast topology after a restart; 0 after the device clock went
         back (:meth:`_epoch_seen`: the clocks may have restarted apart)."""
         if robot not in self._lags:
-            rec = self.store.latest_topology(robot, "fast")
-            self._lags[robot] = 1e-3 * float(rec.topology.timing.get("lag_ms", 0.0)) if rec else 0.0
+            self._lags[robot] = self.store.last_lag(robot)
         return lag_search_centre(self._lags[robot], FastOptions.max_lag)
 
     def _estimate(self, rec: Recording, method: str, hint: float) -> Topology:

@@ -71,6 +71,11 @@ class TopologiesMixin(StoreBase):
             _thin_history(s, rid, topo.method or "", self.topology_history_keep)
             return tid
 
+    def last_lag(self, robot: str) -> float:
+        """The IMU's lag behind the encoders (s) in ``robot``'s newest fast topology; 0 without one."""
+        rec = self.latest_topology(robot, "fast")
+        return 1e-3 * float(rec.topology.timing.get("lag_ms", 0.0)) if rec is not None else 0.0
+
     def latest_topology(self, robot: str, method: str | None = None) -> TopologyRecord | None:
         """The newest stored topology (of ``method`` when given)."""
         hist = self._topologies(robot, 1, method)
