@@ -457,7 +457,8 @@ class Worker:
     ) -> tuple[Finding, ...] | None:
         """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5);
         None when this cycle does not judge it (not its turn, the body differs from the baseline, or
-        no geometry is kept yet: then this one is kept, once an IMU's axis converged).
+        no geometry is kept yet: then this one is kept, once an IMU's axis converged). A judged
+        estimate is kept as the robot's newest geometry, the one the API serves beside the baseline's.
 
         Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a fleet's
         estimates spread over the cycles; on the raw window (the estimate band-limits its signals, and
@@ -489,6 +490,9 @@ class Worker:
                 )
                 log.info("geometry baseline kept", extra={"robot": robot, "baseline_id": base.id})
             return None
+        self.store.save_kinematics(
+            robot, base.id, kin.to_json(), wall_time=self.clock(), window_end_t=window_end, latest=True
+        )
         return kinematic_findings(Kinematics.from_json(kept.data, base.topology), kin)
 
     @property

@@ -3,9 +3,10 @@
 :func:`create_app` builds one app around a store (and, in the daemon, the ingest pipeline that pushed
 frames go through, the worker, the metrics and the farm's damage control for simulated robots; the
 last two as the protocols of :mod:`service.control`). One router per resource: robots, status,
-topology, alerts, simulate, health. Bad input never reaches a 500: unknown robots and alerts are 404,
-malformed bodies 422, bodies over ``max_request_bytes`` 413, damage on a real robot 409, frames the
-pipeline could not store in time 503, and a database that fails under a route 503 with ``Retry-After``.
+topology, kinematics, alerts, simulate, health. Bad input never reaches a 500: unknown robots and
+alerts are 404, malformed bodies 422, bodies over ``max_request_bytes`` 413, damage on a real robot
+409, frames the pipeline could not store in time 503, and a database that fails under a route 503
+with ``Retry-After``.
 
 Security (:mod:`service.api.security`, docs/security.md): ``Host`` headers outside ``allowed_hosts`` are
 400, mutating requests with a non-JSON body 415, and with tokens configured every ``/api/v1`` route
@@ -34,7 +35,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api import alerts, diagnostics, health, robots, simulate, status, topology
+from service.api import alerts, diagnostics, health, kinematics, robots, simulate, status, topology
 from service.api.cache import ClearOnWrite, ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import JsonOnly, authorize
@@ -55,6 +56,7 @@ API_ROUTERS = (
     status.router,
     diagnostics.router,
     topology.router,
+    kinematics.router,
     alerts.router,
     simulate.router,
 )

@@ -7,16 +7,16 @@ contract, and a second model of it here would drift.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from bodyschema.findings import DAMAGE_KINDS
+from bodyschema.findings import DAMAGE_KINDS, KINEMATIC_KINDS
 from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
 from service.frames import NAME_PATTERN, NAME_RULE
 from service.status import MAX_ALTERNATIVES, RobotStatus
-from service.store import AlertRecord, RobotInfo, TopologyRecord
+from service.store import AlertRecord, RobotInfo, StoredKinematics, TopologyRecord
 
 __all__ = [
     "DAMAGE_MODES",
@@ -28,6 +28,8 @@ __all__ = [
     "DiagnosticStatusOut",
     "FramesIn",
     "KeyValueOut",
+    "KinematicsOut",
+    "KinematicsPair",
     "RetrainOut",
     "RobotOut",
     "StatusOut",
@@ -37,7 +39,8 @@ __all__ = [
     "TrainingOut",
 ]
 
-DamageKind = Literal[DAMAGE_KINDS]  # type: ignore[valid-type]
+#: What a simulated robot can be broken with: the topology's damages and the geometry drifts.
+DamageKind = Literal[(*DAMAGE_KINDS, *KINEMATIC_KINDS)]  # type: ignore[valid-type]
 #: A robot, joint or IMU name in a request body (the pattern every ingest source is held to).
 PartName = Annotated[str, Field(pattern=NAME_PATTERN, description=NAME_RULE)]
 
@@ -54,12 +57,28 @@ DAMAGE_PARAMS: dict[str, tuple[str, ...]] = {
     "joint_locked": ("joint",),
     "encoder_fault": ("joint", "mode", "value"),
     "link_lost": ("joint",),
+    "imu_rotated": ("imu", "angle_deg", "about"),
+    "imu_shifted": ("imu", "meters"),
+    "axis_changed": ("joint", "angle_deg"),
+    "backlash": ("joint", "deg"),
 }
+#: Every optional part of a damage body, in the order the schema lists them.
+_DAMAGE_ARGS = ("imu", "joint", "to", "value", "mode", "tether", "angle_deg", "about", "meters", "deg")
 #: The ``mode`` values of the kinds that take one.
 DAMAGE_MODES: dict[str, tuple[str, ...]] = {
     "imu_dead": ("frozen", "zero"),
     "encoder_fault": ("stuck", "offset"),
 }
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def _copied(cls: type[M], record: object, **given: Any) -> M:
+    """``cls`` with each of its fields read from the attribute of ``record`` of the same name, unless
+    ``given``: the stores' records and the API's models name their fields alike."""
+    fields = {f: getattr(record, f) for f in cls.model_fields if f not in given}
+    return cls(**fields, **given)
 
 
 class TopologyOut(BaseModel):
@@ -98,6 +117,34 @@ class TopologyPair(BaseModel):
     )
 
 
+class KinematicsOut(BaseModel):
+    """One kept geometry estimate of a robot."""
+
+    id: int
+    baseline_id: int = Field(description="the topology baseline it was estimated under")
+    wall_time: float
+    window_end_t: float | None = Field(description="device time at the end of the window it came from, s")
+    kinematics: dict[str, Any] = Field(description="docs/kinematics.md JSON: joint axes, IMU lever arms")
+
+    @classmethod
+    def of(cls, k: StoredKinematics | None) -> KinematicsOut | None:
+        return None if k is None else _copied(cls, k, kinematics=k.data)
+
+
+class KinematicsPair(BaseModel):
+    """A robot's geometry under its current topology baseline: as first learned and as now."""
+
+    baseline: KinematicsOut | None = Field(
+        description="the first geometry learned under the current topology baseline (drift compares with it)"
+    )
+    latest: KinematicsOut | None = Field(description="the newest geometry estimate under that baseline")
+    drift: list[dict[str, Any]] | None = Field(
+        None,
+        description="docs/design.md §2 findings from baseline to latest (imu_rotated, imu_shifted, "
+        "axis_changed, backlash), each beyond the two estimates' own uncertainty; alerts add hysteresis",
+    )
+
+
 class AlertOut(BaseModel):
     id: int
     robot: str
@@ -114,20 +161,7 @@ class AlertOut(BaseModel):
 
     @classmethod
     def of(cls, a: AlertRecord) -> AlertOut:
-        return cls(
-            id=a.id,
-            robot=a.robot,
-            kind=a.kind,
-            part=a.part,
-            imu=a.imu,
-            joint=a.joint,
-            state=a.state,
-            acked=a.acked,
-            raised_at=a.raised_at,
-            resolved_at=a.resolved_at,
-            updated_at=a.updated_at,
-            finding=a.finding,
-        )
+        return _copied(cls, a)
 
 
 class TimingOut(BaseModel):
@@ -324,9 +358,9 @@ def _damage_variants(schema: dict[str, Any]) -> None:
     """The body's JSON Schema says per kind what :meth:`DamageIn._params_fit_kind` accepts: one
     ``oneOf`` branch per kind, in which a parameter the kind does not take may only be null and
     ``mode`` is one of the kind's own modes."""
-    names = ("imu", "joint", "to", "value", "mode", "tether")
+    names = _DAMAGE_ARGS
     variants: list[dict[str, Any]] = []
-    for kind in DAMAGE_KINDS:
+    for kind in (*DAMAGE_KINDS, *KINEMATIC_KINDS):
         props: dict[str, Any] = {"kind": {"const": kind}}
         allowed = DAMAGE_PARAMS.get(kind)
         if allowed is not None:
@@ -344,7 +378,7 @@ class DamageIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra=_damage_variants)
 
-    kind: DamageKind = Field(description=f"one of {', '.join(DAMAGE_KINDS)}")
+    kind: DamageKind = Field(description=f"one of {', '.join((*DAMAGE_KINDS, *KINEMATIC_KINDS))}")
     imu: PartName | None = None
     joint: PartName | None = None
     to: PartName | None = Field(None, description="imu_moved: the joint the IMU moves to")
@@ -353,13 +387,25 @@ class DamageIn(BaseModel):
         None, description="imu_dead: frozen|zero; encoder_fault: stuck|offset"
     )
     tether: float | None = Field(None, gt=0, le=1.0, description="imu_detached: tether length, m")
+    angle_deg: float | None = Field(
+        None, gt=0, le=90.0, description="imu_rotated: the mount's turn; axis_changed: the axis' bend, deg"
+    )
+    about: Vector3 | None = Field(
+        None,
+        description="imu_rotated: the turn's axis in the IMU frame (any length but zero)",
+        json_schema_extra={"contains": {"not": {"const": 0}}},
+    )
+    meters: float | None = Field(
+        None, gt=0, le=0.2, description="imu_shifted: the slide on its link, across the joint axis, m"
+    )
+    deg: float | None = Field(None, gt=0, le=30.0, description="backlash: the dead band's width, deg")
 
     @model_validator(mode="after")
     def _params_fit_kind(self) -> DamageIn:
         allowed = DAMAGE_PARAMS.get(self.kind)
         if allowed is None:
             return self
-        given = [k for k in ("imu", "joint", "to", "value", "mode", "tether") if getattr(self, k) is not None]
+        given = [k for k in _DAMAGE_ARGS if getattr(self, k) is not None]
         extra = [k for k in given if k not in allowed]
         if extra:
             raise ValueError(
@@ -368,6 +414,12 @@ class DamageIn(BaseModel):
             )
         if self.mode is not None and self.mode not in DAMAGE_MODES.get(self.kind, ()):
             raise ValueError(f"{self.kind} mode must be one of {', '.join(DAMAGE_MODES[self.kind])}")
+        if self.about is not None:
+            top = max(abs(x) for x in self.about)
+            if top == 0:
+                raise ValueError("about must be a nonzero vector")
+            # scaled to a largest component of 1: the simulator's normalisation cannot underflow
+            self.about = [x / top for x in self.about]
         return self
 
 

@@ -1,12 +1,20 @@
 // bodyhealth dashboard: plain JS polling the REST API (no build step).
 // Robots with their monitoring answer (healthy / damaged / undetermined, as the API's status gives it),
-// their learned trees (baseline vs current, SVG), active alerts, simulated damage.
+// their learned trees (baseline vs current, SVG), their geometry (joint axes, IMU lever arms, drift),
+// active alerts, simulated damage.
 "use strict";
 
 const API = "/api/v1";
 const POLL_MS = 2000;
 const KINDS = ["imu_moved", "imu_detached", "imu_dead", "joint_locked", "encoder_fault",
-  "joint_reparented", "link_lost"];
+  "joint_reparented", "link_lost", "imu_rotated", "imu_shifted", "axis_changed", "backlash"];
+// The geometry drifts take a magnitude: the body field, the unit shown, its default, the factor to SI.
+const MAGNITUDE = {
+  imu_rotated: { field: "angle_deg", unit: "deg", value: 2, scale: 1 },
+  axis_changed: { field: "angle_deg", unit: "deg", value: 2, scale: 1 },
+  imu_shifted: { field: "meters", unit: "mm", value: 5, scale: 1e-3 },
+  backlash: { field: "deg", unit: "deg", value: 1, scale: 1 },
+};
 const SVGNS = "http://www.w3.org/2000/svg";
 const cards = new Map();  // robot name -> {root, trees, meta, ...}
 const TOKEN_KEY = "bodyhealth-token";  // sessionStorage: the token lives as long as the tab
@@ -180,8 +188,9 @@ function makeCard(robot) {
   const meta = el("div", { class: "meta" });
   const detail = el("div", { class: "verdict-detail" });
   const trees = el("div", { class: "trees" });
-  root.append(head, meta, detail, trees);
-  const card = { root, meta, verdict, detail, trees, damage: null };
+  const geometry = el("div", { class: "geometry" });
+  root.append(head, meta, detail, trees, geometry);
+  const card = { root, meta, verdict, detail, trees, geometry, damage: null };
   const ops = el("div", { class: "damage ops" });
   const approve = el("button", { type: "button", class: "approve" }, "Approve current as baseline");
   const opsResult = el("span", { class: "result" });
@@ -203,9 +212,18 @@ function makeCard(robot) {
     const kind = el("select", { name: "kind" });
     KINDS.forEach((k) => kind.appendChild(el("option", { value: k }, k)));
     const part = el("input", { name: "part", placeholder: "part (optional): imu or joint name", size: 26 });
+    const size = el("input", { name: "magnitude", type: "number", min: "0", step: "any", size: 5 });
+    const unit = el("span", { class: "unit" });
+    const showSize = () => {
+      const m = MAGNITUDE[kind.value];
+      size.hidden = unit.hidden = !m;
+      if (m) { size.value = String(m.value); unit.textContent = m.unit; }
+    };
+    kind.addEventListener("change", showSize);
+    showSize();
     const btn = el("button", { type: "submit" }, "Inject damage");
     const result = el("span", { class: "result" });
-    form.append(el("span", {}, "simulate:"), kind, part, btn, result);
+    form.append(el("span", {}, "simulate:"), kind, part, size, unit, btn, result);
     form.addEventListener("submit", async (ev) => {
       ev.preventDefault();
       const body = { kind: kind.value };
@@ -213,6 +231,8 @@ function makeCard(robot) {
       if (p) {
         if (kind.value.startsWith("imu_")) body.imu = p; else body.joint = p;
       }
+      const m = MAGNITUDE[kind.value];
+      if (m && size.value !== "") body[m.field] = Number(size.value) * m.scale;
       result.textContent = "…";
       try {
         const r = await getJSON(`${API}/robots/${encodeURIComponent(robot.name)}/simulate/damage`, {
@@ -271,6 +291,69 @@ async function renderRobot(robot, alerts) {
     figs.push(fig);
   }
   card.trees.replaceChildren(...figs);
+  if (robot.has_baseline) await renderGeometry(card, robot);
+}
+
+// ------------------------------------------------------------------------------------ geometry
+// Joint axes and lever arms as the worker estimated them under the baseline, and what drifted since:
+// the API's comparison, beyond both estimates' own uncertainty (docs/kinematics.md).
+function fmtVec(v, scale = 1, digits = 3) {
+  return v ? `(${v.map((x) => (x * scale).toFixed(digits)).join(", ")})` : "–";
+}
+
+async function renderGeometry(card, robot) {
+  let g;
+  try {
+    g = await getJSON(`${API}/robots/${encodeURIComponent(robot.name)}/kinematics`);
+  } catch (err) {
+    return;
+  }
+  const now = g.latest || g.baseline;
+  if (!now) {
+    card.geometry.replaceChildren(el("div", { class: "muted" }, "geometry: not learned yet"));
+    return;
+  }
+  const imus = Object.entries(now.kinematics.imus || {});
+  const drift = g.drift || [];
+  const drifted = new Set(drift.map((f) => f.imu || f.joint));
+  const converged = imus.filter(([, k]) => k.converged).length;
+  const head = el("summary", {}, `geometry: ${converged}/${imus.length} IMUs converged · `);
+  const verdict = drift.length
+    ? el("span", { class: "drift bad" }, `drift: ${drift.map((f) => `${f.kind} ${f.imu || f.joint}`).join(", ")}`)
+    : el("span", { class: "drift" }, g.latest && g.baseline && g.latest.id !== g.baseline.id
+      ? "no drift beyond the estimates' uncertainty" : "learned; nothing to compare yet");
+  head.appendChild(verdict);
+  const table = el("table", { class: "kinematics" });
+  const hr = el("tr", {});
+  ["IMU", "joint", "axis (IMU frame)", "± deg", "lever arm, mm", "± mm", ""].forEach((h) => hr.appendChild(el("th", {}, h)));
+  table.appendChild(hr);
+  for (const [name, k] of imus) {
+    const tr = el("tr", { "data-imu": name, class: drifted.has(name) || drifted.has(k.joint) ? "drifted" : "" });
+    tr.append(el("td", {}, name), el("td", {}, k.joint ?? "base"), el("td", {}, fmtVec(k.axis)),
+      el("td", {}, k.axis_std_deg === null ? "–" : k.axis_std_deg.toFixed(2)),
+      el("td", {}, fmtVec(k.lever_arm, 1e3, 1)),
+      el("td", {}, k.lever_arm_std_m === null ? "–" : (k.lever_arm_std_m * 1e3).toFixed(1)),
+      el("td", { class: "muted" }, k.converged ? "" : (k.reason || "not converged")));
+    table.appendChild(tr);
+  }
+  const details = el("details", { class: "geometry-table" });
+  const open = card.geometry.querySelector("details");
+  if (open && open.open) details.open = true;
+  // fetched with the API token (a plain link would not send it), then saved from a blob
+  const urdf = el("a", { href: "#", class: "urdf" }, "download URDF");
+  urdf.addEventListener("click", async (ev) => {
+    ev.preventDefault();
+    const r = await apiFetch(`${API}/robots/${encodeURIComponent(robot.name)}/kinematics/urdf`);
+    if (!r.ok) { urdf.textContent = `URDF: ${r.status}`; return; }
+    const a = el("a", { href: URL.createObjectURL(await r.blob()), download: `${robot.name}.urdf` });
+    a.click();
+    URL.revokeObjectURL(a.href);
+  });
+  const note = el("div", { class: "muted" }, "axis along positive q; lever arm from the axis to the IMU, across it · ");
+  note.appendChild(urdf);
+  details.append(head, table, note);
+  card.geometry.dataset.drift = String(drift.length);
+  card.geometry.replaceChildren(details);
 }
 
 // ------------------------------------------------------------------------------------ status

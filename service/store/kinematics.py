@@ -3,9 +3,12 @@
 The worker estimates a robot's kinematics (:func:`bodyschema.kinematics.estimate_kinematics`) once its
 topology baseline stands and a window shows that same body; that estimate is kept here, tied to the
 topology baseline that was current (``baseline_id``), and later estimates are compared with it
-(:func:`bodyschema.kinematic_drift.kinematic_findings`). A new topology baseline is a new body: its
-geometry is learned afresh, and the rows of older baselines stay as their history. Kept as the
-kinematics JSON (docs/kinematics.md), read back with :meth:`bodyschema.kinematics.Kinematics.from_json`.
+(:func:`bodyschema.kinematic_drift.kinematic_findings`). The newest later estimate is kept too
+(``latest=True``), replacing the one before it, so a robot holds at most two rows per baseline: what its
+geometry was and what it is now (the API serves both, ``GET /api/v1/robots/{robot}/kinematics``). A new
+topology baseline is a new body: its geometry is learned afresh, and the rows of older baselines stay as
+their history. Kept as the kinematics JSON (docs/kinematics.md), read back with
+:meth:`bodyschema.kinematics.Kinematics.from_json`.
 
 Example
 -------
@@ -20,6 +23,10 @@ Example
 True
 >>> store.kinematics_baseline("arm", 7).data, store.kinematics_baseline("arm", 8) is None
 ({'imus': {}}, True)
+>>> for n in (1, 2):
+...     _ = store.save_kinematics("arm", 7, {"imus": {}, "n": n}, wall_time=2.0 + n, latest=True)
+>>> store.kinematics_latest("arm", 7).data["n"], store.kinematics_latest("arm").data["n"]
+(2, 2)
 >>> store.close()
 """
 
@@ -28,7 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import insert, select
+from sqlalchemy import Select, delete, insert, select
 
 from service.db.models import KinematicsRow
 from service.store.robots import robot_id
@@ -60,10 +67,24 @@ class KinematicsMixin(StoreBase):
         *,
         wall_time: float,
         window_end_t: float | None = None,
+        latest: bool = False,
     ) -> int:
-        """Keep ``data`` (a kinematics JSON) as ``robot``'s geometry under ``baseline_id``; returns its id."""
+        """Keep ``data`` (a kinematics JSON) as ``robot``'s geometry under ``baseline_id``; returns its id.
+
+        The first row under a baseline is its geometry baseline. With ``latest``, the row replaces every
+        later one under that baseline (never the first): the newest estimate, kept to be served."""
         with self._session() as s, s.begin():
             rid = robot_id(s, robot)
+            if latest:
+                first = s.scalar(_rows(rid, baseline_id).with_only_columns(KinematicsRow.id).limit(1))
+                if first is not None:
+                    s.execute(
+                        delete(KinematicsRow).where(
+                            KinematicsRow.robot_id == rid,
+                            KinematicsRow.baseline_id == int(baseline_id),
+                            KinematicsRow.id != first,
+                        )
+                    )
             return int(
                 s.scalar(
                     insert(KinematicsRow)
@@ -82,19 +103,35 @@ class KinematicsMixin(StoreBase):
         """The geometry kept for ``robot`` under ``baseline_id`` (the first kept), None before one is."""
         with self._session() as s:
             rid = robot_id(s, robot)
-            r = s.scalar(
-                select(KinematicsRow)
-                .where(KinematicsRow.robot_id == rid, KinematicsRow.baseline_id == int(baseline_id))
-                .order_by(KinematicsRow.id)
-                .limit(1)
-            )
-        if r is None:
-            return None
-        return StoredKinematics(
-            id=int(r.id),
-            robot=robot,
-            baseline_id=int(r.baseline_id),
-            wall_time=float(r.wall_time),
-            window_end_t=r.window_end_t,
-            data=dict(r.data),
-        )
+            r = s.scalar(_rows(rid, baseline_id).limit(1))
+        return None if r is None else _stored(robot, r)
+
+    def kinematics_latest(self, robot: str, baseline_id: int | None = None) -> StoredKinematics | None:
+        """The newest geometry kept for ``robot`` (under ``baseline_id`` when given), None if none is."""
+        with self._session() as s:
+            rid = robot_id(s, robot)
+            q = select(KinematicsRow).where(KinematicsRow.robot_id == rid)
+            if baseline_id is not None:
+                q = q.where(KinematicsRow.baseline_id == int(baseline_id))
+            r = s.scalar(q.order_by(KinematicsRow.id.desc()).limit(1))
+        return None if r is None else _stored(robot, r)
+
+
+def _rows(rid: int, baseline_id: int) -> Select[tuple[KinematicsRow]]:
+    """A robot's rows under one baseline, oldest first."""
+    return (
+        select(KinematicsRow)
+        .where(KinematicsRow.robot_id == rid, KinematicsRow.baseline_id == int(baseline_id))
+        .order_by(KinematicsRow.id)
+    )
+
+
+def _stored(robot: str, r: KinematicsRow) -> StoredKinematics:
+    return StoredKinematics(
+        id=int(r.id),
+        robot=robot,
+        baseline_id=int(r.baseline_id),
+        wall_time=float(r.wall_time),
+        window_end_t=r.window_end_t,
+        data=dict(r.data),
+    )

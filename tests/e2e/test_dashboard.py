@@ -23,6 +23,7 @@ from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
 from tests.e2e.processes import free_port, serve_command, serve_in_thread
+from tests.service.geometry import geometry_json
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = [
@@ -106,7 +107,11 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store, RecordingFarm]]:
             )
         )
         store.save_topology(robot, BASE, time.time() - 10, 0.49)
-        store.set_baseline(robot, BASE, "auto")
+        base_id = store.set_baseline(robot, BASE, "auto")
+    # leg's geometry: learned under its baseline, then an estimate in which i2's axis turned
+    store.save_kinematics("leg", base_id, geometry_json(BASE), wall_time=time.time() - 5)
+    turned = geometry_json(BASE, {"i2": [0.0, 1.0, 0.0]})
+    store.save_kinematics("leg", base_id, turned, wall_time=time.time(), latest=True)
     store.save_topology("arm", CUR, time.time(), 0.49)
     store.mark_simulated("arm", "toy")
     store.upsert_alert(
@@ -154,15 +159,37 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, Re
     # only the simulated robot has the damage control; using it posts to the API
     assert page.locator("article[data-robot='leg'] form.damage").count() == 0
     form = page.locator("article[data-robot='arm'] form.damage")
+    result = "document.querySelector(\"article[data-robot='arm'] form.damage .result\").textContent"
     form.locator("select").select_option("imu_dead")
-    form.locator("input").fill("i2")
+    assert not form.locator("input[name='magnitude']").is_visible()  # a topology damage has no size
+    form.locator("input[name='part']").fill("i2")
     form.locator("button").click()
-    page.wait_for_function(
-        "document.querySelector(\"article[data-robot='arm'] form.damage .result\")"
-        ".textContent.startsWith('injected')",
-        timeout=10_000,
-    )
+    page.wait_for_function(f"{result}.startsWith('injected')", timeout=10_000)
     assert inj.calls == [("arm", "imu_dead", {"imu": "i2"})]
+    # a geometry drift takes its magnitude, in the unit shown (mm for a slide, sent in metres)
+    for kind, size, sent in (
+        ("imu_rotated", "2.5", {"angle_deg": 2.5}),
+        ("imu_shifted", "5", {"meters": 0.005}),
+    ):
+        page.evaluate(f"{result} = ''")
+        form.locator("select").select_option(kind)
+        assert form.locator("input[name='magnitude']").is_visible()
+        form.locator("input[name='part']").fill("i3")
+        form.locator("input[name='magnitude']").fill(size)
+        form.locator("button").click()
+        page.wait_for_function(f"{result}.startsWith('injected')", timeout=10_000)
+        assert inj.calls[-1] == ("arm", kind, {"imu": "i3", **sent})
+    # geometry: leg's turned IMU is named and its row is red; arm has none learned yet
+    leg = page.locator("article[data-robot='leg'] .geometry")
+    page.wait_for_selector("article[data-robot='leg'] .geometry[data-drift='1']", timeout=10_000)
+    assert "drift: imu_rotated i2" in leg.locator("summary").inner_text()
+    assert "5/5 IMUs converged" in leg.locator("summary").inner_text()
+    leg.locator("summary").click()
+    assert leg.locator("tr[data-imu]").count() == 5
+    assert leg.locator("tr.drifted[data-imu='i2']").count() == 1 and leg.locator("tr.drifted").count() == 1
+    assert "(0.000, 1.000, 0.000)" in leg.locator("tr[data-imu='i2']").inner_text()
+    assert "(100.0, 0.0, 0.0)" in leg.locator("tr[data-imu='i1']").inner_text()
+    assert "not learned yet" in page.locator("article[data-robot='arm'] .geometry").inner_text()
     # an alert that appears in the store shows up at the next poll; ack works from the page
     store.upsert_alert("arm", "imu_dead", "imu:i2", {"kind": "imu_dead", "imu": "i2"}, "active", time.time())
     page.wait_for_selector("#alerts tr[data-kind='imu_dead']", timeout=10_000)
@@ -241,7 +268,7 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
             assert page.locator(base_sel).count() == len(r["joints"]), r["name"]
         form = page.locator("article[data-robot='paper-3-1'] form.damage")
         form.locator("select").select_option("imu_dead")
-        form.locator("input").fill("imu30")
+        form.locator("input[name='part']").fill("imu30")
         form.locator("button").click()
         page.wait_for_selector("#alerts tr[data-kind='imu_dead'][data-part='imu:imu30']", timeout=120_000)
         page.wait_for_selector(

@@ -21,6 +21,7 @@ from service.metrics import Metrics
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
+from tests.service.geometry import geometry_json
 
 TOPO = Topology(
     {"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"}, method="fast", excitation={"j1": 0.4, "j2": 0.3}
@@ -227,6 +228,106 @@ def test_damage_on_a_simulated_robot(client: TestClient, farm: RecordingFarm) ->
     assert len(farm.calls) == 1
 
 
+def test_drift_damage_takes_its_magnitude(client: TestClient, farm: RecordingFarm) -> None:
+    """The geometry drifts are injectable with their magnitudes; each kind refuses another's."""
+    url = "/api/v1/robots/sim/simulate/damage"
+    bodies = [
+        {"kind": "imu_rotated", "imu": "imu1", "angle_deg": 2.0, "about": [0.0, 1.0, 0.0]},
+        {"kind": "imu_shifted", "imu": "imu0", "meters": 0.005},
+        {"kind": "axis_changed", "joint": "j2", "angle_deg": 2.5},
+        {"kind": "backlash", "joint": "j1", "deg": 1.0},
+    ]
+    for body in bodies:
+        r = client.post(url, json=body)
+        assert r.status_code == 201, r.text
+    assert farm.calls == [("sim", b.pop("kind"), b) for b in [dict(b) for b in bodies]]
+    for body, words in [
+        ({"kind": "imu_shifted", "angle_deg": 2.0}, "imu_shifted takes imu, meters"),
+        ({"kind": "backlash", "deg": 0.0}, "greater than 0"),
+        ({"kind": "imu_rotated", "angle_deg": 91.0}, "less than or equal to 90"),
+        ({"kind": "imu_rotated", "about": [0.0, 0.0, 0.0]}, "nonzero"),
+        ({"kind": "imu_rotated", "about": [1.0, 0.0]}, "at least 3"),
+        ({"kind": "imu_shifted", "meters": 0.5}, "less than or equal to 0.2"),
+    ]:
+        r = client.post(url, json=body)
+        assert r.status_code == 422 and words in r.text, (body, r.text)
+    assert len(farm.calls) == len(bodies)
+    schema = client.get("/openapi.json").json()["components"]["schemas"]["DamageIn"]
+    assert {"imu_rotated", "imu_shifted", "axis_changed", "backlash"} <= set(
+        schema["properties"]["kind"]["enum"]
+    )
+
+
+def test_drift_damage_reaches_the_simulated_robot(sstore: Store) -> None:
+    """Through the real farm: each drift changes the running simulation by the magnitude asked."""
+    import math
+
+    from service.ingest.farm import FarmDamage, FarmSource
+    from simulators.farm import Farm
+
+    farm = Farm({"ur5e-1": "ur5e"}, seed=0, sensing="robot")
+    sstore.write(batch("ur5e-1"))
+    sstore.mark_simulated("ur5e-1", "ur5e")
+    c = TestClient(create_app(sstore, settings=SETTINGS, damage=FarmDamage([FarmSource(farm)])))
+    sim = farm.simulation("ur5e-1")
+    url = "/api/v1/robots/ur5e-1/simulate/damage"
+    before = sim.robot.model.site("imu3").quat.copy()
+    r = c.post(url, json={"kind": "imu_rotated", "imu": "imu3", "angle_deg": 2.5})
+    assert r.status_code == 201, r.text
+    assert r.json()["truth"]["findings"][0]["detail"] == "turned 2.5 deg"
+    turn = 2 * math.degrees(math.acos(min(1.0, abs(float(before @ sim.robot.model.site("imu3").quat)))))
+    assert turn == pytest.approx(2.5, abs=1e-6)
+    pos = sim.robot.model.site("imu5").pos.copy()
+    r = c.post(url, json={"kind": "imu_shifted", "imu": "imu5", "meters": 0.004})
+    assert r.status_code == 201 and r.json()["truth"]["findings"][0]["detail"] == "slid 4 mm"
+    assert float(np.linalg.norm(sim.robot.model.site("imu5").pos - pos)) == pytest.approx(0.004, abs=1e-9)
+    r = c.post(url, json={"kind": "backlash", "joint": "wrist_2", "deg": 0.5})
+    assert r.status_code == 201
+    assert sim.encoder_faults["wrist_2"] == ("backlash", pytest.approx(math.radians(0.5)))
+    axis = sim.robot.model.joint("wrist_1").axis.copy()
+    r = c.post(url, json={"kind": "axis_changed", "joint": "wrist_1", "angle_deg": 3.0})
+    assert r.status_code == 201 and r.json()["truth"]["findings"][0]["detail"] == "bent 3 deg"
+    bent = math.degrees(math.acos(float(axis @ sim.robot.model.joint("wrist_1").axis)))
+    assert bent == pytest.approx(3.0, abs=1e-4)
+    r = c.post(url, json={"kind": "backlash", "joint": "nope", "deg": 0.5})
+    assert r.status_code == 422
+
+
+def test_kinematics_before_and_after_geometry_is_learned(client: TestClient, sstore: Store) -> None:
+    """No baseline: nothing to serve (200 with nulls; the URDF 404). With a kept geometry and a newer
+    estimate whose IMU axis turned 90°, the drift names that IMU; the URDF is served from either."""
+    empty = client.get("/api/v1/robots/arm/kinematics")
+    assert empty.status_code == 200 and empty.json() == {"baseline": None, "latest": None, "drift": None}
+    assert client.get("/api/v1/robots/arm/kinematics/urdf").status_code == 404
+    assert client.get("/api/v1/robots/nope/kinematics").status_code == 404
+    assert client.get("/api/v1/robots/arm/kinematics/urdf?which=first").status_code == 422
+
+    base_id = sstore.set_baseline("arm", TOPO, "operator", wall_time=1.0)
+
+    sstore.save_kinematics("arm", base_id, geometry_json(TOPO), wall_time=2.0, window_end_t=30.0)
+    only = client.get("/api/v1/robots/arm/kinematics").json()
+    assert only["baseline"]["id"] == only["latest"]["id"] and only["drift"] is None
+    sstore.save_kinematics(
+        "arm",
+        base_id,
+        geometry_json(TOPO, {"imu1": [0.0, 1.0, 0.0]}),
+        wall_time=3.0,
+        window_end_t=60.0,
+        latest=True,
+    )
+    body = client.get("/api/v1/robots/arm/kinematics").json()
+    assert body["baseline"]["baseline_id"] == body["latest"]["baseline_id"] == base_id
+    assert (body["baseline"]["window_end_t"], body["latest"]["window_end_t"]) == (30.0, 60.0)
+    assert body["latest"]["kinematics"]["imus"]["imu1"]["axis"] == [0.0, 1.0, 0.0]
+    assert [(f["kind"], f.get("imu")) for f in body["drift"]] == [("imu_rotated", "imu1")]
+    urdf = client.get("/api/v1/robots/arm/kinematics/urdf")
+    assert urdf.status_code == 200 and urdf.headers["content-type"].startswith("application/xml")
+    assert '<robot name="arm">' in urdf.text and urdf.text.count('type="revolute"') == 2
+    assert '<axis xyz="0 1 0"/>' in urdf.text
+    first = client.get("/api/v1/robots/arm/kinematics/urdf", params={"which": "baseline"}).text
+    assert '<axis xyz="0 1 0"/>' not in first and '<axis xyz="0 0 1"/>' in first
+
+
 def test_damage_without_a_farm_is_409(sstore: Store) -> None:
     sstore.write(batch("sim"))
     sstore.mark_simulated("sim", "ur5e")
@@ -301,6 +402,8 @@ def test_openapi_and_docs(client: TestClient) -> None:
         "/api/v1/alerts",
         "/api/v1/alerts/{alert_id}/ack",
         "/api/v1/robots/{robot}/simulate/damage",
+        "/api/v1/robots/{robot}/kinematics",
+        "/api/v1/robots/{robot}/kinematics/urdf",
         "/livez",
         "/readyz",
         "/metrics",

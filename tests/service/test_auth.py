@@ -19,6 +19,7 @@ from service.api import create_app
 from service.api.security import MUTATING_METHODS
 from service.settings import Settings, get_settings, reset_settings
 from service.store import Store, TopologyRecord, open_store
+from tests.service.geometry import geometry_json
 from tests.service.test_api import batch
 
 WRITE, READ = "write-secret-0123", "read-secret-4567"
@@ -72,6 +73,14 @@ def store(tmp_path: Path) -> Iterator[Store]:
     s.save_topology("sim", TOPO, 100.0, 0.19)
     yield s
     s.close()
+
+
+def learn_geometry(store: Store) -> None:
+    """Give ``sim`` a geometry under its baseline (made one if it has none), so every read has something
+    to answer (the URDF is 404 before a geometry is learned)."""
+    base = store.baseline("sim")
+    bid = base.id if base is not None else store.set_baseline("sim", TOPO, "operator")
+    store.save_kinematics("sim", bid, geometry_json(TOPO), wall_time=1.0)
 
 
 def make_client(store: Store, farm: Farm | None = None, **settings: Any) -> TestClient:
@@ -186,20 +195,23 @@ def test_without_tokens_the_api_stays_open(store: Store) -> None:
     client = make_client(store)
     for method, template in mutating_routes(client):
         assert send(client, method, template, store, {}).status_code == ACCEPTED[template], template
+    learn_geometry(store)
     for path in read_routes(client):
         assert client.get(concrete(path, store)).status_code == 200, path
 
 
 def test_write_token_alone_leaves_reads_open(store: Store) -> None:
     client = make_client(store, api_token=WRITE)
+    learn_geometry(store)
     for path in read_routes(client):
         assert client.get(concrete(path, store)).status_code == 200, path
 
 
 def test_read_token_guards_every_read_and_either_token_opens_it(store: Store) -> None:
     client = make_client(store, api_token=WRITE, api_read_token=READ)
+    learn_geometry(store)
     paths = read_routes(client)
-    assert len(paths) == 8
+    assert len(paths) == 10
     for path in paths:
         url = concrete(path, store)
         for headers in ({}, {"Authorization": "Bearer nope"}):
@@ -345,7 +357,7 @@ def test_openapi_declares_the_bearer_scheme_on_api_routes(store: Store) -> None:
                 n += 1
             else:
                 assert "security" not in op, (method, path)
-    assert n == 14
+    assert n == 16
 
 
 def test_serve_refuses_a_network_address_without_a_token(

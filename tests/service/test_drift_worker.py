@@ -13,6 +13,10 @@ A turned IMU is seen through the axis it reports, so the turn is about a directi
 the joint's axis in the IMU's frame (a turn about the axis itself leaves the axis where it was and
 moves only the lever arm's direction, by 3.5 mm at 10 cm for 2°: below what a lever arm repeats to).
 
+The API then serves, from the same stores, the geometry kept under the baseline, the newest estimate,
+their drift (the turned IMU's store names it; the nominal one names nothing) and a URDF of each that
+loads in yourdfpy and MuJoCo with the robot's joints.
+
 Time to the alert: the window must first pass the change (6 cycles), then M = 2 geometry estimates in
 a row must show it (6 cycles apart), and the estimates are staggered per robot (up to 5 more):
 ``POST_CYCLES`` = 24.
@@ -20,12 +24,20 @@ a row must show it (6 cycles apart), and the estimates are staggered per robot (
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import mujoco
 import numpy as np
 import pytest
+import yourdfpy
+from fastapi.testclient import TestClient
 
+from service.api import create_app
+from service.settings import Settings
+from service.store import open_store
 from simulators.kinematics_truth import kinematics_truth
 from simulators.robot import Robot
-from tests.service.test_damage_worker import RobotRuns, run_robot
+from tests.service.test_damage_worker import ROBOT, RobotRuns, run_robot
 
 pytestmark = pytest.mark.slow
 
@@ -43,7 +55,12 @@ def _turn_about(axis: np.ndarray) -> list[float]:
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> RobotRuns:
+def drift_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("drift")
+
+
+@pytest.fixture(scope="module")
+def runs(drift_dir: Path) -> RobotRuns:
     u = kinematics_truth(Robot.from_catalog("ur5e"))["imu7"].axis
     assert u is not None
     kwargs = {
@@ -54,7 +71,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> RobotRuns:
     return run_robot(
         "ur5e",
         7,
-        tmp_path_factory.mktemp("drift"),
+        drift_dir,
         kinds=tuple(kwargs),
         damage_kwargs=kwargs,
         post_cycles=POST_CYCLES,
@@ -79,3 +96,33 @@ def test_drift_alerts_first_with_its_kind(runs: RobotRuns, kind: str, part: str)
     assert run.first[:2] == (kind, part), run.findings
     assert run.first[2] <= POST_CYCLES
     assert run.first_finding is not None and "limit" in run.first_finding["detail"]
+
+
+@pytest.mark.parametrize("damage", [None, "imu_rotated"])
+def test_api_serves_geometry_drift_and_urdf(runs: RobotRuns, drift_dir: Path, damage: str | None) -> None:
+    db = drift_dir / ("ur5e-robot.db" if damage is None else f"ur5e-robot-{damage}.db")
+    # what the worker found in its last cycle on this store: none in the nominal run
+    seen = [] if damage is None else runs.damages[damage].findings[-1]
+    url = f"sqlite:///{db}"
+    with open_store(url) as store, TestClient(create_app(store, settings=Settings(database_url=url))) as c:
+        body = c.get(f"/api/v1/robots/{ROBOT}/kinematics").json()
+        info, base = store.robot(ROBOT), store.baseline(ROBOT)
+        assert info is not None and base is not None
+        first, newest = body["baseline"], body["latest"]
+        assert first is not None and newest is not None and newest["id"] > first["id"]
+        assert first["baseline_id"] == newest["baseline_id"] == base.id
+        assert newest["window_end_t"] > first["window_end_t"]
+        assert set(newest["kinematics"]["imus"]) == set(info.imus)
+        drift = [
+            (f["kind"], f"imu:{f['imu']}" if f.get("imu") else f"joint:{f['joint']}") for f in body["drift"]
+        ]
+        assert drift == seen, (drift, seen)
+        if damage is not None:
+            assert ("imu_rotated", "imu:imu7") in drift
+        for which in ("baseline", "latest"):
+            r = c.get(f"/api/v1/robots/{ROBOT}/kinematics/urdf", params={"which": which})
+            assert r.status_code == 200 and r.headers["content-type"].startswith("application/xml")
+            path = drift_dir / f"{db.stem}-{which}.urdf"
+            path.write_text(r.text)
+            assert sorted(yourdfpy.URDF.load(str(path)).actuated_joint_names) == sorted(info.joints)
+            assert mujoco.MjModel.from_xml_string(r.text).njnt == len(info.joints)

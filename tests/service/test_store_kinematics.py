@@ -63,8 +63,34 @@ def test_kept_per_baseline_and_read_back_as_written(store: Store) -> None:
     assert store.kinematics_baseline("r1", 5) is None
 
 
+def test_latest_replaces_the_one_before_it_never_the_baseline(store: Store) -> None:
+    _robot(store)
+    assert store.kinematics_latest("r1") is None
+    base = store.save_kinematics("r1", 3, _kin([0.0, 0.0, 1.0]).to_json(), wall_time=10.0, latest=True)
+    # the first row under a baseline is its geometry baseline, even when saved as the latest
+    assert store.kinematics_baseline("r1", 3).id == base == store.kinematics_latest("r1", 3).id
+    ids = [
+        store.save_kinematics("r1", 3, _kin(axis).to_json(), wall_time=w, window_end_t=w, latest=True)
+        for w, axis in ((20.0, [0.0, 1.0, 0.0]), (30.0, [1.0, 0.0, 0.0]))
+    ]
+    assert store.kinematics_baseline("r1", 3).id == base
+    newest = store.kinematics_latest("r1", 3)
+    assert newest is not None and newest.id == ids[1] and newest.wall_time == 30.0
+    assert newest.data["imus"]["imu0"]["axis"] == [1.0, 0.0, 0.0]
+    with store._session() as s:  # the 20 s estimate is gone: two rows per baseline, not one per cycle
+        from sqlalchemy import func, select
+
+        from service.db.models import KinematicsRow
+
+        assert s.scalar(select(func.count()).select_from(KinematicsRow)) == 2
+    store.save_kinematics("r1", 4, _kin([0.0, 0.0, 1.0]).to_json(), wall_time=40.0)
+    assert store.kinematics_latest("r1").baseline_id == 4 and store.kinematics_latest("r1", 3).id == ids[1]
+
+
 def test_unknown_robot(store: Store) -> None:
     with pytest.raises(UnknownRobot):
         store.save_kinematics("nobody", 1, {}, wall_time=0.0)
     with pytest.raises(UnknownRobot):
         store.kinematics_baseline("nobody", 1)
+    with pytest.raises(UnknownRobot):
+        store.kinematics_latest("nobody")
