@@ -1279,6 +1279,23 @@ def _drift(b: _Bench) -> str:
         f"run, {d['window_s']:g} s windows: {false} false findings in {windows} healthy windows compared "
         "with each robot's first; " + "; ".join(parts) + "."
     ]
+    p = d.get("pooled")
+    if p is not None:
+        found = "; ".join(
+            f"{g['mm']:g} mm of {g['imu']} ({g['lever_arm_mm']:.0f} mm from its axis) "
+            + (
+                f"after {g['windows_to_finding']} windows"
+                if g["windows_to_finding"]
+                else f"not within {p['windows_after']} windows"
+            )
+            for g in p["slides"]
+        )
+        lines += [
+            "",
+            f"Slides judged on pooled lever arms ({p['robot']}, {p['n_base']} estimates against the newest "
+            f"{p['n_recent']}): {sum(len(n) for n in p['nominal_findings'])} findings in "
+            f"{p['nominal_windows']} healthy windows judged; found: {found}.",
+        ]
     s = d["service"]
     if s is not None:
         lines += [

@@ -41,6 +41,8 @@ from sim2real.figures import save_figure
 
 __all__ = ["add_arguments", "run"]
 
+#: An empty argument, as a shell takes it.
+_EMPTY = "''"
 #: Device seconds of one window, as the worker's default.
 WINDOW = 30.0
 
@@ -53,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backlash-deg", type=float, default=1.0, help="dead band injected, deg")
     parser.add_argument("--fleet", default="ur5e,paper-1,quadruped", help="robots of the service part")
     parser.add_argument("--hours", type=float, default=1.0, help="simulated hours of the service part")
+    parser.add_argument("--pool-robot", default="ur5e", help="robot of the pooled-slides part ('' skips it)")
+    parser.add_argument("--pool-slides-mm", default="5,10,20", help="slides of the pooled part, mm")
+    parser.add_argument("--pool-after", type=int, default=30, help="windows judged after each slide")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
 
@@ -145,6 +150,76 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
     }
 
 
+def _pooled(args: argparse.Namespace) -> dict:
+    """Slides judged on pooled lever arms, as the worker judges them (:mod:`bodyschema.lever_pool`):
+    ``n_base`` windows under the baseline, then healthy windows until ``n_recent`` more have been
+    judged (any finding is false), then each slide of ``--pool-slides-mm`` on a fork, of the IMU whose
+    lever arm is longest and of the robot's last IMU (a wrist's, a few cm from its axis), judged window
+    by window for ``--pool-after`` windows: the windows until the first finding on its part."""
+    from bodyschema.lever_pool import POOL_KEY, LeverPool, PoolOptions, stored_drift
+    from simulators.farm import Farm
+
+    cpu0 = time.process_time()
+    o = PoolOptions()
+    farm = Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot")
+    first = _geometry(_window(farm))
+    tree = first.topology
+    pool = LeverPool().add(first)
+    for _ in progress(range(o.n_base - 1), desc="bench drift: pooled baseline", unit="window"):
+        pool = pool.add(_geometry(_window(farm), tree))
+    base = {**first.to_json(), POOL_KEY: pool.to_json()}
+
+    def judged(f: Farm, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
+        out = []
+        for _ in range(n):
+            kin = _geometry(_window(f), tree)
+            recent = recent.add(kin, keep=o.n_recent)
+            out.append(stored_drift(base, {**kin.to_json(), POOL_KEY: recent.to_json()}, tree, o))
+        return out, recent
+
+    warm, recent = judged(farm, o.n_recent, LeverPool())
+    nominal, recent = judged(farm, args.nominal, recent)
+    arms = {
+        k: float(np.linalg.norm(v.lever_arm))
+        for k, v in first.imus.items()
+        if v.converged and v.lever_arm is not None and len(pool.arms(k)) >= o.min_share * o.n_base
+    }
+    imus = [
+        max(arms, key=arms.__getitem__),
+        max(arms, key=lambda k: farm.simulation("r").robot.imu_names.index(k)),
+    ]
+    slides = []
+    for imu in imus:
+        for mm in _floats(args.pool_slides_mm):
+            branch = farm.fork()
+            branch.apply_damage("r", "imu_shifted", imu=imu, meters=mm / 1e3)
+            found, _ = judged(branch, args.pool_after, recent)
+            hits = [i for i, fs in enumerate(found) if any(f.part == f"imu:{imu}" for f in fs)]
+            first_hit = next((f for f in found[hits[0]] if f.part == f"imu:{imu}"), None) if hits else None
+            slides.append(
+                {
+                    "imu": imu,
+                    "lever_arm_mm": round(1e3 * arms[imu], 1),
+                    "scatter_mm": [round(1e3 * float(x), 2) for x in pool.arms(imu).std(axis=0, ddof=1)],
+                    "mm": mm,
+                    "windows_to_finding": hits[0] + 1 if hits else None,
+                    "finding": None if first_hit is None else first_hit.detail,
+                    "other_findings": sum(1 for fs in found for f in fs if f.part != f"imu:{imu}"),
+                }
+            )
+    return {
+        "robot": args.pool_robot,
+        "n_base": o.n_base,
+        "n_recent": o.n_recent,
+        "alpha": o.alpha,
+        "nominal_windows": len(warm) + len(nominal),
+        "nominal_findings": [[f.to_json() for f in fs] for fs in (*warm, *nominal)],
+        "windows_after": args.pool_after,
+        "slides": slides,
+        "cpu_s": round(time.process_time() - cpu0, 1),
+    }
+
+
 def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x.strip()]
 
@@ -218,11 +293,13 @@ def run(args: argparse.Namespace) -> Path:
         catalog = [
             _catalog_robot(n, args) for n in progress(names, desc="bench drift: catalog", unit="robot")
         ]
+        pooled = _pooled(args) if args.pool_robot else None
         service = _service(args) if args.hours > 0 else None
     command = (
         f"bodyhealth bench drift --robots {','.join(names)} --nominal {args.nominal} "
         f"--angle-deg {args.angle_deg:g} --slide-mm {args.slide_mm} --backlash-deg {args.backlash_deg:g} "
-        f"--fleet {args.fleet} "
+        f"--pool-robot {args.pool_robot or _EMPTY} --pool-slides-mm {args.pool_slides_mm} "
+        f"--pool-after {args.pool_after} --fleet {args.fleet} "
         f"--hours {args.hours:g} --seed {args.seed}"
     )
     data = {
@@ -230,6 +307,7 @@ def run(args: argparse.Namespace) -> Path:
         "command": command,
         "window_s": WINDOW,
         "catalog": catalog,
+        "pooled": pooled,
         "service": service,
     }
     out = Path(args.out)
@@ -289,6 +367,27 @@ def _markdown(d: dict) -> str:
                 f"{r['cpu_s']:.0f}" if i == 0 else "",
             ]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    p = d.get("pooled")
+    if p is not None:
+        false = sum(len(n) for n in p["nominal_findings"])
+        lines += [
+            "",
+            f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against those "
+            f"of the newest {p['n_recent']} (Hotelling's T², false-alarm rate {p['alpha']:g} per "
+            f"comparison), as the worker judges them. Healthy: {false} findings in {p['nominal_windows']} "
+            f"windows judged. Each slide judged for {p['windows_after']} windows after it:",
+            "",
+            "| IMU | lever arm | its scatter per window (x, y, z) | slide | windows to its finding | "
+            "finding | other findings |",
+            "|---|---:|---|---:|---:|---|---:|",
+        ]
+        for g in p["slides"]:
+            scatter = ", ".join(f"{x:g}" for x in g["scatter_mm"])
+            lines.append(
+                f"| {g['imu']} | {g['lever_arm_mm']:g} mm | {scatter} mm "
+                f"| {g['mm']:g} mm | {g['windows_to_finding'] or 'not found'} | {g['finding'] or ''} "
+                f"| {g['other_findings']} |"
+            )
     s = d["service"]
     if s is not None:
         robots = ", ".join(f"{k} ({v})" for k, v in s["fleet"].items())

@@ -29,6 +29,8 @@ from typing import Annotated
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from bodyschema.lever_pool import PoolOptions
+
 __all__ = ["LOCAL_HOSTS", "Settings", "get_settings", "is_loopback", "reset_settings"]
 
 #: Host names every app answers to (``Host`` header), whatever the configuration adds.
@@ -108,6 +110,17 @@ class Settings(BaseSettings):
         description="estimate every robot's joint axes and IMU lever arms every N worker cycles (6 at "
         "the default 5 s interval and 30 s window: each estimate on a window of its own) and compare "
         "them with the geometry learned on its baseline (drift alerts); 0 = never",
+    )
+    kinematics_pool_base: int = Field(
+        40,
+        ge=5,
+        description="geometry estimates whose lever arms, pooled, stand for the baseline's when slides "
+        "of an IMU on its link are judged (at the default pace: 20 minutes after the baseline)",
+    )
+    kinematics_pool_recent: int = Field(
+        20,
+        ge=3,
+        description="newest geometry estimates whose lever arms, pooled, are compared with the baseline's",
     )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")
@@ -260,6 +273,12 @@ class Settings(BaseSettings):
     def imu_filter_delay(self) -> float | None:
         """``imu_filter_delay_ms`` in seconds, as the estimators take it (None: not stated)."""
         return None if self.imu_filter_delay_ms is None else 1e-3 * self.imu_filter_delay_ms
+
+    @property
+    def pool_options(self) -> PoolOptions:
+        """How many geometry estimates the lever-arm pools of slide judgements hold, as the worker
+        and the API's drift both read them."""
+        return PoolOptions(n_base=self.kinematics_pool_base, n_recent=self.kinematics_pool_recent)
 
     def read_token(self) -> str | None:
         """The extra token GET routes accept (they accept the write token too); None when unset."""

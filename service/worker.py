@@ -29,7 +29,9 @@ One cycle, for every robot the store knows:
    when the diff holds no finding, the robot's geometry is estimated
    (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
-   with it (:func:`bodyschema.kinematic_drift.kinematic_findings`) and their ``imu_rotated``,
+   with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates, and the lever arms of
+   the ``kinematics_pool_recent`` newest estimates pooled against those of the first
+   ``kinematics_pool_base``, for slides smaller than one window's scatter) and their ``imu_rotated``,
    ``imu_shifted``, ``axis_changed`` and ``backlash`` findings join the diff; in the cycles between,
    those kinds are held (:meth:`Worker._drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.
@@ -69,6 +71,7 @@ from bodyschema.health import (
     drop_impacts,
     signal_health,
 )
+from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording, RecordingError
 from bodyschema.timing import encoders_moved, lag_moved, lag_search_centre
 from bodyschema.topology import Topology
@@ -458,7 +461,10 @@ class Worker:
         """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5);
         None when this cycle does not judge it (not its turn, the body differs from the baseline, or
         no geometry is kept yet: then this one is kept, once an IMU's axis converged). A judged
-        estimate is kept as the robot's newest geometry, the one the API serves beside the baseline's.
+        estimate is kept as the robot's newest geometry, the one the API serves beside the baseline's;
+        its lever arms join the baseline's pool until that holds ``kinematics_pool_base`` estimates,
+        then the newest's pool of the last ``kinematics_pool_recent`` (both kept in the store, so a
+        restart neither forgets the baseline's lever arms nor compares them with the slid ones).
 
         Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a fleet's
         estimates spread over the cycles; on the raw window (the estimate band-limits its signals, and
@@ -472,8 +478,7 @@ class Worker:
             return None
         if diff.findings:
             return None  # another body: its geometry is not the baseline's
-        from bodyschema.kinematic_drift import kinematic_findings
-        from bodyschema.kinematics import Kinematics, KinematicsOptions, estimate_kinematics
+        from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
         t0 = time.perf_counter()
         # drift compares what the gyros read: the accelerometer-frame refinement, a tenth of the cost
@@ -485,15 +490,29 @@ class Worker:
         kept = self.store.kinematics_baseline(robot, base.id)
         if kept is None:
             if any(k.axis_converged for k in kin.imus.values()):
+                data = {**kin.to_json(), POOL_KEY: LeverPool().add(kin).to_json()}
                 self.store.save_kinematics(
-                    robot, base.id, kin.to_json(), wall_time=self.clock(), window_end_t=window_end
+                    robot, base.id, data, wall_time=self.clock(), window_end_t=window_end
                 )
                 log.info("geometry baseline kept", extra={"robot": robot, "baseline_id": base.id})
             return None
+        pools = self.settings.pool_options
+        first = dict(kept.data)
+        pool = LeverPool.from_json(first.get(POOL_KEY))
+        recent = LeverPool()
+        if pool.n < pools.n_base:  # the baseline's pool fills first; slides are judged once it is full
+            first[POOL_KEY] = pool.add(kin).to_json()
+            self.store.update_kinematics(kept.id, first)
+        else:
+            newest = self.store.kinematics_latest(robot, base.id)
+            if newest is not None and newest.id != kept.id:
+                recent = LeverPool.from_json(newest.data.get(POOL_KEY))
+            recent = recent.add(kin, keep=pools.n_recent)
+        latest = {**kin.to_json(), POOL_KEY: recent.to_json()}
         self.store.save_kinematics(
-            robot, base.id, kin.to_json(), wall_time=self.clock(), window_end_t=window_end, latest=True
+            robot, base.id, latest, wall_time=self.clock(), window_end_t=window_end, latest=True
         )
-        return kinematic_findings(Kinematics.from_json(kept.data, base.topology), kin)
+        return stored_drift(first, latest, base.topology, pools)
 
     @property
     def networks_on(self) -> bool:

@@ -47,7 +47,7 @@ from typing import Any, Protocol
 import mujoco
 import numpy as np
 
-from bodyschema.findings import Diff, Finding
+from bodyschema.findings import KINEMATIC_KINDS, Diff, Finding
 from simulators.builder import LOOSE_PREFIX, surface_frames
 from simulators.imu_model import ImuStream
 from simulators.robot import Robot
@@ -63,8 +63,9 @@ DAMAGES: tuple[str, ...] = (
     "link_lost",
 )
 
-#: Geometry drift: the topology stays, the kinematics change (see the module docstring).
-DRIFT_DAMAGES: tuple[str, ...] = ("imu_rotated", "imu_shifted", "axis_changed", "backlash")
+#: Geometry drift: the topology stays, the kinematics change (see the module docstring); the kinds the
+#: geometry's drift check reports.
+DRIFT_DAMAGES: tuple[str, ...] = KINEMATIC_KINDS
 
 
 class DamageTarget(Protocol):

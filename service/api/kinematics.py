@@ -3,8 +3,8 @@
 The worker estimates each robot's joint axes and IMU lever arms every ``kinematics_interval_cycles``
 cycles (docs/service.md, docs/kinematics.md) and keeps two under the current topology baseline: the
 first, which drift alerts compare with, and the newest. This route serves both and their comparison,
-:func:`bodyschema.kinematic_drift.kinematic_findings` of the two as stored (the alerts are the same
-findings with the alert tracker's hysteresis); ``/kinematics/urdf`` the URDF of either
+:func:`bodyschema.lever_pool.stored_drift` of the two as stored, the worker's own comparison (the
+alerts are the same findings with the alert tracker's hysteresis); ``/kinematics/urdf`` the URDF of either
 (:func:`bodyschema.urdf.to_urdf`; the IMU tilts at q = 0 are not kept, so the base joint's tilt is the
 convention's identity).
 """
@@ -15,8 +15,8 @@ from typing import Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 
-from bodyschema.kinematic_drift import kinematic_findings
 from bodyschema.kinematics import Kinematics
+from bodyschema.lever_pool import PoolOptions, stored_drift
 from bodyschema.topology import Topology
 from bodyschema.urdf import to_urdf
 from service.api.cache import read_cache
@@ -45,12 +45,11 @@ def _kept(store: Store, robot: str) -> Kept:
     return base.topology, store.kinematics_baseline(name, base.id), store.kinematics_latest(name, base.id)
 
 
-def _pair(store: Store, robot: str) -> KinematicsPair:
+def _pair(store: Store, robot: str, pools: PoolOptions) -> KinematicsPair:
     topo, first, newest = _kept(store, robot)
     drift = None
     if topo is not None and first is not None and newest is not None and newest.id != first.id:
-        then, now = (Kinematics.from_json(k.data, topo) for k in (first, newest))
-        drift = [f.to_json() for f in kinematic_findings(then, now)]
+        drift = [f.to_json() for f in stored_drift(first.data, newest.data, topo, pools)]
     return KinematicsPair(baseline=KinematicsOut.of(first), latest=KinematicsOut.of(newest), drift=drift)
 
 
@@ -60,7 +59,8 @@ def _pair(store: Store, robot: str) -> KinematicsPair:
     summary="joint axes and IMU lever arms as learned under the baseline and as now, and their drift",
 )
 async def kinematics(robot: RobotName, request: Request, store: Store = Depends(get_store)) -> Response:
-    return await read_cache(request).respond(("kinematics", robot), lambda: _pair(store, robot))
+    pools = request.app.state.settings.pool_options
+    return await read_cache(request).respond(("kinematics", robot), lambda: _pair(store, robot, pools))
 
 
 @router.get(

@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bodyschema.findings import DAMAGE_KINDS, KINEMATIC_KINDS
+from bodyschema.lever_pool import POOL_KEY
 from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
 from service.frames import NAME_PATTERN, NAME_RULE
@@ -62,8 +63,6 @@ DAMAGE_PARAMS: dict[str, tuple[str, ...]] = {
     "axis_changed": ("joint", "angle_deg"),
     "backlash": ("joint", "deg"),
 }
-#: Every optional part of a damage body, in the order the schema lists them.
-_DAMAGE_ARGS = ("imu", "joint", "to", "value", "mode", "tether", "angle_deg", "about", "meters", "deg")
 #: The ``mode`` values of the kinds that take one.
 DAMAGE_MODES: dict[str, tuple[str, ...]] = {
     "imu_dead": ("frozen", "zero"),
@@ -125,10 +124,19 @@ class KinematicsOut(BaseModel):
     wall_time: float
     window_end_t: float | None = Field(description="device time at the end of the window it came from, s")
     kinematics: dict[str, Any] = Field(description="docs/kinematics.md JSON: joint axes, IMU lever arms")
+    pooled_estimates: int = Field(
+        0,
+        description="geometry estimates whose lever arms are pooled with it to judge slides: under the "
+        "baseline, those compared with (full at kinematics_pool_base); the newest, the recent ones "
+        "(full at kinematics_pool_recent)",
+    )
 
     @classmethod
     def of(cls, k: StoredKinematics | None) -> KinematicsOut | None:
-        return None if k is None else _copied(cls, k, kinematics=k.data)
+        if k is None:
+            return None
+        data = {key: v for key, v in k.data.items() if key != POOL_KEY}
+        return _copied(cls, k, kinematics=data, pooled_estimates=len(k.data.get(POOL_KEY) or ()))
 
 
 class KinematicsPair(BaseModel):
@@ -358,7 +366,7 @@ def _damage_variants(schema: dict[str, Any]) -> None:
     """The body's JSON Schema says per kind what :meth:`DamageIn._params_fit_kind` accepts: one
     ``oneOf`` branch per kind, in which a parameter the kind does not take may only be null and
     ``mode`` is one of the kind's own modes."""
-    names = _DAMAGE_ARGS
+    names = _damage_args()
     variants: list[dict[str, Any]] = []
     for kind in (*DAMAGE_KINDS, *KINEMATIC_KINDS):
         props: dict[str, Any] = {"kind": {"const": kind}}
@@ -370,6 +378,12 @@ def _damage_variants(schema: dict[str, Any]) -> None:
         variants.append({"properties": props, "required": ["kind"]})
     schema["oneOf"] = variants
     schema["examples"] = [{"kind": "imu_dead", "imu": "imu0", "mode": "frozen"}]
+
+
+def _damage_args() -> tuple[str, ...]:
+    """Every optional part of a damage body, in the order the schema lists them: the fields of
+    :class:`DamageIn` but its ``kind``."""
+    return tuple(k for k in DamageIn.model_fields if k != "kind")
 
 
 class DamageIn(BaseModel):
@@ -405,7 +419,7 @@ class DamageIn(BaseModel):
         allowed = DAMAGE_PARAMS.get(self.kind)
         if allowed is None:
             return self
-        given = [k for k in _DAMAGE_ARGS if getattr(self, k) is not None]
+        given = [k for k in _damage_args() if getattr(self, k) is not None]
         extra = [k for k in given if k not in allowed]
         if extra:
             raise ValueError(

@@ -7,7 +7,9 @@ topology baseline that was current (``baseline_id``), and later estimates are co
 (``latest=True``), replacing the one before it, so a robot holds at most two rows per baseline: what its
 geometry was and what it is now (the API serves both, ``GET /api/v1/robots/{robot}/kinematics``). A new
 topology baseline is a new body: its geometry is learned afresh, and the rows of older baselines stay as
-their history. Kept as the kinematics JSON (docs/kinematics.md), read back with
+their history. The first row also carries the lever arms of the estimates after it until its pool is
+full, the newest those of the latest estimates (``lever_arm_pool``, :mod:`bodyschema.lever_pool`), which
+slides are judged on. Kept as the kinematics JSON (docs/kinematics.md), read back with
 :meth:`bodyschema.kinematics.Kinematics.from_json`.
 
 Example
@@ -23,6 +25,9 @@ Example
 True
 >>> store.kinematics_baseline("arm", 7).data, store.kinematics_baseline("arm", 8) is None
 ({'imus': {}}, True)
+>>> store.update_kinematics(store.kinematics_baseline("arm", 7).id, {"imus": {}, "pooled": 2})
+>>> store.kinematics_baseline("arm", 7).data["pooled"]
+2
 >>> for n in (1, 2):
 ...     _ = store.save_kinematics("arm", 7, {"imus": {}, "n": n}, wall_time=2.0 + n, latest=True)
 >>> store.kinematics_latest("arm", 7).data["n"], store.kinematics_latest("arm").data["n"]
@@ -35,7 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Select, delete, insert, select
+from sqlalchemy import Select, delete, insert, select, update
 
 from service.db.models import KinematicsRow
 from service.store.robots import robot_id
@@ -98,6 +103,12 @@ class KinematicsMixin(StoreBase):
                     .returning(KinematicsRow.id)
                 )
             )
+
+    def update_kinematics(self, kinematics_id: int, data: dict[str, Any]) -> None:
+        """Replace the JSON of the kept geometry ``kinematics_id``: the geometry baseline's pool of lever
+        arms grows with the estimates after it (:mod:`bodyschema.lever_pool`) until it is full."""
+        with self._session() as s, s.begin():
+            s.execute(update(KinematicsRow).where(KinematicsRow.id == int(kinematics_id)).values(data=data))
 
     def kinematics_baseline(self, robot: str, baseline_id: int) -> StoredKinematics | None:
         """The geometry kept for ``robot`` under ``baseline_id`` (the first kept), None before one is."""

@@ -328,6 +328,36 @@ def test_kinematics_before_and_after_geometry_is_learned(client: TestClient, sst
     assert '<axis xyz="0 1 0"/>' not in first and '<axis xyz="0 0 1"/>' in first
 
 
+def test_kinematics_drift_judges_slides_on_the_kept_pools(client: TestClient, sstore: Store) -> None:
+    """The kept rows carry their lever-arm pools: the drift served is the worker's comparison of both
+    (a slide of imu1 the single estimates cannot tell), and the pools themselves are not served, only
+    how many estimates each holds."""
+    rng = np.random.default_rng(0)
+
+    def pool(n: int, slide: float) -> list[dict[str, list[float]]]:
+        return [
+            {
+                name: (
+                    np.array([0.1, slide if name == "imu1" else 0.0, 0.0]) + rng.normal(0, 0.002, 3)
+                ).tolist()
+                for name in TOPO.imu_joint
+            }
+            for _ in range(n)
+        ]
+
+    base_id = sstore.set_baseline("arm", TOPO, "operator", wall_time=1.0)
+    first = {**geometry_json(TOPO), "lever_arm_pool": pool(40, 0.0)}
+    sstore.save_kinematics("arm", base_id, first, wall_time=2.0, window_end_t=30.0)
+    latest = {**geometry_json(TOPO), "lever_arm_pool": pool(20, 0.008)}
+    sstore.save_kinematics("arm", base_id, latest, wall_time=3.0, window_end_t=60.0, latest=True)
+    body = client.get("/api/v1/robots/arm/kinematics").json()
+    assert [(f["kind"], f.get("imu")) for f in body["drift"]] == [("imu_shifted", "imu1")]
+    assert "mean of the last 20 estimates against 40" in body["drift"][0]["detail"]
+    assert (body["baseline"]["pooled_estimates"], body["latest"]["pooled_estimates"]) == (40, 20)
+    assert "lever_arm_pool" not in body["baseline"]["kinematics"]
+    assert "lever_arm_pool" not in body["latest"]["kinematics"]
+
+
 def test_damage_without_a_farm_is_409(sstore: Store) -> None:
     sstore.write(batch("sim"))
     sstore.mark_simulated("sim", "ur5e")

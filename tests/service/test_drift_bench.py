@@ -29,6 +29,10 @@ def test_short_run(tmp_path: Path) -> None:
             "2",
             "--slide-mm",
             "5",
+            "--pool-slides-mm",
+            "20",
+            "--pool-after",
+            "2",
             "--fleet",
             "ur5e",
             "--hours",
@@ -47,10 +51,19 @@ def test_short_run(tmp_path: Path) -> None:
     for kind in ("imu_rotated", "axis_changed"):
         change, limit = bench._change(by_kind[kind]["findings"][0]["detail"])
         assert 1.7 < change < 2.3 and limit < 0.5, (kind, change, limit)
+    p = d["pooled"]
+    assert (p["robot"], p["n_base"], p["n_recent"], p["nominal_windows"]) == ("ur5e", 40, 20, 22)
+    assert p["nominal_findings"] == [[]] * 22
+    # the IMU with the longest lever arm (an upper-arm one, about 0.2 m) and the wrist's last IMU
+    assert [g["imu"] for g in p["slides"]][1] == "imu11" and p["slides"][0]["lever_arm_mm"] > 150
+    assert all(len(g["scatter_mm"]) == 3 and g["other_findings"] == 0 for g in p["slides"])
     s = d["service"]
     assert s["cycles"] == 36 and s["alerts_raised"] == [] and s["drift_findings"] == 0
     assert s["geometry_comparisons"] >= 3 and s["geometry_kept"] == {"ur5e-0": True}
     text = md.read_text()
     assert "| ur5e | 12 / 12 | 0 (2) | imu_rotated 2 ° imu:imu11 | yes |" in text
     assert "0 alerts raised" in text
+    assert (
+        "Pooled slides (ur5e): the lever arms of the first 40 windows against those of the newest 20" in text
+    )
     assert (tmp_path / "drift.png").stat().st_size > 5000

@@ -32,12 +32,15 @@ import pytest
 import yourdfpy
 from fastapi.testclient import TestClient
 
+from bodyschema.lever_pool import POOL_KEY
 from service.api import create_app
 from service.settings import Settings
-from service.store import open_store
+from service.store import Store, open_store
+from service.worker import Worker
+from simulators.farm import Farm
 from simulators.kinematics_truth import kinematics_truth
 from simulators.robot import Robot
-from tests.service.test_damage_worker import ROBOT, RobotRuns, run_robot
+from tests.service.test_damage_worker import ROBOT, RobotRuns, _cycle, _feed, run_robot
 
 pytestmark = pytest.mark.slow
 
@@ -126,3 +129,51 @@ def test_api_serves_geometry_drift_and_urdf(runs: RobotRuns, drift_dir: Path, da
             path.write_text(r.text)
             assert sorted(yourdfpy.URDF.load(str(path)).actuated_joint_names) == sorted(info.joints)
             assert mujoco.MjModel.from_xml_string(r.text).njnt == len(info.joints)
+
+
+def _pools(store: Store, baseline_id: int) -> tuple[list, list]:
+    """The lever-arm pools kept under ``baseline_id``: the geometry baseline's, the newest estimate's."""
+    kept, newest = store.kinematics_baseline(ROBOT, baseline_id), store.kinematics_latest(ROBOT, baseline_id)
+    assert kept is not None and newest is not None
+    return kept.data.get(POOL_KEY) or [], (newest.data.get(POOL_KEY) or []) if newest.id != kept.id else []
+
+
+def test_lever_pools_fill_in_the_store_and_outlive_a_restart(tmp_path: Path) -> None:
+    """The geometry baseline's pool takes the estimates after it until it holds
+    ``kinematics_pool_base`` of them, then the newest estimate's pool the last ``kinematics_pool_recent``;
+    both are in the store, so a restarted worker goes on with them (the baseline's pool unchanged, the
+    recent one moved on by the new estimate) and a healthy robot raises nothing meanwhile."""
+    settings = Settings(database_url="sqlite://", kinematics_pool_base=5, kinematics_pool_recent=3)
+    interval, every = settings.worker_interval_seconds, settings.kinematics_interval_cycles
+    farm = Farm({ROBOT: "ur5e"}, seed=7, sensing="robot")
+    store = open_store(f"sqlite:///{tmp_path / 'pool.db'}", settings=settings)
+    history: list[list[tuple[str, str]]] = []
+    alerts: list[tuple[str, str, int]] = []
+
+    def cycles(worker: Worker, n: int) -> None:
+        for _ in range(n):
+            _feed(farm, store, interval)
+            _cycle(worker, history, alerts)
+
+    worker = Worker(store, settings)
+    _feed(farm, store, settings.window_seconds - interval)
+    while store.baseline(ROBOT) is None:
+        assert len(history) < 3 * settings.baseline_repeat_k
+        cycles(worker, 1)
+    base_id = store.baseline(ROBOT).id
+    sizes: list[tuple[int, int]] = []
+    while not sizes or sizes[-1] != (5, 3):
+        assert len(sizes) < 12, sizes
+        cycles(worker, every)  # one geometry estimate per `every` cycles
+        if store.kinematics_baseline(ROBOT, base_id) is not None:
+            sizes.append(tuple(len(p) for p in _pools(store, base_id)))  # type: ignore[arg-type]
+    # the geometry baseline's own lever arms, four more estimates', then the recent pool's three
+    assert sizes == [(1, 0), (2, 0), (3, 0), (4, 0), (5, 0), (5, 1), (5, 2), (5, 3)]
+    base_pool, recent = _pools(store, base_id)
+    worker = Worker(store, settings)  # a restart: the pools come from the store
+    cycles(worker, 2 * every)
+    after_base, after_recent = _pools(store, base_id)
+    assert after_base == base_pool
+    assert len(after_recent) == 3 and after_recent[0] == recent[2]
+    assert alerts == [] and all(h == [] for h in history[-len(sizes) * every :])
+    store.close()

@@ -87,6 +87,20 @@ def test_latest_replaces_the_one_before_it_never_the_baseline(store: Store) -> N
     assert store.kinematics_latest("r1").baseline_id == 4 and store.kinematics_latest("r1", 3).id == ids[1]
 
 
+def test_update_replaces_a_kept_rows_json_only(store: Store) -> None:
+    """The geometry baseline's pool grows in place: its id, baseline and times stay."""
+    _robot(store)
+    base = store.save_kinematics("r1", 3, _kin([0.0, 0.0, 1.0]).to_json(), wall_time=10.0, window_end_t=30.0)
+    later = store.save_kinematics("r1", 3, _kin([0.0, 1.0, 0.0]).to_json(), wall_time=20.0, latest=True)
+    grown = {**_kin([0.0, 0.0, 1.0]).to_json(), "lever_arm_pool": [{"imu0": [0.1, 0.0, 0.0]}] * 2}
+    store.update_kinematics(base, grown)
+    kept = store.kinematics_baseline("r1", 3)
+    assert kept is not None and (kept.id, kept.wall_time, kept.window_end_t) == (base, 10.0, 30.0)
+    assert kept.data == grown
+    newest = store.kinematics_latest("r1", 3)
+    assert newest is not None and newest.id == later and "lever_arm_pool" not in newest.data
+
+
 def test_unknown_robot(store: Store) -> None:
     with pytest.raises(UnknownRobot):
         store.save_kinematics("nobody", 1, {}, wall_time=0.0)

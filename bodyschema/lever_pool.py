@@ -1,0 +1,207 @@
+"""Slides of an IMU on its link, from lever arms pooled over many estimates.
+
+One window's lever arm (:mod:`bodyschema.kinematics`) scatters between healthy windows by more than a
+slide worth reporting: on a UR5e (``robot`` sensing preset, MPU-6050, 30 s windows) by 1 to 4 mm per
+component for IMUs 0.2 m from their axis and by 4 to 7 mm for the wrist's, 30 mm from theirs, about
+as its reported std says, with errors that move with the motion. The error is the motion's, so it
+averages out over windows of other motion, and a slide is permanent: the lever arms of ``n_base``
+estimates under the baseline (:class:`LeverPool`) are compared with those of the ``n_recent`` newest
+estimates.
+
+**The error model.** Each estimate's lever arm is the IMU's true one plus an error ``e`` with a
+covariance ``S`` the motion sets (the same for every window of one robot's motion), estimated by the
+scatter of the baseline pool (``n_b`` estimates, ``ν = n_b - 1`` degrees of freedom). Consecutive
+windows' errors are correlated when the motion changes slowly: an AR(1) with the lag-one correlation
+``ρ`` of the baseline pool's errors inflates the variance of each mean by ``κ = (1 + ρ) / (1 - ρ)``
+and cuts the degrees of freedom to ``n_b / κ - 1``. The change of the mean ``d = r̄_recent - r̄_base``
+then has covariance ``Σ = κ S (1/n_b + 1/n_recent)`` (plus a small ridge: the lever arm lies in the
+plane perpendicular to the axis, so ``S`` is singular along it), and Hotelling's ``T² = dᵀ Σ⁻¹ d``
+follows ``ν p / (ν - p + 1) F(p, ν - p + 1)`` with ``p = 3``. A slide is reported when ``T²`` exceeds
+that distribution's ``1 - alpha`` quantile and ``|d|`` exceeds ``floor_m``: ``alpha`` is the false
+alarm rate of one comparison on a healthy robot, the floor a change too small to matter.
+
+What it can see depends on the IMU: a slide must be about six times ``Σ``'s std along it. At the
+default pools (40 against 20 estimates, 20 and 10 minutes of geometry at the worker's pace) a UR5e's
+upper-arm IMU (2 to 4 mm of scatter per window) shows 5 mm once the recent pool holds about 19 slid
+estimates and 10 mm after about 9; a wrist IMU 30 mm from its axis (5 mm of scatter along the slide)
+shows 20 mm after about 7, and not 5 mm (``bodyhealth bench drift``).
+
+Example
+-------
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> arm = np.array([0.2, 0.0, 0.0])
+>>> def estimates(n, shift=0.0):
+...     return [{"imu1": arm + [0.0, shift, 0.0] + rng.normal(0, 0.003, 3)} for _ in range(n)]
+>>> base, healthy = LeverPool(tuple(estimates(40))), LeverPool(tuple(estimates(20)))
+>>> pooled_shifts(base, healthy, {"imu1": "j1"})
+()
+>>> slid = LeverPool(tuple(estimates(20, shift=0.008)))
+>>> [(f.kind, f.imu) for f in pooled_shifts(base, slid, {"imu1": "j1"})]
+[('imu_shifted', 'imu1')]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from bodyschema.findings import Finding
+from bodyschema.kinematic_drift import kinematic_findings
+from bodyschema.kinematics import Kinematics
+from bodyschema.topology import Topology
+
+__all__ = ["POOL_KEY", "LeverPool", "PoolOptions", "pooled_shifts", "stored_drift"]
+
+#: The key of a kept geometry's JSON that holds its pool (:meth:`LeverPool.to_json`).
+POOL_KEY = "lever_arm_pool"
+
+#: Lever arms kept to this many metres (0.01 mm) in the JSON.
+_DIGITS = 5
+
+
+@dataclass(frozen=True)
+class PoolOptions:
+    """How many estimates each pool holds and how sure a slide must be (module docstring).
+
+    ``min_share``: an IMU is compared when its lever arm converged in at least this share of each
+    pool's estimates; ``ridge_m``: the std added along every direction (the scatter along the axis is
+    nil and would make ``Σ`` singular)."""
+
+    n_base: int = 40
+    n_recent: int = 20
+    alpha: float = 1e-5
+    floor_m: float = 0.002
+    min_share: float = 0.5
+    ridge_m: float = 0.0003
+
+
+@dataclass(frozen=True)
+class LeverPool:
+    """The lever arms (m, IMU frame) of consecutive geometry estimates: one ``{imu: lever arm}`` per
+    estimate, holding the IMUs whose lever arm converged in it."""
+
+    estimates: tuple[Mapping[str, np.ndarray], ...] = ()
+
+    @property
+    def n(self) -> int:
+        return len(self.estimates)
+
+    def add(self, kin: Kinematics, keep: int | None = None) -> LeverPool:
+        """This pool with ``kin``'s converged lever arms appended; with ``keep``, only the newest
+        ``keep`` estimates."""
+        arms = {
+            name: np.asarray(k.lever_arm, dtype=float)
+            for name, k in kin.imus.items()
+            if k.converged and k.lever_arm is not None and k.joint is not None
+        }
+        kept = (*self.estimates, arms)
+        return LeverPool(kept[-keep:] if keep else kept)
+
+    def arms(self, imu: str) -> np.ndarray:
+        """The lever arms of ``imu`` in this pool, oldest first, shape (k, 3)."""
+        return np.array([e[imu] for e in self.estimates if imu in e]).reshape(-1, 3)
+
+    def to_json(self) -> list[dict[str, list[float]]]:
+        return [{k: [round(float(x), _DIGITS) for x in v] for k, v in e.items()} for e in self.estimates]
+
+    @classmethod
+    def from_json(cls, data: Any) -> LeverPool:
+        """Read back :meth:`to_json`; None or a missing key (a row kept before pools were) is empty."""
+        if not data:
+            return cls()
+        return cls(tuple({k: np.asarray(v, dtype=float) for k, v in e.items()} for e in data))
+
+
+def _inflation(arms: np.ndarray) -> float:
+    """``κ = (1 + ρ) / (1 - ρ)`` from the lag-one correlation ``ρ`` of consecutive errors, clipped to
+    ``0 ≤ ρ ≤ 0.9`` (a negative estimate is noise: independent windows are the floor)."""
+    e = arms - arms.mean(axis=0)
+    den = float(np.sum(e * e))
+    rho = float(np.sum(e[1:] * e[:-1])) / den if den > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.9)
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def _limit(nu: float, alpha: float, p: int = 3) -> float:
+    """The ``1 - alpha`` quantile of Hotelling's ``T²`` with ``p`` dimensions and ``nu`` degrees of
+    freedom of the covariance."""
+    return nu * p / (nu - p + 1) * float(stats.f.isf(alpha, p, nu - p + 1))
+
+
+def _t2(base: np.ndarray, recent: np.ndarray, o: PoolOptions) -> tuple[float, float, np.ndarray]:
+    """Hotelling's ``T²`` of the change of mean from ``base`` to ``recent`` lever arms, its limit and
+    the change."""
+    kappa = _inflation(base)
+    nu = max(base.shape[0] / kappa - 1.0, 4.0)
+    cov = np.cov(base.T) + o.ridge_m**2 * np.eye(3)
+    d = recent.mean(axis=0) - base.mean(axis=0)
+    sigma = kappa * cov * (1.0 / base.shape[0] + 1.0 / recent.shape[0])
+    return float(d @ np.linalg.solve(sigma, d)), _limit(nu, o.alpha), d
+
+
+def pooled_shifts(
+    base: LeverPool,
+    recent: LeverPool,
+    joints: Mapping[str, str | None],
+    options: PoolOptions | None = None,
+    skip: Collection[str] = (),
+) -> tuple[Finding, ...]:
+    """``imu_shifted`` for each IMU of ``joints`` (``{imu: joint}``) whose mean lever arm moved between
+    the pools beyond what their scatter allows (module docstring); none until both pools are full.
+    IMUs in ``skip`` are left out (found turned, or their joint's axis bent: their lever arm moves
+    with the turn)."""
+    o = options or PoolOptions()
+    if base.n < o.n_base or recent.n < o.n_recent:
+        return ()
+    out: list[Finding] = []
+    for imu, joint in joints.items():
+        if imu in skip or joint is None:
+            continue
+        a, b = base.arms(imu), recent.arms(imu)
+        if a.shape[0] < max(o.min_share * base.n, 5) or b.shape[0] < max(o.min_share * recent.n, 3):
+            continue
+        t2, limit, d = _t2(a, b, o)
+        shift = float(np.linalg.norm(d))
+        if t2 <= limit or shift <= o.floor_m:
+            continue
+        out.append(
+            Finding(
+                kind="imu_shifted",
+                imu=imu,
+                joint=joint,
+                confidence=round(1.0 - 0.5 * math.sqrt(limit / t2), 4),
+                detail=(
+                    f"lever arm moved {shift * 1e3:.1f} mm, the mean of the last {b.shape[0]} estimates "
+                    f"against {a.shape[0]} under the baseline (T² {t2:.0f}, limit {limit:.0f})"
+                ),
+            )
+        )
+    return tuple(out)
+
+
+def stored_drift(
+    baseline: Mapping[str, Any],
+    latest: Mapping[str, Any],
+    topology: Topology,
+    options: PoolOptions | None = None,
+) -> tuple[Finding, ...]:
+    """The drift from a robot's kept geometry baseline to its newest estimate, both as kept (kinematics
+    JSON, each with its :data:`POOL_KEY`): :func:`~bodyschema.kinematic_drift.kinematic_findings` of the
+    two estimates, then the slides the pools show (:func:`pooled_shifts`) of the IMUs those left alone
+    (a turned IMU, or one on a joint whose axis bent, moves its lever arm with the turn). The worker's
+    alerts and the API's drift both come from here, on the same stored rows."""
+    then, now = Kinematics.from_json(dict(baseline), topology), Kinematics.from_json(dict(latest), topology)
+    found = kinematic_findings(then, now)
+    bent = {f.joint for f in found if f.kind == "axis_changed"}
+    skip = {f.imu for f in found if f.imu is not None} | {
+        imu for imu, k in then.imus.items() if k.joint in bent
+    }
+    joints = {imu: k.joint for imu, k in then.imus.items()}
+    pools = LeverPool.from_json(baseline.get(POOL_KEY)), LeverPool.from_json(latest.get(POOL_KEY))
+    return (*found, *pooled_shifts(*pools, joints, options, skip))
