@@ -349,7 +349,13 @@ async function renderGeometry(card, robot) {
     a.click();
     URL.revokeObjectURL(a.href);
   });
-  const note = el("div", { class: "muted" }, "axis along positive q; lever arm from the axis to the IMU, across it · ");
+  // slides are judged on lever arms pooled over many estimates, once both pools are full (kinematics.md)
+  const pooled = g.baseline
+    ? `slides judged on pooled lever arms: ${g.baseline.pooled_estimates} estimates under the baseline, `
+      + `${g.latest && g.latest.id !== g.baseline.id ? g.latest.pooled_estimates : 0} newest · `
+    : "";
+  const note = el("div", { class: "muted pooled" },
+    `axis along positive q; lever arm from the axis to the IMU, across it · ${pooled}`);
   note.appendChild(urdf);
   details.append(head, table, note);
   card.geometry.dataset.drift = String(drift.length);

@@ -109,8 +109,11 @@ def served(e2e_db_url: str) -> Iterator[tuple[str, Store, RecordingFarm]]:
         store.save_topology(robot, BASE, time.time() - 10, 0.49)
         base_id = store.set_baseline(robot, BASE, "auto")
     # leg's geometry: learned under its baseline, then an estimate in which i2's axis turned
-    store.save_kinematics("leg", base_id, geometry_json(BASE), wall_time=time.time() - 5)
-    turned = geometry_json(BASE, {"i2": [0.0, 1.0, 0.0]})
+    # (with the lever arms of 3 estimates pooled under the baseline and of 2 newest)
+    arms = [{"i1": [0.1, 0.0, 0.0]}]
+    first = {**geometry_json(BASE), "lever_arm_pool": arms * 3}
+    store.save_kinematics("leg", base_id, first, wall_time=time.time() - 5)
+    turned = {**geometry_json(BASE, {"i2": [0.0, 1.0, 0.0]}), "lever_arm_pool": arms * 2}
     store.save_kinematics("leg", base_id, turned, wall_time=time.time(), latest=True)
     store.save_topology("arm", CUR, time.time(), 0.49)
     store.mark_simulated("arm", "toy")
@@ -189,6 +192,9 @@ def test_trees_alerts_and_damage_form(browser: Any, served: tuple[str, Store, Re
     assert leg.locator("tr.drifted[data-imu='i2']").count() == 1 and leg.locator("tr.drifted").count() == 1
     assert "(0.000, 1.000, 0.000)" in leg.locator("tr[data-imu='i2']").inner_text()
     assert "(100.0, 0.0, 0.0)" in leg.locator("tr[data-imu='i1']").inner_text()
+    assert (
+        "pooled lever arms: 3 estimates under the baseline, 2 newest" in leg.locator(".pooled").inner_text()
+    )
     assert "not learned yet" in page.locator("article[data-robot='arm'] .geometry").inner_text()
     # an alert that appears in the store shows up at the next poll; ack works from the page
     store.upsert_alert("arm", "imu_dead", "imu:i2", {"kind": "imu_dead", "imu": "i2"}, "active", time.time())
