@@ -23,6 +23,9 @@ combined standard deviations plus a small floor:
 * ``imu_rotated`` — otherwise, the axis seen from the IMU turned: the IMU turned on its link (a turned
   child IMU leaves the axis in the *parent's* frame as it was). Under a root joint with one IMU on its
   link nothing tells the two apart, and the finding says so;
+* ``imu_rotated`` also where the rotation between two IMUs on one link changed (both gyros read it;
+  where the link turned about two axes or more): a mount turned about its joint's axis, which no axis
+  comparison sees. Which of the two turned the gyros cannot tell; the finding names both;
 * ``imu_shifted`` — the lever arm changed by more than its combined std plus a floor (for an IMU that
   also turned, only its length is compared: a turn alone rotates the vector, not its length);
 * ``backlash`` — the dead band between a joint's encoder and its link changed: the encoder steps by
@@ -202,7 +205,50 @@ def kinematic_findings(
         slack = _backlash(jn, seen, o)
         if slack is not None:
             out.append(slack)
+    bent = {f.joint for f in out if f.kind == "axis_changed"}
+    out += _same_link_turns(baseline, current, rotated, bent, o)
     return tuple(out)
+
+
+def _same_link_turns(
+    baseline: Kinematics, current: Kinematics, rotated: set[str], bent: set[str | None], o: DriftOptions
+) -> list[Finding]:
+    """``imu_rotated`` where the rotation between two IMUs on one link changed: a mount turned about
+    its joint's axis, which leaves the axis each IMU sees where it was.
+
+    The rotation is read from the two gyros (:class:`~bodyschema.kinematics.SameLink`; the sensors'
+    sensitivity matrices are the same in both estimates) and is fixed only where the link turned about
+    two axes or more: under a root joint on a fixed base it turns about one, and the rotation about
+    that axis is anyone's. Pairs with an IMU already found turned, or on a bent joint, are left to
+    those findings. Which of the two turned the gyros cannot tell: the finding is raised on the
+    second IMU (the first is the link's reference IMU) and names both."""
+    then = {(s.a, s.b): s for s in baseline.same_link}
+    out = []
+    for s in current.same_link:
+        old = then.get((s.a, s.b))
+        a0, a1, b0 = baseline.imus.get(s.a), current.imus.get(s.a), baseline.imus.get(s.b)
+        if old is None or a0 is None or a1 is None or b0 is None or {s.a, s.b} & rotated:
+            continue
+        if a0.joint in bent or a0.joint != b0.joint or min(a0.parent_rank, a1.parent_rank) < 1:
+            continue
+        c = (np.trace(old.rotation.T @ s.rotation) - 1.0) / 2.0
+        turn = math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+        limit = o.limit(old.std_deg, s.std_deg, o.floor_deg)
+        if turn > limit:
+            out.append(
+                Finding(
+                    kind="imu_rotated",
+                    imu=s.b,
+                    joint=a0.joint,
+                    confidence=_confidence(turn, limit),
+                    detail=(
+                        f"rotation between {s.a} and {s.b} on one link turned {turn:.2f} deg (limit "
+                        f"{limit:.2f}), the axis each sees unchanged: one of them turned about the "
+                        "joint's axis"
+                    ),
+                )
+            )
+    return out
 
 
 def _backlash(jn: str, seen: list[_Seen], o: DriftOptions) -> Finding | None:

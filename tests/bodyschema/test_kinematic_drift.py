@@ -167,3 +167,39 @@ def test_mpu6050_backlash_one_degree(mpu_baseline: Kinematics) -> None:
         k = slack.imus[name]
         assert abs(k.backlash_deg - 1.0) < 0.15, (name, k.backlash_deg)
         assert abs(mpu_baseline.imus[name].backlash_deg) < 5 * mpu_baseline.imus[name].backlash_std_deg + 0.01
+
+
+def test_mpu6050_imu_turned_about_its_joints_axis(mpu_baseline: Kinematics) -> None:
+    """A 2° turn of imu3 about j2's own axis leaves the axis both IMUs of j2's link see where it was;
+    the rotation between the two gyros tells it (j2's link turns about two axes: j1's and its own)."""
+    from simulators.kinematics_truth import kinematics_truth
+
+    u = kinematics_truth(random_robot(np.random.default_rng(3), 5, rate=1000.0))["imu3"].axis
+    turn = ("imu_rotated", {"imu": "imu3", "angle_deg": 2.0, "about": u})
+    found = kinematic_findings(mpu_baseline, learn_mpu(seed=5, damage=turn))
+    ((kind, part),) = kinds(found)
+    assert kind == "imu_rotated" and part in ("imu2", "imu3")
+    assert "rotation between imu2 and imu3 on one link turned" in found[0].detail
+    seen = float(found[0].detail.split("turned ")[1].split(" deg")[0])
+    assert 1.9 <= seen <= 2.1
+    assert "about the joint's axis" in found[0].detail
+
+
+def test_same_link_rotation_judged_only_where_the_link_turns_about_two_axes() -> None:
+    """Under a root joint on a fixed base the link turns about one axis, and the gyros fix the
+    rotation between its IMUs on that axis only: a change there is not judged."""
+    from dataclasses import replace
+
+    from bodyschema.kinematics import SameLink, rotation_about
+
+    base, same = _two_on_a_link(0.0, 0.0)
+    turned = rotation_about(np.array([0.0, 0.0, 1.0]), np.array([np.radians(2.0)]))[0]
+
+    def with_pair(k: Kinematics, rot: np.ndarray, rank: int) -> Kinematics:
+        imus = {n: replace(i, parent_rank=rank if i.joint == "j2" else 0) for n, i in k.imus.items()}
+        return replace(k, imus=imus, same_link=(SameLink("imu2", "imu3", rot, 0.01),))
+
+    found = kinematic_findings(with_pair(base, np.eye(3), 2), with_pair(same, turned, 2))
+    assert kinds(found) == [("imu_rotated", "imu3")] and "turned 2.00 deg (limit 0.27)" in found[0].detail
+    assert kinematic_findings(with_pair(base, np.eye(3), 2), with_pair(same, np.eye(3), 2)) == ()
+    assert kinematic_findings(with_pair(base, np.eye(3), 0), with_pair(same, turned, 0)) == ()
