@@ -240,14 +240,16 @@ class ImuKinematics:
             out["rotation_from_parent"] = [vec(row) for row in self.rotation_from_parent]
         if self.joint_origin_in_parent is not None:
             out["joint_origin_in_parent"] = vec(self.joint_origin_in_parent)
+        if self.up_at_zero is not None:
+            out["up_at_zero"] = vec(self.up_at_zero)
         if self.reason:
             out["reason"] = self.reason
         return out
 
     @classmethod
     def from_json(cls, imu: str, d: dict[str, Any]) -> ImuKinematics:
-        """Read back :meth:`to_json` (rounded to its digits; the same-link and URDF-only parts
-        ``up_at_zero`` and ``axis_in_parent`` are not in it)."""
+        """Read back :meth:`to_json` (rounded to its digits; ``axis_in_parent``, the URDF's axis in
+        the parent IMU's frame, is not in it: the joint's entry holds it)."""
 
         def arr(key: str) -> np.ndarray | None:
             return None if d.get(key) is None else np.asarray(d[key], dtype=float)
@@ -267,6 +269,7 @@ class ImuKinematics:
             gain=num("gain", math.nan),
             rotation_from_parent=arr("rotation_from_parent"),
             joint_origin_in_parent=arr("joint_origin_in_parent"),
+            up_at_zero=arr("up_at_zero"),
             converged=converged,
             axis_converged=converged or bool(d.get("axis_converged", False)),
             reason=d.get("reason", ""),

@@ -5,8 +5,8 @@ cycles (docs/service.md, docs/kinematics.md) and keeps two under the current top
 first, which drift alerts compare with, and the newest. This route serves both and their comparison,
 :func:`bodyschema.lever_pool.stored_drift` of the two as stored, the worker's own comparison (the
 alerts are the same findings with the alert tracker's hysteresis); ``/kinematics/urdf`` the URDF of either
-(:func:`bodyschema.urdf.to_urdf`; the IMU tilts at q = 0 are not kept, so the base joint's tilt is the
-convention's identity).
+(:func:`bodyschema.urdf.to_urdf`, with the base joints' tilt from the specific force at q = 0 kept
+in the JSON).
 """
 
 from __future__ import annotations

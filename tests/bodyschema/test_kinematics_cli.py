@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yourdfpy
 
-from bodyschema.kinematics import estimate_kinematics
+from bodyschema.kinematics import Kinematics, estimate_kinematics
 from bodyschema.topology import Topology
 from bodyschema.urdf import to_urdf
 from cli.main import main
@@ -73,6 +73,13 @@ def test_urdf_loads_and_matches_the_simulated_body(case: Case, tmp_path: Path) -
     model = mujoco.MjModel.from_xml_string(xml)
     assert model.njnt == case.rec.n_joints
     assert "<!-- origin by convention" in xml and "placeholder inertia" in xml
+    # what the service keeps (the JSON, 6 digits) gives the same body, the base joints' tilt included
+    assert any(k.up_at_zero is not None for k in kin.imus.values())
+    kept = tmp_path / "kept.urdf"
+    kept.write_text(to_urdf(Kinematics.from_json(kin.to_json(), kin.topology), "learned"))
+    again = yourdfpy.URDF.load(str(kept))
+    for link in robot.link_map:
+        assert np.allclose(again.get_transform(link), robot.get_transform(link), atol=1e-5), link
 
     # forward kinematics at the pose the simulation ended in
     sim_m, sim_d = case.robot.model, case.robot.data
