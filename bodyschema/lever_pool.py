@@ -20,11 +20,11 @@ follows ``ν p / (ν - p + 1) F(p, ν - p + 1)`` with ``p = 3``. A slide is repo
 that distribution's ``1 - alpha`` quantile and ``|d|`` exceeds ``floor_m``: ``alpha`` is the false
 alarm rate of one comparison on a healthy robot, the floor a change too small to matter.
 
-What it can see depends on the IMU: a slide must be about six times ``Σ``'s std along it. At the
-default pools (40 against 20 estimates, 20 and 10 minutes of geometry at the worker's pace) a UR5e's
-upper-arm IMU (2 to 4 mm of scatter per window) shows 5 mm once the recent pool holds about 19 slid
-estimates and 10 mm after about 9; a wrist IMU 30 mm from its axis (5 mm of scatter along the slide)
-shows 20 mm after about 7, and not 5 mm (``bodyhealth bench drift``).
+What it can see depends on the IMU: a slide must be about six times ``Σ``'s std along it, and ``Σ``
+grows with the scatter of the IMU's lever arm and with how long its errors follow the motion from one
+window to the next (the AR(1) inflation and the fewer degrees of freedom both cost). On a UR5e,
+``bodyhealth bench drift`` (docs/bench/drift.md) measures how many windows slides of 5 to 20 mm of an
+upper-arm IMU and of a wrist IMU take to be found.
 
 Example
 -------
