@@ -9,6 +9,12 @@ of effects at the first factor, and analyse each. Per case:
 * **within 3 sigma**: each hidden effect's fitted value lies within 3 combined standard errors (the
   case's 95 % interval and the untouched trial's, as sigmas) of the trial's own value with the hidden
   one composed on top (added, multiplied for gains, composed for rotations);
+* **jointly named**: where the trial cannot tell two effects apart, the analysis names them together
+  (``"acc_bias or gravity"``, :mod:`bodyschema.discrepancy.separability`) with their joint value in
+  the parameters of the pair's first effect. A hidden effect of such a pair counts as named when the
+  joint name is reported, and as within 3 sigma when the joint value lies within 3 combined standard
+  errors of the untouched trial's joint value plus the hidden effects' contributions (the first's
+  change plus ``maps`` times each other's);
 * **extra names**: names beyond the untouched trial's and the hidden ones. A trial's own effects at
   the edge of naming come and go with what else is named: a name the untouched trial's evidence
   already asked for (significant there, but short of the held-out gain) is counted apart as an
@@ -125,6 +131,75 @@ def _within(effect: str, got: np.ndarray, want: np.ndarray, sigma: np.ndarray) -
     return z <= 3.0, z
 
 
+def _change(effect: str, hidden: dict[str, dict[str, object]], gravity: np.ndarray) -> np.ndarray:
+    """The change of ``effect`` from its null that was hidden (zero when it was not)."""
+    if effect not in hidden:
+        return np.zeros(EFFECTS[effect].size)
+    base = gravity if effect == "gravity" else nominal(effect)
+    return _vec(effect, hidden[effect]) - base
+
+
+def _own_joint(null: Any, joint: Any, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The untouched trial's joint value of a group (in its first effect's parameters) and its
+    standard error: its own joint value of the part of the group it named jointly in the same
+    parameters (else the first's value), and on top, carried over through ``maps``, every other joint
+    value it named whose first effect is in the group and every member it named alone."""
+    first = joint.effects[0]
+    parts = sorted(
+        (j for j in null.joint if j.effects[0] in joint.effects), key=lambda j: j.effects[0] != first
+    )
+    value, se = _own(null, first, gravity) if not parts or parts[0].effects[0] != first else (0.0, 0.0)
+    covered = {first}
+    for j in parts:
+        half = np.array([(hi - lo) / 2.0 for lo, hi in j.interval]) / 1.959964
+        if j.effects[0] == first:
+            value, se = _vec(first, j.params), half
+        else:
+            value, se = _carry(value, se, joint, j.effects[0], _vec(j.effects[0], j.params), half, gravity)
+        covered |= set(j.effects)
+    for e in joint.effects:
+        if e not in covered and null.cause(e) is not None:
+            value, se = _carry(value, se, joint, e, *_own(null, e, gravity), gravity)
+    return value, se
+
+
+def _carry(
+    value: np.ndarray,
+    se: np.ndarray,
+    joint: Any,
+    effect: str,
+    own: np.ndarray,
+    own_se: np.ndarray,
+    gravity: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``value`` with ``effect``'s change from null at ``own`` carried over to the joint's first."""
+    m = np.asarray(joint.maps[effect])
+    base = gravity if effect == "gravity" else nominal(effect)
+    return value + m @ (own - base), np.sqrt(se**2 + (m**2) @ own_se**2)
+
+
+def _joint_check(
+    joint: Any, null: Any, hidden: dict[str, dict[str, object]], gravity: np.ndarray
+) -> dict[str, object]:
+    """A hidden effect named jointly: whether the joint value is where the untouched trial's joint
+    value with the hidden changes on top puts it."""
+    first = joint.effects[0]
+    own_v, own_se = _own_joint(null, joint, gravity)
+    want = _expected(first, own_v, hidden[first], gravity) if first in hidden else own_v
+    for e in joint.effects[1:]:
+        want = want + np.asarray(joint.maps[e]) @ _change(e, hidden, gravity)
+    se = np.array([(hi - lo) / 2.0 for lo, hi in joint.interval]) / 1.959964
+    ok, z = _within(first, _vec(first, joint.params), want, np.hypot(se, own_se))
+    return {"named": True, "within": ok, "z": round(z, 2), "joint": joint.label}
+
+
+def _members(rep: Any) -> dict[str, set[str]]:
+    """Every name of a report (alone or joint) -> the effects it stands for."""
+    out = {n: {n} for n in rep.names}
+    out.update({j.label: set(j.effects) for j in rep.joint})
+    return out
+
+
 def _trial(path: str, effects: list[str], factors: list[float], pairs: int, triples: int, seed: int) -> dict:
     """The null and every hidden-effect case of one trial (runs in a worker process)."""
     from bodyschema.discrepancy import analyze_recording
@@ -139,7 +214,7 @@ def _trial(path: str, effects: list[str], factors: list[float], pairs: int, trip
     null_cpu = time.process_time() - t0
     limits = {e: null.detection_limit(e) for e in effects}
     # effects the untouched trial has evidence of but did not name: its own, at the edge of naming
-    edge = {ev["effect"] for ev in null.evidence if ev["p_value"] < ev["alpha"]} - set(null.names)
+    edge = {ev["effect"] for ev in null.evidence if ev["p_value"] < ev["alpha"]} - null.stated
     own = {e: _own(null, e, g0) for e in effects}
     combos = [list(rng.choice(effects, size=2, replace=False)) for _ in range(pairs)]
     combos += [list(rng.choice(effects, size=3, replace=False)) for _ in range(triples)]
@@ -156,6 +231,10 @@ def _trial(path: str, effects: list[str], factors: list[float], pairs: int, trip
         per = {}
         for e, p in hidden.items():
             c = rep.cause(e)
+            joint = rep.joint_cause(e) if c is None else None
+            if joint is not None:
+                per[e] = _joint_check(joint, null, hidden, g0)
+                continue
             if c is None:
                 per[e] = {"named": False, "within": False, "z": None}
                 continue
@@ -163,22 +242,28 @@ def _trial(path: str, effects: list[str], factors: list[float], pairs: int, trip
             se = np.array([(hi - lo) / 2.0 for lo, hi in c.interval]) / 1.959964
             ok, z = _within(e, _vec(e, c.params), _expected(e, own_v, p, g0), np.hypot(se, own_se))
             per[e] = {"named": True, "within": ok, "z": round(z, 2)}
-        beyond = set(rep.names) - set(null.names) - set(hidden)
+        # a joint name counts like any other: beyond the untouched trial's when none of its effects
+        # was stated there (alone or jointly) or hidden
+        known = null.stated | set(hidden)
+        beyond = {n for n, m in _members(rep).items() if not m & known}
+        near = {n for n in beyond if _members(rep)[n] & edge}
         cases.append(
             {
                 "hidden": sorted(hidden),
                 "factor": factor,
                 "magnitudes": {e: factor * limits[e] for e in hidden},
                 "effects": per,
-                "extra": sorted(beyond - edge),
-                "edge": sorted(beyond & edge),
-                "own_lost": sorted(set(null.names) - set(rep.names)),
+                "joint": rep.joint_names,
+                "extra": sorted(beyond - near),
+                "edge": sorted(near),
+                "own_lost": sorted(n for n, m in _members(null).items() if not m & rep.stated),
                 "cpu_s": round(cpu, 2),
             }
         )
     return {
         "trial": Path(path).stem,
         "null_names": null.names,
+        "null_joint": null.joint_names,
         "edge": sorted(edge),
         "null_cpu_s": round(null_cpu, 2),
         "limits": limits,
@@ -207,6 +292,7 @@ def _rates(trials: list[dict], effects: list[str], factors: list[float]) -> dict
         "hidden": len(first),
         "named": sum(r["named"] for r in first),
         "named_within": sum(r["named"] and r["within"] for r in first),
+        "named_joint": sum("joint" in r for r in first),
     }
     out["cases"] = len(cases)
     out["cases_with_extra"] = sum(bool(c["extra"]) for c in cases)
@@ -215,6 +301,23 @@ def _rates(trials: list[dict], effects: list[str], factors: list[float]) -> dict
     cpu = [c["cpu_s"] for c in cases] + [t["null_cpu_s"] for t in trials]
     out["cpu_s"] = {"median": float(np.median(cpu)), "max": float(np.max(cpu))}
     return out
+
+
+def _joint_rule(first_factor: dict) -> list[str]:
+    """How a hidden effect the trial cannot separate from another is scored (results that predate
+    joint names have no such count and no such line)."""
+    if "named_joint" not in first_factor:
+        return []
+    return [
+        "",
+        'Where a trial cannot tell two effects apart, the analysis names them jointly ("acc_bias or '
+        "gravity\") with their joint value in the parameters of the pair's first effect. A hidden "
+        "effect of such a pair counts as named when the joint name is reported, and as within 3 sigma "
+        "when the joint value is within 3 sigma of the untouched trial's joint value plus the hidden "
+        "effects' contributions (the first's change plus the others' carried over by the reported "
+        f"maps); {first_factor['named_joint']} of the hidden effects at the first factor were named "
+        "jointly. A joint name on an untouched trial is one of its own names like any other.",
+    ]
 
 
 def summary(data: dict) -> list[str]:
@@ -234,6 +337,7 @@ def summary(data: dict) -> list[str]:
         f"effect the untouched trial had evidence of but did not name): {r['cases_with_edge']}; with one "
         f"of the trial's own names missing: {r['cases_with_own_lost']}. CPU per analysis: median "
         f"{r['cpu_s']['median']:.1f} s, max {r['cpu_s']['max']:.1f} s (limit 30 s).",
+        *_joint_rule(ff),
         "",
         "| effect | detection limit (range over trials) | "
         + " | ".join([f"named at {x:g}x" for x in f] + [f"within 3σ at {x:g}x" for x in f])
@@ -267,6 +371,8 @@ def _markdown(data: dict) -> str:
     ]
     for trial, c, e, v in misses:
         why = "not named" if not v["named"] else f"{v['z']} sigma off"
+        if v.get("joint"):
+            why += f" (named as {v['joint']})"
         lines.append(f"- {trial}: {e} at {c['factor']:g}x ({', '.join(c['hidden'])} hidden): {why}")
     if not misses:
         lines.append("none")

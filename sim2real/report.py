@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "format_gravity_case",
+    "format_joint",
     "format_not_named",
     "format_summary",
     "plot_gravity_case",
@@ -270,7 +271,7 @@ def format_summary(report: DiscrepancyReport) -> str:
         f"held-out ({h['blocks']} blocks): gyro {h['gyro_rms_before']:.4f} -> "
         f"{h['gyro_rms_after']:.4f} rad/s, "
         f"acc {h['acc_rms_before']:.4f} -> {h['acc_rms_after']:.4f} m/s², gain {h['gain']:.3f}",
-        "causes:" if report.causes else "causes: none (the model explains the data)",
+        "causes:" if report.causes or report.joint else "causes: none (the model explains the data)",
     ]
     for i, c in enumerate(report.causes, 1):
         gain = f"gain {c.gain:.3f} (p={c.p_value:.2g})" if c.effect != "noise" else "no gain (white)"
@@ -278,8 +279,31 @@ def format_summary(report: DiscrepancyReport) -> str:
         if c.interval:
             lines.append("     95 % interval: " + ", ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in c.interval))
         lines.append(f"     signature: {c.signature}")
+    lines += format_joint(report)
     lines += format_not_named(report)
     return "\n".join(lines)
+
+
+def format_joint(report: DiscrepancyReport) -> list[str]:
+    """The effects named jointly: this recording fixes their joint value, not the split.
+
+    >>> from bodyschema.discrepancy.report import JointCause
+    >>> j = JointCause(("acc_bias", "gravity"), ("acc_bias",), {"vector": [0.1, 0.0, 0.0]}, {},
+    ...                [[0.09, 0.11], [-0.01, 0.01], [-0.01, 0.01]], 0.99, 0.42, {}, "rotate the sensor")
+    >>> format_joint(DiscrepancyReport({}, [], {}, {}, joint=[j]))[1]
+    '  acc_bias or gravity: as acc_bias vector [0.1, 0, 0]'
+    """
+    if not report.joint:
+        return []
+    lines = ["named jointly (not separable on this recording):"]
+    for j in report.joint:
+        first = j.effects[0]
+        lines.append(f"  {j.label}: as {first} {_fmt_params(first, j.params)}")
+        if j.interval:
+            lines.append("     95 % interval: " + ", ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in j.interval))
+        lines.append(f"     signatures overlap: canonical correlation {j.correlation:.3f} > {j.cut:.3f}")
+        lines.append(f"     would separate them: {j.separate_by}")
+    return lines
 
 
 def format_not_named(report: DiscrepancyReport) -> list[str]:
@@ -293,7 +317,7 @@ def format_not_named(report: DiscrepancyReport) -> list[str]:
     >>> format_not_named(rep)
     ['not named:', '  gyro_bias: below 0.004 here (gyro; estimate 0.001, p=0.4)']
     """
-    named = set(report.names)
+    named = report.stated
     best: dict[str, dict[str, object]] = {}
     for ev in report.evidence:
         if ev["effect"] in named or ev["channel"] == "both":

@@ -11,6 +11,8 @@ error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertain
 * :mod:`~bodyschema.discrepancy.residuals` — residual structure and noise;
 * :mod:`~bodyschema.discrepancy.selection` — the greedy held-out selection (:func:`analyze`, its
   settings :class:`AnalyzerOptions`);
+* :mod:`~bodyschema.discrepancy.separability` — which effects a recording can tell apart; those it
+  cannot are named jointly (``"acc_bias or gravity"``) with their joint value;
 * :mod:`~bodyschema.discrepancy.report` — the result as data (docs/design.md §2 discrepancy JSON);
 * :mod:`~bodyschema.discrepancy.network_gravity` — the robot gravity case: the paper's sensor networks
   without gravity (Eq. 11) against with it (Eq. 24), the cause named for the difference and the
@@ -19,7 +21,7 @@ error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertain
 
 from bodyschema.discrepancy.effects import EFFECT_NAMES, EFFECTS, FITTED_EFFECTS, Effect, Params, predict
 from bodyschema.discrepancy.fit import Problem, fit_params, prepare
-from bodyschema.discrepancy.report import Cause, DiscrepancyReport
+from bodyschema.discrepancy.report import Cause, DiscrepancyReport, JointCause
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
 from bodyschema.discrepancy.selection import (
     AnalyzerOptions,
@@ -38,6 +40,7 @@ __all__ = [
     "DiscrepancyAnalyzer",
     "DiscrepancyReport",
     "Effect",
+    "JointCause",
     "Params",
     "Problem",
     "analyze",

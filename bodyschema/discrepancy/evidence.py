@@ -50,7 +50,7 @@ from scipy.stats import f as f_dist
 from bodyschema.discrepancy.effects import EFFECTS, nominal, pack
 from bodyschema.discrepancy.fit import Problem, jacobian, residual
 
-__all__ = ["CHANNELS", "Evidence", "effect_evidence"]
+__all__ = ["CHANNELS", "Evidence", "critical_wald", "effect_evidence", "n_clusters", "signatures"]
 
 #: The residual columns of each channel (gyro xyz, then accelerometer xyz); ``both`` stacks them (the
 #: evidence of a named effect that moves both, such as a time offset).
@@ -131,11 +131,8 @@ def effect_evidence(
     """
     idx = prob.index
     names = [n for n in EFFECTS if n in set(model) | set(candidates)]
-    J, base = jacobian(prob, params, names)
-    cols = _columns(names)
-    if "time_offset" in cols:
-        J[:, :, cols["time_offset"][0]] = _offset_signature(prob, params)
-    n_blocks = max(2, round(idx.size / prob.rate / block_s))
+    J, base, cols = signatures(prob, params, names)
+    n_blocks = n_clusters(prob, block_s)
     blocks = np.array_split(np.arange(idx.size), n_blocks)
     cases = []
     for ch in channels:
@@ -162,6 +159,32 @@ def effect_evidence(
     out = [_wald(c, ch, X, y, rows, blocks, level, least) for c, ch, X, y, rows, least in cases]
     order = {n: i for i, n in enumerate(EFFECTS)}
     return sorted(out, key=lambda e: (order[e.effect], list(CHANNELS).index(e.channel)))
+
+
+def signatures(
+    prob: Problem, params: Mapping[str, Mapping[str, object]], names: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """``(columns (T, 6, p), base residual (T, 6), each effect's column indices)`` of the effects
+    ``names`` around ``params``: the model Jacobian, with the time offset's column taken from the
+    model's derivative (:func:`_offset_signature`)."""
+    names = [n for n in EFFECTS if n in names]
+    J, base = jacobian(prob, params, names)
+    cols = _columns(names)
+    if "time_offset" in cols:
+        J[:, :, cols["time_offset"][0]] = _offset_signature(prob, params)
+    return J, base, cols
+
+
+def n_clusters(prob: Problem, block_s: float) -> int:
+    """The number of time blocks the evidence tests take as independent."""
+    return max(2, round(prob.index.size / prob.rate / block_s))
+
+
+def critical_wald(level: float, k: int, clusters: int) -> float:
+    """The Wald statistic a ``k``-parameter change must reach at ``level`` with ``clusters`` blocks
+    (the F form of :func:`_wald`): a detection limit is ``sqrt`` of it standard errors."""
+    dof = max(clusters - k, 1)
+    return float(f_dist.isf(level, k, dof)) * k * max(clusters - 1, 1) / dof
 
 
 def _offset_signature(prob: Problem, params: Mapping[str, Mapping[str, object]]) -> np.ndarray:
@@ -214,7 +237,7 @@ def _wald(
     W = float(b @ np.linalg.pinv(V) @ b)
     F = W * dof / (k * max(G - 1, 1))
     p = float(f_dist.sf(F, k, dof))
-    w_crit = float(f_dist.isf(alpha, k, dof)) * k * max(G - 1, 1) / dof
+    w_crit = critical_wald(alpha, k, G)
     limit = float(np.sqrt(w_crit * max(float(np.linalg.eigvalsh(V)[-1]), 0.0)))
     weakest = max(float(np.linalg.eigvalsh(X.T @ X)[0]), 1e-300)
     limit = max(limit, float(np.sqrt(least_energy * X.shape[0] / weakest)))

@@ -22,6 +22,13 @@ The procedure:
    gives each parameter's jackknife standard error, the evidence in the final model each
    parameter's 95 % interval and each effect not named its detection limit.
 
+5. **Separability.** A named effect whose signature overlaps another's so much on this recording
+   that an unseen change of the other would move it beyond its interval
+   (:mod:`~bodyschema.discrepancy.separability`) keeps its own name only when its evidence holds with
+   the other free, and then the interval that leaves the other free; otherwise the two are named
+   jointly (:class:`~bodyschema.discrepancy.report.JointCause`), with their joint value and the
+   motion that would tell them apart.
+
 White ``noise`` is measured apart (it changes no expected reading): named when its std exceeds
 ``noise_floor``; its density follows the convention ``std = density * sqrt(rate)``.
 
@@ -46,7 +53,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, pack, predict, unpack
+from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, Params, nominal, pack, predict, unpack
 from bodyschema.discrepancy.evidence import CHANNELS, Evidence, effect_evidence
 from bodyschema.discrepancy.fit import (
     Problem,
@@ -57,8 +64,17 @@ from bodyschema.discrepancy.fit import (
     residual,
     score,
 )
-from bodyschema.discrepancy.report import Cause, DiscrepancyReport
+from bodyschema.discrepancy.report import Cause, DiscrepancyReport, JointCause
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
+from bodyschema.discrepancy.separability import (
+    Overlap,
+    Signatures,
+    groups,
+    joint_maps,
+    overlaps,
+    separate_by,
+    signature_columns,
+)
 from bodyschema.progress import progress
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import ReferenceMotion, reference_motion
@@ -246,11 +262,13 @@ def _analyze(
         prob, params, selected, opts.effects, channels=tuple(CHANNELS), **_evidence_options(prob, opts)
     )
     causes = _with_intervals(causes, params, final)
+    # A named effect whose value the recording cannot tell from another's is named jointly with it.
+    causes, joint = _joint_causes(prob, params, selected, causes, final, opts)
     # Noise, from the full-rate measured readings above the motion band.
     causes += _noise_cause(ref, gyro, acc, valid, prob, opts.margin, opts.noise_floor)
     if any(c.effect == "noise" for c in causes):
         params["noise"] = causes[-1].params
-    return _report(prob, folds, causes, params, screening, held_before, opts, final)
+    return replace(_report(prob, folds, causes, params, screening, held_before, opts, final), joint=joint)
 
 
 def _make_folds(prob: Problem, n_blocks: int) -> list[_Fold]:
@@ -399,6 +417,125 @@ def _with_intervals(causes: list[Cause], params: Params, evidence: list[Evidence
             replace(c, interval=[[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)])
         )
     return out
+
+
+def _joint_causes(
+    prob: Problem,
+    params: Params,
+    selected: list[str],
+    causes: list[Cause],
+    evidence: list[Evidence],
+    opts: AnalyzerOptions,
+) -> tuple[list[Cause], list[JointCause]]:
+    """The causes less those named jointly, and the joint names: the named effects whose signatures
+    overlap another effect's beyond the cut of :mod:`~bodyschema.discrepancy.separability` are named
+    together with it."""
+    if not selected:
+        return causes, []
+    level = opts.alpha / max(1, sum(ev.channel != "both" for ev in evidence))
+    sig = signature_columns(prob, params, opts.effects, opts.block_s)
+    found = overlaps(sig, selected, opts.effects, level=level)
+    found, wide = _revealed_apart(prob, params, selected, found, level, opts)
+    joint = [_joint(prob, params, selected, causes, g, found, sig, opts) for g in groups(found, selected)]
+    members = {e for j in joint for e in j.effects}
+    return [_widened(c, params, wide) for c in causes if c.effect not in members], joint
+
+
+def _revealed_apart(
+    prob: Problem,
+    params: Params,
+    selected: list[str],
+    found: list[Overlap],
+    level: float,
+    opts: AnalyzerOptions,
+) -> tuple[list[Overlap], dict[str, np.ndarray]]:
+    """The overlaps still to be named jointly, and the standard errors of the named effects that stay
+    named alone with a wider interval.
+
+    A named effect that overlaps an effect not named beyond the cut is tested again with that effect
+    free in the model: when its evidence still holds at ``level``, the data reveal it apart from
+    the other, and its interval becomes the one that leaves the other free (the largest over such
+    partners); otherwise the two are named jointly. Two named effects beyond the cut are judged
+    alike, each with the other in the model: both keep their names when both hold (a missing 9.81
+    m/s² of gravity beside an accelerometer bias of tenths overlaps it on a short recording and
+    still stands out), and a pair whose split rests on what their signatures do not share is named
+    jointly."""
+    keep, wide = [], {}
+    for o in found:
+        if o.separable:
+            keep.append(o)
+            continue
+        evs = effect_evidence(
+            prob,
+            params,
+            selected if o.partner in selected else [*selected, o.partner],
+            [o.named],
+            channels=tuple(CHANNELS),
+            **_evidence_options(prob, opts),
+        )
+        best = min((e for e in evs if e.channel != "both"), key=lambda e: e.p_value)
+        if best.p_value >= level:
+            keep.append(o)
+            continue
+        ev = next((e for e in evs if e.channel == "both"), best)
+        wide[o.named] = np.maximum(wide.get(o.named, 0.0), np.asarray(ev.stderr))
+    return keep, wide
+
+
+def _widened(cause: Cause, params: Params, wide: Mapping[str, np.ndarray]) -> Cause:
+    """``cause`` with the 95 % interval that leaves its overlapping partners free, where it is wider."""
+    if cause.effect not in wide or not cause.interval:
+        return cause
+    value = pack(params, [cause.effect])
+    half = np.maximum(_Z95 * wide[cause.effect], [(hi - lo) / 2.0 for lo, hi in cause.interval])
+    return replace(cause, interval=[[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)])
+
+
+def _joint(
+    prob: Problem,
+    params: Params,
+    selected: list[str],
+    causes: list[Cause],
+    group: list[str],
+    found: list[Overlap],
+    sig: Signatures,
+    opts: AnalyzerOptions,
+) -> JointCause:
+    """The joint value of a group in its first effect's parameters, with its interval: the model
+    refitted with the first in the place of the whole group (started from the group's values carried
+    over to it), the interval the first's evidence in that model."""
+    first = group[0]
+    maps = joint_maps(sig, group, selected)
+    names = [n for n in EFFECTS if (n in selected and n not in group) or n == first]
+    init = {k: v for k, v in params.items() if k not in group}
+    start = pack(params, [first], prob.ref)
+    for n, m in maps.items():
+        if n in selected:
+            start = start + m @ (pack(params, [n], prob.ref) - nominal(n, prob.ref))
+    init[first] = EFFECTS[first].to_params(start)
+    # the fit stands when the first was named and the others were not (it already takes them up)
+    fit = fit_params(prob, names, init, prob.index) if set(group[1:]) & set(selected) else params
+    evs = effect_evidence(
+        prob, fit, names, [first], channels=tuple(CHANNELS), **_evidence_options(prob, opts)
+    )
+    ev = next((e for e in evs if e.channel == "both"), None) or min(evs, key=lambda e: e.p_value)
+    value = pack(fit, [first], prob.ref)
+    se = np.asarray(ev.stderr)
+    named = [c for c in causes if c.effect in group]
+    pairs = [o for o in found if {o.named, o.partner} <= set(group) and not o.separable]
+    return JointCause(
+        effects=tuple(group),
+        named=tuple(c.effect for c in named),
+        params=EFFECTS[first].to_params(value),
+        uncertainty=EFFECTS[first].to_params(se),
+        interval=[[float(v - _Z95 * h), float(v + _Z95 * h)] for v, h in zip(value, se, strict=True)],
+        correlation=max(o.correlation for o in pairs),
+        cut=min(o.cut for o in pairs),
+        maps={n: [[float(x) for x in row] for row in m] for n, m in maps.items()},
+        separate_by=separate_by(group),
+        gain=float(sum(c.gain for c in named)),
+        p_value=min(c.p_value for c in named),
+    )
 
 
 def _report(

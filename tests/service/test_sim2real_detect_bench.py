@@ -35,7 +35,7 @@ def test_an_effect_hidden_at_three_times_its_limit_is_named_and_measured(tmp_pat
         assert case["effects"][effect]["named"] and case["effects"][effect]["within"], case
         assert case["extra"] == [] and 0 < case["cpu_s"] < 60
     rates = data["rates"]
-    assert rates["first_factor"] == {"hidden": 1, "named": 1, "named_within": 1}
+    assert rates["first_factor"] == {"hidden": 1, "named": 1, "named_within": 1, "named_joint": 0}
     assert "1 of 1 hidden effects (100.0 %)" in (tmp_path / "sim2real-detect.md").read_text()
 
 
