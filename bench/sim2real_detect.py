@@ -43,6 +43,7 @@ from scipy.spatial.transform import Rotation
 from bench import RESULTS_DIR, machine_note
 from bench.sim2real import trial_paths
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, nominal
+from bodyschema.discrepancy.separability import Z95
 from bodyschema.progress import progress
 from sim2real.broad import broad_data_dir
 
@@ -102,12 +103,20 @@ def _own(null: Any, effect: str, gravity: np.ndarray) -> tuple[np.ndarray, np.nd
     null value moved by what the evidence estimates (below the limit, but not zero)."""
     c = null.cause(effect)
     if c is not None and c.interval:
-        half = np.array([(hi - lo) / 2.0 for lo, hi in c.interval])
-        return _vec(effect, c.params), half / 1.959964
+        return _vec(effect, c.params), _se(c.interval)
     evs = [e for e in null.evidence if e["effect"] == effect]
     ev = next((e for e in evs if e["channel"] == "both"), None) or min(evs, key=lambda e: e["p_value"])
-    base = nominal(effect) if effect != "gravity" else gravity
-    return base + np.asarray(ev["estimate"]), np.asarray(ev["stderr"])
+    return _null(effect, gravity) + np.asarray(ev["estimate"]), np.asarray(ev["stderr"])
+
+
+def _se(interval: list[list[float]]) -> np.ndarray:
+    """The standard errors a reported 95 % interval stands for."""
+    return np.array([(hi - lo) / 2.0 for lo, hi in interval]) / Z95
+
+
+def _null(effect: str, gravity: np.ndarray) -> np.ndarray:
+    """``effect``'s value when absent: its nominal, or the trial's gravity."""
+    return gravity if effect == "gravity" else nominal(effect)
 
 
 def _expected(effect: str, own: np.ndarray, hidden: dict[str, object], gravity: np.ndarray) -> np.ndarray:
@@ -135,8 +144,7 @@ def _change(effect: str, hidden: dict[str, dict[str, object]], gravity: np.ndarr
     """The change of ``effect`` from its null that was hidden (zero when it was not)."""
     if effect not in hidden:
         return np.zeros(EFFECTS[effect].size)
-    base = gravity if effect == "gravity" else nominal(effect)
-    return _vec(effect, hidden[effect]) - base
+    return _vec(effect, hidden[effect]) - _null(effect, gravity)
 
 
 def _own_joint(null: Any, joint: Any, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,7 +159,7 @@ def _own_joint(null: Any, joint: Any, gravity: np.ndarray) -> tuple[np.ndarray, 
     value, se = _own(null, first, gravity) if not parts or parts[0].effects[0] != first else (0.0, 0.0)
     covered = {first}
     for j in parts:
-        half = np.array([(hi - lo) / 2.0 for lo, hi in j.interval]) / 1.959964
+        half = _se(j.interval)
         if j.effects[0] == first:
             value, se = _vec(first, j.params), half
         else:
@@ -174,8 +182,7 @@ def _carry(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``value`` with ``effect``'s change from null at ``own`` carried over to the joint's first."""
     m = np.asarray(joint.maps[effect])
-    base = gravity if effect == "gravity" else nominal(effect)
-    return value + m @ (own - base), np.sqrt(se**2 + (m**2) @ own_se**2)
+    return value + m @ (own - _null(effect, gravity)), np.sqrt(se**2 + (m**2) @ own_se**2)
 
 
 def _joint_check(
@@ -188,7 +195,7 @@ def _joint_check(
     want = _expected(first, own_v, hidden[first], gravity) if first in hidden else own_v
     for e in joint.effects[1:]:
         want = want + np.asarray(joint.maps[e]) @ _change(e, hidden, gravity)
-    se = np.array([(hi - lo) / 2.0 for lo, hi in joint.interval]) / 1.959964
+    se = _se(joint.interval)
     ok, z = _within(first, _vec(first, joint.params), want, np.hypot(se, own_se))
     return {"named": True, "within": ok, "z": round(z, 2), "joint": joint.label}
 
@@ -239,14 +246,14 @@ def _trial(path: str, effects: list[str], factors: list[float], pairs: int, trip
                 per[e] = {"named": False, "within": False, "z": None}
                 continue
             own_v, own_se = own[e]
-            se = np.array([(hi - lo) / 2.0 for lo, hi in c.interval]) / 1.959964
+            se = _se(c.interval)
             ok, z = _within(e, _vec(e, c.params), _expected(e, own_v, p, g0), np.hypot(se, own_se))
             per[e] = {"named": True, "within": ok, "z": round(z, 2)}
         # a joint name counts like any other: beyond the untouched trial's when none of its effects
         # was stated there (alone or jointly) or hidden
-        known = null.stated | set(hidden)
-        beyond = {n for n, m in _members(rep).items() if not m & known}
-        near = {n for n in beyond if _members(rep)[n] & edge}
+        known, members = null.stated | set(hidden), _members(rep)
+        beyond = {n for n, m in members.items() if not m & known}
+        near = {n for n in beyond if members[n] & edge}
         cases.append(
             {
                 "hidden": sorted(hidden),

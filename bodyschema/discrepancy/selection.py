@@ -67,6 +67,7 @@ from bodyschema.discrepancy.fit import (
 from bodyschema.discrepancy.report import Cause, DiscrepancyReport, JointCause
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
 from bodyschema.discrepancy.separability import (
+    Z95,
     Overlap,
     Signatures,
     groups,
@@ -83,9 +84,6 @@ from bodyschema.threads import blas_threads
 __all__ = ["AnalyzerOptions", "DiscrepancyAnalyzer", "analyze", "analyze_recording", "reference_of"]
 
 log = logging.getLogger(__name__)
-
-#: Two-sided 95 % normal quantile (the intervals of the fitted parameters).
-_Z95 = 1.959963984540054
 
 
 @dataclass
@@ -412,10 +410,7 @@ def _with_intervals(causes: list[Cause], params: Params, evidence: list[Evidence
             out.append(c)
             continue
         value = pack(params, [c.effect])
-        half = _Z95 * np.asarray(ev.stderr)
-        out.append(
-            replace(c, interval=[[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)])
-        )
+        out.append(replace(c, interval=_interval(value, Z95 * np.asarray(ev.stderr))))
     return out
 
 
@@ -482,13 +477,18 @@ def _revealed_apart(
     return keep, wide
 
 
+def _interval(value: np.ndarray, half: np.ndarray) -> list[list[float]]:
+    """``[[value - half, value + half], ...]`` per parameter."""
+    return [[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)]
+
+
 def _widened(cause: Cause, params: Params, wide: Mapping[str, np.ndarray]) -> Cause:
     """``cause`` with the 95 % interval that leaves its overlapping partners free, where it is wider."""
     if cause.effect not in wide or not cause.interval:
         return cause
     value = pack(params, [cause.effect])
-    half = np.maximum(_Z95 * wide[cause.effect], [(hi - lo) / 2.0 for lo, hi in cause.interval])
-    return replace(cause, interval=[[float(v - h), float(v + h)] for v, h in zip(value, half, strict=True)])
+    half = np.maximum(Z95 * wide[cause.effect], [(hi - lo) / 2.0 for lo, hi in cause.interval])
+    return replace(cause, interval=_interval(value, half))
 
 
 def _joint(
@@ -528,7 +528,7 @@ def _joint(
         named=tuple(c.effect for c in named),
         params=EFFECTS[first].to_params(value),
         uncertainty=EFFECTS[first].to_params(se),
-        interval=[[float(v - _Z95 * h), float(v + _Z95 * h)] for v, h in zip(value, se, strict=True)],
+        interval=_interval(value, Z95 * se),
         correlation=max(o.correlation for o in pairs),
         cut=min(o.cut for o in pairs),
         maps={n: [[float(x) for x in row] for row in m] for n, m in maps.items()},

@@ -56,6 +56,7 @@ from bodyschema.discrepancy.fit import Problem
 
 __all__ = [
     "SEPARATE_BY",
+    "Z95",
     "Overlap",
     "Signatures",
     "groups",
@@ -66,8 +67,8 @@ __all__ = [
     "signature_columns",
 ]
 
-#: Two-sided 95 % normal quantile (the half-width of a named effect's interval).
-_Z95 = 1.959963984540054
+#: Two-sided 95 % normal quantile: a named effect's interval is ``Z95`` standard errors either side.
+Z95 = 1.959963984540054
 
 #: Relative singular value below which a signature direction counts as absent (rank).
 _RANK_TOL = 1e-8
@@ -145,7 +146,7 @@ def joint_cut(w_crit: float) -> float:
     >>> round(joint_cut(25.0), 3)
     0.365
     """
-    return float(_Z95 / np.sqrt(_Z95**2 + w_crit))
+    return float(Z95 / np.sqrt(Z95**2 + w_crit))
 
 
 def _tilt_basis(prob: Problem) -> np.ndarray | None:
