@@ -15,6 +15,12 @@ finds no entry young enough waits for a rendering, and it shares one in flight. 
 request path was what made the tail: under the ingest and the worker, every commit sent the next
 requests of each key into a rendering of tens to hundreds of milliseconds (docs/bench/load.md).
 
+A rendering reuses what it shares with others: a robot's status (:meth:`ReadCache.memo`; the robot
+list asks every robot's) is kept while the store committed nothing but frames
+(:attr:`Store.analysis_generation <service.store.schema.StoreBase.analysis_generation>`: the ingest
+writer commits every second, the worker and the trainers far less often) and for at most
+``api_cache_seconds``, like an answer.
+
 So a read reflects every commit made at least ``api_cache_seconds`` (plus one rendering) before it;
 writers in other processes sharing a PostgreSQL database are seen the same way. Writes made through
 this API are seen by the next read at once: a mutating request that succeeds empties the cache
@@ -40,9 +46,10 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse, Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.status import RobotStatus, robot_status
 from service.store import Store
 
-__all__ = ["ClearOnWrite", "ReadCache", "read_cache"]
+__all__ = ["ClearOnWrite", "ReadCache", "cached_status", "read_cache"]
 
 
 @dataclass(frozen=True)
@@ -50,6 +57,13 @@ class _Entry:
     generation: int
     at: float
     body: bytes
+
+
+@dataclass(frozen=True)
+class _Memo:
+    generation: int  # the store's analysis generation before computing
+    at: float
+    value: Any
 
 
 class ReadCache:
@@ -83,6 +97,7 @@ class ReadCache:
         #: Hits served while a newer answer was being rendered (the store had committed since).
         self.stale_hits = 0
         self._entries: dict[Hashable, _Entry] = {}
+        self._memos: dict[Hashable, _Memo] = {}
         self._floor = 0  # entries rendered from an older generation are not served (see clear)
         self._inflight: dict[Hashable, tuple[int, Future[bytes], object]] = {}
         self._lock = threading.Lock()
@@ -107,11 +122,27 @@ class ReadCache:
         self.misses += 1
         return _json(await asyncio.wrap_future(self._start(key, render, generation, now)))
 
+    def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
+        """``compute()``, or the value it gave for ``key`` while the store has committed nothing but
+        frames since and it is at most ``max_age`` old (module doc). For parts of answers that depend on
+        what is learned, not on the frames: a robot's status. Errors are not kept."""
+        generation, now = self.store.analysis_generation, self.clock()
+        kept = self._memos.get(key) if self.max_age > 0 else None
+        if kept is not None and kept.generation == generation and now - kept.at <= self.max_age:
+            return kept.value
+        value = compute()
+        with self._lock:
+            if len(self._memos) >= self.max_entries and key not in self._memos:
+                self._memos.clear()
+            self._memos[key] = _Memo(generation, now, value)
+        return value
+
     def clear(self) -> None:
-        """Forget every kept answer, and any rendered before now that is still in flight (a write
-        through the API: its next read must see it)."""
+        """Forget every kept answer and value, and any rendered before now that is still in flight (a
+        write through the API: its next read must see it)."""
         with self._lock:
             self._entries.clear()
+            self._memos.clear()
             self._floor = self.store.generation
 
     def _executor(self) -> ThreadPoolExecutor:
@@ -187,3 +218,10 @@ class ClearOnWrite:
 def read_cache(request: Request) -> ReadCache:
     """The app's read cache (``app.state.read_cache``, set by :func:`service.api.create_app`)."""
     return request.app.state.read_cache
+
+
+def cached_status(request: Request, store: Store, robot: str, method: str | None = None) -> RobotStatus:
+    """:func:`service.status.robot_status`, kept by the read cache while only frames were committed
+    (:meth:`ReadCache.memo`): the robot list, a robot's details, its status and its diagnostics all
+    ask it, and it costs five reads of the store."""
+    return read_cache(request).memo(("status", robot, method), lambda: robot_status(store, robot, method))

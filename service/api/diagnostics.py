@@ -8,12 +8,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
 
-from service.api.cache import read_cache
+from service.api.cache import cached_status, read_cache
 from service.api.deps import RobotName, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import DiagnosticArrayOut, DiagnosticStatusOut
 from service.diagnostics import diagnose
-from service.status import robot_status
 from service.store import Store
 
 __all__ = ["router"]
@@ -29,7 +28,7 @@ router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=r
 async def diagnostics(robot: RobotName, request: Request, store: Store = Depends(get_store)) -> Response:
     def render() -> DiagnosticArrayOut:
         info = lookup_robot(store, robot)
-        st = robot_status(store, info.name)
+        st = cached_status(request, store, info.name)
         return DiagnosticArrayOut(status=[DiagnosticStatusOut.of(d) for d in diagnose(info, st)])
 
     return await read_cache(request).respond(("diagnostics", robot), render)

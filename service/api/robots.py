@@ -8,14 +8,13 @@ from collections.abc import Sequence
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 
-from service.api.cache import read_cache
+from service.api.cache import cached_status, read_cache
 from service.api.deps import RobotName, get_pipeline, get_settings_dep, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import FramesIn, RobotOut, StatusOut
 from service.frames import FrameBatch, FrameError
 from service.ingest.pipeline import IngestUnavailable, Pipeline
 from service.settings import Settings
-from service.status import robot_status
 from service.store import RobotInfo, Store
 
 __all__ = ["router"]
@@ -23,9 +22,9 @@ __all__ = ["router"]
 router = APIRouter(prefix="/api/v1/robots", tags=["robots"], responses=responses(401, 503))
 
 
-def _out(store: Store, info: RobotInfo) -> RobotOut:
+def _out(request: Request, store: Store, info: RobotInfo) -> RobotOut:
     # The status read already fetches the baseline and the active alerts: the counts come from it.
-    st = robot_status(store, info.name)
+    st = cached_status(request, store, info.name)
     return RobotOut.of(
         info, has_baseline=st.baseline is not None, active_alerts=len(st.alerts), status=StatusOut.of(st)
     )
@@ -33,7 +32,9 @@ def _out(store: Store, info: RobotInfo) -> RobotOut:
 
 @router.get("", response_model=list[RobotOut], summary="every robot with its parts, alert count and status")
 async def list_robots(request: Request, store: Store = Depends(get_store)) -> Response:
-    return await read_cache(request).respond(("robots",), lambda: [_out(store, r) for r in store.robots()])
+    return await read_cache(request).respond(
+        ("robots",), lambda: [_out(request, store, r) for r in store.robots()]
+    )
 
 
 @router.get(
@@ -44,7 +45,7 @@ async def list_robots(request: Request, store: Store = Depends(get_store)) -> Re
 )
 async def robot_detail(robot: RobotName, request: Request, store: Store = Depends(get_store)) -> Response:
     return await read_cache(request).respond(
-        ("robot", robot), lambda: _out(store, lookup_robot(store, robot))
+        ("robot", robot), lambda: _out(request, store, lookup_robot(store, robot))
     )
 
 

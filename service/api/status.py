@@ -1,20 +1,21 @@
 """``GET /api/v1/robots/{robot}/status``: the monitoring answer — healthy, damaged or undetermined.
 
 Computed here from what the store holds (newest topology, baseline, alerts) by
-:func:`service.status.robot_status`, so the answer is the same whether or not a worker runs in this
-process, and it is never more certain than the stored evidence (the rule is in :mod:`service.status`).
+:func:`service.status.robot_status` (kept while only frames were committed:
+:func:`service.api.cache.cached_status`), so the answer is the same whether or not a worker runs in
+this process, and it is never more certain than the stored evidence (the rule is in
+:mod:`service.status`).
 """
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
-from service.api.cache import read_cache
+from service.api.cache import cached_status, read_cache
 from service.api.deps import RobotName, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import StatusOut
 from service.api.topology import Method
-from service.status import robot_status
 from service.store import Store
 
 __all__ = ["router"]
@@ -36,6 +37,6 @@ async def status(
     ),
 ) -> Response:
     def render() -> StatusOut:
-        return StatusOut.of(robot_status(store, lookup_robot(store, robot).name, method))
+        return StatusOut.of(cached_status(request, store, lookup_robot(store, robot).name, method))
 
     return await read_cache(request).respond(("status", robot, method), render)

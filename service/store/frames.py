@@ -36,6 +36,7 @@ from service.db.models import Chunk, Imu, Joint, Robot
 from service.frames import FrameBatch
 from service.store.chunks import PendingChunk, assemble, build_chunks, check_batch
 from service.store.robots import RegisteredRobot, RobotLimitReached, RobotsMixin, UnknownRobot, robot_id
+from service.store.schema import FRAMES_ONLY
 
 __all__ = ["FramesMixin"]
 
@@ -100,6 +101,7 @@ class FramesMixin(RobotsMixin):
         imu_last: dict[tuple[int, str], float] = {}
         pending: list[tuple[RegisteredRobot, PendingChunk]] = []
         with self._session() as s, s.begin():
+            s.info[FRAMES_ONLY] = True  # frames, clocks and parts: nothing a status is judged on
             for ch in chunks:  # per robot in batch order (build_chunks keeps it)
                 known = self._register_robot(s, ch.robot)
                 self._register_parts(s, known, ch)

@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 from service.db.models import Imu, Joint, Robot
 from service.frames import FrameError
 from service.store.chunks import PendingChunk
-from service.store.schema import StoreBase
+from service.store.schema import ROBOT_IDS, StoreBase
 
 __all__ = ["RegisteredRobot", "RobotInfo", "RobotLimitReached", "RobotsMixin", "UnknownRobot", "robot_id"]
 
@@ -65,11 +65,24 @@ class RegisteredRobot:
 
 
 def robot_id(s: Session, name: str) -> int:
-    """The id of robot ``name``; raises :class:`UnknownRobot`."""
-    rid = s.scalar(select(Robot.id).where(Robot.name == name))
+    """The id of robot ``name``; raises :class:`UnknownRobot`.
+
+    Remembered in the store's ids (:data:`~service.store.schema.ROBOT_IDS` of the session's info)
+    once read: an id read here is committed, since only :meth:`RobotsMixin._register_robot` inserts
+    robots and it looks its own up without this."""
+    ids = s.info.get(ROBOT_IDS)
+    rid = None if ids is None else ids.get(name)
     if rid is None:
-        raise UnknownRobot(name)
+        rid = _select_id(s, name)
+        if rid is None:
+            raise UnknownRobot(name)
+        if ids is not None:
+            ids[name] = rid
     return rid
+
+
+def _select_id(s: Session, name: str) -> int | None:
+    return s.scalar(select(Robot.id).where(Robot.name == name))
 
 
 class RobotsMixin(StoreBase):
@@ -140,7 +153,7 @@ class RobotsMixin(StoreBase):
         known = self._known.get(name)
         if known is not None:
             return known
-        rid = s.scalar(select(Robot.id).where(Robot.name == name))
+        rid = _select_id(s, name)
         if rid is None:
             self._check_robot_cap(s, name)
             s.execute(
@@ -148,7 +161,10 @@ class RobotsMixin(StoreBase):
                 .values(name=name, first_seen=time.time(), simulated=False, excitation={})
                 .on_conflict_do_nothing(index_elements=["name"])
             )
-            rid = robot_id(s, name)
+            # not robot_id: the insert commits or rolls back with the caller's transaction
+            rid = _select_id(s, name)
+            if rid is None:
+                raise UnknownRobot(name)
         joints = set(s.scalars(select(Joint.name).where(Joint.robot_id == rid)))
         imus = set(s.scalars(select(Imu.name).where(Imu.robot_id == rid)))
         known = self._known[name] = RegisteredRobot(rid, joints, imus)

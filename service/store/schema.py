@@ -38,7 +38,13 @@ from service.db.engine import make_engine, normalize_url
 from service.settings import Settings, get_settings
 from service.store.identity import FileIdentity, sqlite_file
 
-__all__ = ["SchemaMismatch", "StoreBase"]
+#: The key of :attr:`Session.info <sqlalchemy.orm.Session.info>` that holds the store's robot ids.
+ROBOT_IDS = "robot_ids"
+#: A :attr:`Session.info <sqlalchemy.orm.Session.info>` key: the session writes frames (chunks, clocks,
+#: parts) and nothing learned from them, so its commits leave ``analysis_generation`` as it is.
+FRAMES_ONLY = "frames_only"
+
+__all__ = ["FRAMES_ONLY", "ROBOT_IDS", "SchemaMismatch", "StoreBase"]
 
 
 class SchemaMismatch(RuntimeError):
@@ -71,14 +77,21 @@ class StoreBase:
         self.max_robots = int(s.max_robots)
         self.topology_history_keep = int(s.topology_history_keep)
         self.engine: Engine = make_engine(self.url, **(engine_kwargs or {}))
-        self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+        # Every robot's id once read, shared by this store's sessions (``Session.info``, see
+        # service.store.robots.robot_id): a robot's id never changes and robots are never deleted, and
+        # the read routes would otherwise look every robot up in every store call of every rendering.
+        self._robot_ids: dict[str, int] = {}
+        self._sessions = sessionmaker(self.engine, expire_on_commit=False, info={ROBOT_IDS: self._robot_ids})
         # The SQLite file this store writes to, remembered at the first connection (see
         # service.store.identity): a file deleted or replaced under the service is refused, not written.
         self._file = FileIdentity(sqlite_file(self.url))
         event.listen(self.engine, "connect", lambda *_: self._file.capture())
         # Committed transactions of this store object: readers that keep rendered answers (the API's
-        # read cache, service.api.cache) reuse them while it stays the same.
+        # read cache, service.api.cache) reuse them while it stays the same. ``analysis_generation``
+        # leaves out the commits of frames alone (a session marked FRAMES_ONLY): what is learned from
+        # the frames (topologies, baselines, alerts) stays the same across them.
         self.generation = 0
+        self.analysis_generation = 0
         self._generation_lock = threading.Lock()
         event.listen(self._sessions, "after_commit", self._committed)
         self._write_lock = threading.RLock()
@@ -87,9 +100,11 @@ class StoreBase:
         # robot up batch after batch; see service.store.robots.
         self._known: dict[str, Any] = {}
 
-    def _committed(self, _session: Any) -> None:
+    def _committed(self, session: Any) -> None:
         with self._generation_lock:
             self.generation += 1
+            if not session.info.get(FRAMES_ONLY):
+                self.analysis_generation += 1
 
     # ------------------------------------------------------------------------------- schema
     def upgrade(self) -> str:

@@ -117,6 +117,31 @@ def test_registration_and_several_robots(store: Store, rng: np.random.Generator)
     assert store.robot("new-sim").last_frame_t is None and store.read_window("new-sim", 1.0) is None
 
 
+def test_a_robot_is_looked_up_once_per_store(store: Store, rng: np.random.Generator) -> None:
+    from sqlalchemy import event
+
+    store.write(make_batch(rng, "a"))
+    statements: list[str] = []
+
+    def seen(_conn: object, _cursor: object, sql: str, *_args: object) -> None:
+        statements.append(sql)
+
+    event.listen(store.engine, "before_cursor_execute", seen)
+    try:
+        looked_up = []
+        for _ in range(3):  # the reads a status makes: each used to look the robot up by name
+            statements.clear()
+            assert store.latest_topology("a") is None and store.alerts("a", active=True) == []
+            looked_up.append(sum("FROM robots" in q and "robots.name" in q for q in statements))
+        assert looked_up[1:] == [0, 0], statements
+        with pytest.raises(UnknownRobot):  # an unknown name is asked every time, never remembered
+            store.latest_topology("b")
+        store.write(make_batch(rng, "b"))
+        assert store.latest_topology("b") is None
+    finally:
+        event.remove(store.engine, "before_cursor_execute", seen)
+
+
 def test_robot_without_encoders(store: Store, rng: np.random.Generator) -> None:
     store.write(make_batch(rng, joints=()))
     rec = store.read_window("r1", 1.0)
