@@ -12,13 +12,15 @@ windows are then fixed: the robots' newest 30 s), this process runs beside the t
 * **ingest**: one second of frames per robot every second (robot time = wall time), as the robots
   stream, through the service's ingest pipeline (queue, coalescing writer, one transaction per commit
   interval); the lag is how late each robot's second is committed;
-* **the API** (the service's app on uvicorn) answers the read mix of ``bench load`` from threads with
-  one connection each, at ``--api-rps`` (without ``/readyz``: no monitoring worker runs here, so it
-  would answer 503 by design).
+* **the API** (the service's app on uvicorn, in this process beside the ingest, as in the service)
+  answers the read mix of ``bench load``, asked at ``--api-rps`` by threads with one connection each
+  in a process of their own (without ``/readyz``: no monitoring worker runs here, so it would answer
+  503 by design).
 
 Measured: retrains per hour (robots / wall time of the round), the CPU seconds of each retrain, warm
 (the service's steady state) and, once per recording, cold (the first training of a robot); ingest
-lag; API p50/p99. Training runs at the service's ``training_nice``.
+lag; API p50/p99. Training runs at the service's ``training_nice`` and, with ``training_idle``, in
+Linux's idle scheduling class, as the embedded cluster runs it.
 
 For the fleet sizes in ``--alone`` the rounds run once more with nothing beside them: what the Dask
 workers give when they have the machine to themselves, as workers on machines of their own do (the
@@ -32,8 +34,10 @@ Writes ``fleet.json``, ``fleet.md`` and ``fleet.png``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import queue
 import socket
 import tempfile
 import threading
@@ -222,8 +226,7 @@ def _round(
     names: list[str],
     workers: int,
     window: float,
-    seed: int,
-    nice: int,
+    options: Any,
     submitted: Callable[[], None],
 ) -> dict[str, Any]:
     """Every robot retrained once on a local cluster of ``workers`` processes; wall time and costs.
@@ -232,7 +235,7 @@ def _round(
 
     from service.cluster import ClusterOptions, TrainingCluster
     from service.metrics import Metrics
-    from service.training import RemoteRetrains, TrainingOptions
+    from service.training import RemoteRetrains
 
     cluster = LocalCluster(
         n_workers=workers,
@@ -249,9 +252,7 @@ def _round(
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no client for the local cluster: {tc.fault}")
             time.sleep(0.1)
-        remote = RemoteRetrains(
-            tc, store, window, options=TrainingOptions(seed=seed, nice=nice), metrics=Metrics()
-        )
+        remote = RemoteRetrains(tc, store, window, options=options, metrics=Metrics())
         for name in names:
             remote.want(name, "network")
         t0 = time.monotonic()
@@ -284,10 +285,13 @@ def _round(
     }
 
 
-def _nice() -> int:
+def _training(seed: int) -> Any:
+    """The embedded cluster's training options for ``seed``: the service's priority settings."""
     from service.settings import Settings
+    from service.training import TrainingOptions
 
-    return Settings(database_url="sqlite://").training_nice
+    s = Settings(database_url="sqlite://")
+    return TrainingOptions(seed=seed, nice=s.training_nice, idle=s.training_idle)
 
 
 #: What ran beside the training in a round.
@@ -296,38 +300,49 @@ LOADED, ALONE = "ingest+api", "none"
 
 def _alone(store: Any, names: list[str], args: argparse.Namespace, workers: int) -> dict:
     """One round with nothing beside the training."""
-    row = _round(store, names, workers, args.window, args.seed + 1, _nice(), lambda: None)
+    row = _round(store, names, workers, args.window, _training(args.seed + 1), lambda: None)
     return {**row, "robots": len(names), "workers": workers, "beside": ALONE}
+
+
+def _client(host: str, rps: float, users: int, stop: Any, out: Any) -> None:
+    """The API's read mix (:func:`bench.load.read_mix`) until ``stop``; its summary onto ``out``."""
+    from bench.load import read_mix
+
+    out.put(read_mix(host, rps, users, 3 * 3600.0, stop, ready=False))
 
 
 def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Namespace, workers: int) -> dict:
     """One round with ingest and API load running beside it."""
-    from bench.load import read_mix
+    from service.children import SPAWN
 
-    nice = _nice()
+    training = _training(args.seed + 1)
     fleet = [(n, recs[i % len(recs)]) for i, n in enumerate(names)]
     last = max(float(store.robot(n).last_frame_t) for n in names)
     ingest = _Ingest(store, fleet, last + 1e-6)
     api = _Api(store)
-    stop = threading.Event()
-    answers: dict[str, str] = {}
+    # the load generator in a process of its own: its threads would otherwise wait on the service's
+    # interpreter lock, and their waits would count as the API's latency
+    stop, out = SPAWN.Event(), SPAWN.Queue()
     users = max(1, round(args.api_rps / 10.0))
-    client = threading.Thread(
-        target=lambda: answers.update(
-            read_mix(f"http://127.0.0.1:{api.port}", args.api_rps, users, 3 * 3600.0, stop, ready=False)
-        ),
+    client = SPAWN.Process(
+        target=_client,
+        args=(f"http://127.0.0.1:{api.port}", args.api_rps, users, stop, out),
+        name="bench-fleet-client",
         daemon=True,
     )
+    answers: dict[str, str] = {}
 
     def start() -> None:
         ingest.start()
         client.start()
 
     try:
-        row = _round(store, names, workers, args.window, args.seed + 1, nice, start)
+        row = _round(store, names, workers, args.window, training, start)
     finally:
         stop.set()
-        if client.is_alive():
+        if client.pid is not None:
+            with contextlib.suppress(queue.Empty):
+                answers = out.get(timeout=60)
             client.join(30)
         if ingest.is_alive():
             ingest.stop()
@@ -395,12 +410,21 @@ def speedups(rows: list[dict], beside: str) -> dict[int, float]:
     }
 
 
+def _priority(data: dict) -> str:
+    """How the training threads ran (results that predate the idle class have no such entry)."""
+    p = data.get("training_priority")
+    if p is None:
+        return "nice value"
+    return f"nice {p['nice']}" + (", Linux's idle scheduling class" if p["idle"] else "")
+
+
 def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict]) -> Path:
     args.out.mkdir(parents=True, exist_ok=True)
     loaded = [r for r in rows if r["beside"] == LOADED]
     speedup, speedup_alone = speedups(rows, LOADED), speedups(rows, ALONE)
     warm = float(np.median([r["cpu_s_median"] for r in rows]))
     cold_cpu = float(np.median([c["cpu_s"] for c in cold]))
+    training = _training(args.seed + 1)
     data = {
         "machine": machine_note(),
         "command": f"bodyhealth bench fleet --robots {args.robots} --workers {args.workers} --robot "
@@ -419,6 +443,7 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         "target_api_p99_ms": TARGET_P99_MS,
         "rows": rows,
         "load_average": round(os.getloadavg()[0], 1),
+        "training_priority": {"nice": training.nice, "idle": training.idle},
     }
     (args.out / "fleet.json").write_text(json.dumps(data, indent=1) + "\n")
     lines = [
@@ -429,8 +454,9 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         f"Fleet: {args.robot} robots ({rec.n_joints} joints, {rec.n_imus} IMUs, `robot` sensing), each "
         f"with a {args.window:g} s window, a baseline and the weights of an earlier training; every robot "
         "retrained once per round on a local Dask cluster (one thread per worker process, the training at "
-        "the service's nice value) while ingest writes one second of frames per robot every second and the "
-        f"API answers {args.api_rps:g} reads/s from threads (beside: ingest+api); rounds with beside "
+        f"the service's priority: {_priority(data)}) while ingest writes one second of frames per robot "
+        f"every second and the API answers {args.api_rps:g} reads/s, asked from threads of another process "
+        "(beside: ingest+api); rounds with beside "
         "none ran the same retrains with nothing else on the machine, as Dask workers on machines of their "
         "own do.",
         "",

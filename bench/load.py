@@ -332,8 +332,8 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
         "",
         f"Machine: {note}; load average {load:.1f} when the run started. The load generator runs on the "
         "same machine. The sensor networks are on (the service's default): network retrains is how many "
-        "finished on the embedded Dask cluster during the run (nice "
-        "10: they yield the CPU to the API).",
+        "finished on the embedded Dask cluster during the run (nice 10 and Linux's idle scheduling class: "
+        "they yield the CPU to the API).",
         "",
         "| offered rps | users | achieved rps | requests | failures | p50 | p95 | p99 | max "
         "| service CPU s/s | frames stored/s | frames dropped | network retrains |",

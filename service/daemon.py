@@ -132,7 +132,12 @@ class Daemon:
         if s.dask_scheduler:
             self.cluster.start()  # an external scheduler: connect now, so /readyz can report it
         # the embedded cluster's retrains yield the CPU to the API and ingest; an external one is left be
-        options = replace(self.training or TrainingOptions(), nice=0 if s.dask_scheduler else s.training_nice)
+        embedded = not s.dask_scheduler
+        options = replace(
+            self.training or TrainingOptions(),
+            nice=s.training_nice if embedded else 0,
+            idle=s.training_idle and embedded,
+        )
         if s.imu_filter_delay is not None and "imu_delay" not in dict(options.estimator_options):
             extra = (("imu_delay", s.imu_filter_delay),)
             options = replace(options, estimator_options=options.estimator_options + extra)

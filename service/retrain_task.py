@@ -68,6 +68,8 @@ class RetrainJob:
     warm_start: bool = True
     #: nice value the training thread is raised to (0: left as it is); see :func:`lower_priority`
     nice: int = 0
+    #: the training thread runs under Linux's idle scheduling class (:func:`lower_priority`)
+    idle: bool = False
     #: the encoder stamps are moved by this lag (s) first, and the move put back into the timing
     #: reported (:func:`bodyschema.timing.encoders_moved`; 0: not moved)
     lag_hint: float = 0.0
@@ -126,17 +128,24 @@ def job_key(job: RetrainJob) -> str:
     return f"retrain-{job.method}-{job.robot}-e{job.epoch}-{job.window_end:.6f}"
 
 
-def lower_priority(nice: int) -> None:
-    """Raise the calling thread's nice value to ``nice`` (never lower it: that needs privileges).
+def lower_priority(nice: int, idle: bool = False) -> None:
+    """Raise the calling thread's nice value to ``nice`` (never lower it: that needs privileges), and
+    with ``idle`` move it to Linux's ``SCHED_IDLE`` class.
 
-    On Linux a nice value belongs to a thread, and the training runs on the Dask worker's one task
-    thread, so that thread is what yields the CPU to the service's API and ingest; threads it starts
-    later (torch's) inherit it. Elsewhere it applies to the process.
+    On Linux a nice value and a scheduling class belong to a thread, and the training runs on the Dask
+    worker's one task thread, so that thread is what yields the CPU to the service's API and ingest;
+    threads it starts later (torch's) inherit both. Elsewhere the nice value applies to the process
+    and ``idle`` does nothing.
+
+    Why the idle class as well: a niced thread still holds a core until the scheduler's next tick
+    when a request arrives (its deadline is not yet due), while a thread of the idle class is
+    preempted at once by any other thread that wakes, so a request waits on the training for
+    microseconds rather than milliseconds. Unprivileged threads may enter the class, not leave it.
     """
-    if nice <= 0 or not hasattr(os, "setpriority"):
-        return
-    if os.getpriority(os.PRIO_PROCESS, 0) < nice:
+    if nice > 0 and hasattr(os, "setpriority") and os.getpriority(os.PRIO_PROCESS, 0) < nice:
         os.setpriority(os.PRIO_PROCESS, 0, nice)
+    if idle and hasattr(os, "SCHED_IDLE") and os.sched_getscheduler(0) != os.SCHED_IDLE:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
 
 
 def run_retrain(job: RetrainJob) -> RetrainResult:
@@ -157,7 +166,7 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     from service.store import Store
     from service.store.weights import pack_weights
 
-    lower_priority(job.nice)
+    lower_priority(job.nice, job.idle)
     wall0, cpu0 = time.monotonic(), time.process_time()
     store = Store(job.database_url)
     stored = None

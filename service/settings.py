@@ -156,6 +156,12 @@ class Settings(BaseSettings):
         "they yield the CPU to the API and ingest; 0 = as the service; an external cluster's workers "
         "are left as they are",
     )
+    training_idle: bool = Field(
+        True,
+        description="the embedded cluster's retrains run in Linux's idle scheduling class: any thread "
+        "of the API or ingest that wakes takes their core at once (a nice value alone lets them "
+        "finish their time slice first); an external cluster's workers are left as they are",
+    )
 
     # ----------------------------------------------------------------- ingest
     queue_max_batches: int = Field(1000, ge=1, description="bounded ingest queue (backpressure)")

@@ -55,6 +55,8 @@ class TrainingOptions:
     warm_start: bool = True
     #: nice value of the training thread (:func:`service.retrain_task.lower_priority`; 0: as it is)
     nice: int = 0
+    #: the training thread in Linux's idle scheduling class (:func:`service.retrain_task.lower_priority`)
+    idle: bool = False
 
 
 @dataclass(frozen=True)
@@ -253,4 +255,5 @@ class RemoteRetrains:
             baseline_id=base.id if base is not None else None,
             warm_start=self.options.warm_start,
             nice=self.options.nice,
+            idle=self.options.idle,
         )

@@ -78,6 +78,22 @@ def test_lower_priority_raises_the_nice_value_of_the_calling_thread_only() -> No
     assert seen == [max(7, before)] and os.getpriority(os.PRIO_PROCESS, 0) == before
 
 
+def test_lower_priority_moves_the_calling_thread_alone_to_the_idle_class() -> None:
+    seen: list[tuple[int, int]] = []
+
+    def train() -> None:
+        lower_priority(0, idle=True)
+        lower_priority(5, idle=True)  # already idle: the nice value still rises
+        seen.append((os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)))
+
+    before = os.sched_getscheduler(0)
+    t = threading.Thread(target=train)
+    t.start()
+    t.join()
+    assert before == os.SCHED_OTHER and os.sched_getscheduler(0) == before
+    assert seen == [(os.SCHED_IDLE, max(5, os.getpriority(os.PRIO_PROCESS, 0)))]
+
+
 @pytest.mark.slow
 def test_the_child_ends_with_a_sigkilled_parent(tmp_path: Path) -> None:
     script = tmp_path / "parent.py"

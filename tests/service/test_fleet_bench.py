@@ -43,3 +43,6 @@ def test_bench_fleet_retrains_every_robot_warm_on_one_and_two_workers(tmp_path: 
         assert data[key]["2"] == pytest.approx(by[2] / by[1], abs=0.006)
     md = (tmp_path / "fleet.md").read_text()
     assert "| 2 | 2 | ingest+api |" in md and "| 2 | 2 | none |" in md
+    # the retrains ran as the embedded cluster runs them
+    assert data["training_priority"] == {"nice": 10, "idle": True}
+    assert "nice 10, Linux's idle scheduling class" in md
