@@ -830,8 +830,12 @@ def _fuse(
     """
     U = _perp_basis(u)
     Cg = _gyro_lean_cov(u, U, opts) + noise_var * np.eye(2)
-    Ca = acc.cov[at, at] + math.radians(opts.acc_model_error_deg) ** 2 / 2.0 * np.eye(2)
-    Pa = np.linalg.pinv(Ca, rcond=1e-12, hermitian=True)
+    # the model error along the directions the accelerometers see; a direction they do not see (a zero
+    # of the sandwich covariance: the fit never depended on it) stays without information
+    w, V = np.linalg.eigh(acc.cov[at, at])
+    seen = w > 1e-12 * max(float(w.max()), 0.0) if w.max() > 0 else np.zeros(w.shape, dtype=bool)
+    model = math.radians(opts.acc_model_error_deg) ** 2 / 2.0
+    Pa = (V[:, seen] / (w[seen] + model)) @ V[:, seen].T
     C = np.linalg.inv(np.linalg.inv(Cg) + Pa)
     theta = C @ Pa @ acc.coef[at]
     return _tilted(u, U, theta), math.degrees(math.sqrt(max(float(np.trace(C)), 0.0)))
