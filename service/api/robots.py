@@ -15,6 +15,7 @@ from service.api.schemas import FramesIn, RobotOut, StatusOut
 from service.frames import FrameBatch, FrameError
 from service.ingest.pipeline import IngestUnavailable, Pipeline
 from service.settings import Settings
+from service.status import RobotStatus, robot_statuses
 from service.store import RobotInfo, Store
 
 __all__ = ["router"]
@@ -22,9 +23,9 @@ __all__ = ["router"]
 router = APIRouter(prefix="/api/v1/robots", tags=["robots"], responses=responses(401, 503))
 
 
-def _out(request: Request, store: Store, info: RobotInfo) -> RobotOut:
+def _out(request: Request, store: Store, info: RobotInfo, st: RobotStatus | None = None) -> RobotOut:
     # The status read already fetches the baseline and the active alerts: the counts come from it.
-    st = cached_status(request, store, info.name)
+    st = st or cached_status(request, store, info.name)
     return RobotOut.of(
         info, has_baseline=st.baseline is not None, active_alerts=len(st.alerts), status=StatusOut.of(st)
     )
@@ -32,9 +33,14 @@ def _out(request: Request, store: Store, info: RobotInfo) -> RobotOut:
 
 @router.get("", response_model=list[RobotOut], summary="every robot with its parts, alert count and status")
 async def list_robots(request: Request, store: Store = Depends(get_store)) -> Response:
-    return await read_cache(request).respond(
-        ("robots",), lambda: [_out(request, store, r) for r in store.robots()]
-    )
+    def render() -> list[RobotOut]:
+        infos = store.robots()
+        names = tuple(r.name for r in infos)
+        # every robot's status in one read of the fleet, kept as one robot's is (cached_status)
+        statuses = read_cache(request).memo(("statuses", names), lambda: robot_statuses(store, names))
+        return [_out(request, store, r, statuses.get(r.name)) for r in infos]
+
+    return await read_cache(request).respond(("robots",), render)
 
 
 @router.get(

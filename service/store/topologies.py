@@ -20,11 +20,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, insert, select
+from sqlalchemy import delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from bodyschema.topology import Topology
-from service.db.models import Baseline, TopologyRow
+from service.db.models import Baseline, Robot, TopologyRow
 from service.store.alerts import resolve_open_alerts
 from service.store.robots import robot_id
 from service.store.schema import StoreBase
@@ -88,12 +88,43 @@ class TopologiesMixin(StoreBase):
     def _topologies(self, robot: str, limit: int, method: str | None) -> list[TopologyRecord]:
         with self._session() as s:
             rid = robot_id(s, robot)
-            return [
-                TopologyRecord(
-                    r.id, robot, r.wall_time, r.window_end_t, r.method, Topology.from_json(r.topology)
-                )
-                for r in _topology_rows(s, rid, limit, method)
-            ]
+            return [_record(r, robot) for r in _topology_rows(s, rid, limit, method)]
+
+    def latest_topologies(self, method: str | None = None) -> dict[str, TopologyRecord]:
+        """Every robot's newest stored topology (of ``method`` when given), by robot name; robots without
+        one are left out. One query for the whole fleet, where :meth:`latest_topology` takes one per
+        robot (the API's robot list asks it of every robot)."""
+        newest = (
+            func.row_number()
+            .over(
+                partition_by=TopologyRow.robot_id,
+                order_by=(TopologyRow.wall_time.desc(), TopologyRow.id.desc()),
+            )
+            .label("newest")
+        )
+        ranked = select(TopologyRow.id, newest)
+        if method is not None:
+            ranked = ranked.where(TopologyRow.method == method)
+        sub = ranked.subquery()
+        q = (
+            select(TopologyRow, Robot.name)
+            .join(sub, sub.c.id == TopologyRow.id)
+            .join(Robot, Robot.id == TopologyRow.robot_id)
+            .where(sub.c.newest == 1)
+        )
+        with self._session() as s:
+            return {name: _record(r, name) for r, name in s.execute(q).all()}
+
+    def baselines(self) -> dict[str, TopologyRecord]:
+        """Every robot's current baseline, by robot name (one query; :meth:`baseline` for one robot)."""
+        current = select(func.max(Baseline.id)).group_by(Baseline.robot_id)
+        q = (
+            select(Baseline, Robot.name)
+            .join(Robot, Robot.id == Baseline.robot_id)
+            .where(Baseline.id.in_(current))
+        )
+        with self._session() as s:
+            return {name: _baseline_record(r, name) for r, name in s.execute(q).all()}
 
     def set_baseline(
         self,
@@ -211,6 +242,10 @@ def _insert_baseline(
             .returning(Baseline.id)
         )
     )
+
+
+def _record(r: TopologyRow, robot: str) -> TopologyRecord:
+    return TopologyRecord(r.id, robot, r.wall_time, r.window_end_t, r.method, Topology.from_json(r.topology))
 
 
 def _baseline_record(r: Baseline, robot: str) -> TopologyRecord:
