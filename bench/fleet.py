@@ -410,14 +410,6 @@ def speedups(rows: list[dict], beside: str) -> dict[int, float]:
     }
 
 
-def _priority(data: dict) -> str:
-    """How the training threads ran (results that predate the idle class have no such entry)."""
-    p = data.get("training_priority")
-    if p is None:
-        return "nice value"
-    return f"nice {p['nice']}" + (", Linux's idle scheduling class" if p["idle"] else "")
-
-
 def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict]) -> Path:
     args.out.mkdir(parents=True, exist_ok=True)
     loaded = [r for r in rows if r["beside"] == LOADED]
@@ -425,6 +417,7 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
     warm = float(np.median([r["cpu_s_median"] for r in rows]))
     cold_cpu = float(np.median([c["cpu_s"] for c in cold]))
     training = _training(args.seed + 1)
+    idle = ", Linux's idle scheduling class" if training.idle else ""
     data = {
         "machine": machine_note(),
         "command": f"bodyhealth bench fleet --robots {args.robots} --workers {args.workers} --robot "
@@ -454,9 +447,9 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         f"Fleet: {args.robot} robots ({rec.n_joints} joints, {rec.n_imus} IMUs, `robot` sensing), each "
         f"with a {args.window:g} s window, a baseline and the weights of an earlier training; every robot "
         "retrained once per round on a local Dask cluster (one thread per worker process, the training at "
-        f"the service's priority: {_priority(data)}) while ingest writes one second of frames per robot "
-        f"every second and the API answers {args.api_rps:g} reads/s, asked from threads of another process "
-        "(beside: ingest+api); rounds with beside "
+        f"the service's priority: nice {training.nice}{idle}) while ingest writes one second of frames "
+        f"per robot every second and the API answers {args.api_rps:g} reads/s, asked from threads of "
+        "another process (beside: ingest+api); rounds with beside "
         "none ran the same retrains with nothing else on the machine, as Dask workers on machines of their "
         "own do.",
         "",

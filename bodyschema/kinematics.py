@@ -833,7 +833,7 @@ def _fuse(
     # the model error along the directions the accelerometers see; a direction they do not see (a zero
     # of the sandwich covariance: the fit never depended on it) stays without information
     w, V = np.linalg.eigh(acc.cov[at, at])
-    seen = w > 1e-12 * max(float(w.max()), 0.0) if w.max() > 0 else np.zeros(w.shape, dtype=bool)
+    seen = w > max(1e-12 * float(w.max()), 0.0)
     model = math.radians(opts.acc_model_error_deg) ** 2 / 2.0
     Pa = (V[:, seen] / (w[seen] + model)) @ V[:, seen].T
     C = np.linalg.inv(np.linalg.inv(Cg) + Pa)

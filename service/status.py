@@ -238,15 +238,35 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
     cur = store.latest_topology(robot, method=method or "fast")
     if cur is None and method is None:
         cur = store.latest_topology(robot)
-    st = judge(
+    return _judged(
         robot,
         cur,
         store.baseline(robot),
         store.alerts(robot, active=True),
         store.alerts(robot, state="pending"),
+        store.latest_topology(robot, method="network"),
     )
-    net = store.latest_topology(robot, method="network")
+
+
+def _judged(
+    robot: str,
+    cur: TopologyRecord | None,
+    base: TopologyRecord | None,
+    active: Sequence[AlertRecord],
+    pending: Sequence[AlertRecord],
+    net: TopologyRecord | None,
+) -> RobotStatus:
+    """:func:`judge`, with the newest network topology beside it when there is one."""
+    st = judge(robot, cur, base, active, pending)
     return dataclasses.replace(st, network=net) if net is not None else st
+
+
+def _by_robot(alerts: Sequence[AlertRecord]) -> dict[str, list[AlertRecord]]:
+    """``alerts`` per robot, in their order."""
+    out: dict[str, list[AlertRecord]] = {}
+    for a in alerts:
+        out.setdefault(a.robot, []).append(a)
+    return out
 
 
 def robot_statuses(store: Store, robots: Sequence[str], method: str | None = None) -> dict[str, RobotStatus]:
@@ -257,21 +277,15 @@ def robot_statuses(store: Store, robots: Sequence[str], method: str | None = Non
     anyway = store.latest_topologies() if method is None else {}
     net = store.latest_topologies("network")
     bases = store.baselines()
-    active: dict[str, list[AlertRecord]] = {}
-    for a in store.alerts(active=True):
-        active.setdefault(a.robot, []).append(a)
-    pending: dict[str, list[AlertRecord]] = {}
-    for a in store.alerts(state="pending"):
-        pending.setdefault(a.robot, []).append(a)
-    out = {}
-    for robot in robots:
-        st = judge(
+    active, pending = _by_robot(store.alerts(active=True)), _by_robot(store.alerts(state="pending"))
+    return {
+        robot: _judged(
             robot,
             cur.get(robot) or anyway.get(robot),
             bases.get(robot),
             active.get(robot, []),
             pending.get(robot, []),
+            net.get(robot),
         )
-        n = net.get(robot)
-        out[robot] = dataclasses.replace(st, network=n) if n is not None else st
-    return out
+        for robot in robots
+    }
