@@ -165,11 +165,12 @@ def robot_references(rec: Recording, robot: str, cutoff: float | None = 10.0) ->
 
     With joint velocities ``qd`` in the recording, each site's angular velocity and acceleration come
     from the site Jacobians (``mj_jacSite``, ``mj_jacDot``) and the joint accelerations: the recorded
-    ``qdd`` when there is one (the simulator records the ``qacc`` its accelerometers were computed
-    with, so an ideal simulated IMU then matches to rounding), else the forward difference of ``qd``
-    — the mean acceleration over the interval that starts at each sample, which misses what a torque
-    switching inside the interval does. Without ``qd``, orientations and positions from forward
-    kinematics are differentiated by splines (poor under torques that switch between samples).
+    ``qdd`` when there is one (the simulator records the acceleration its physics realises over each
+    sample's first step, with which its accelerometers agree, so an ideal simulated IMU then matches
+    to rounding), else the forward difference of ``qd`` — the mean acceleration over the interval
+    that starts at each sample (the same at one physics step per sample). Without ``qd``, orientations
+    and positions from forward kinematics are differentiated by splines (poor under torques that switch
+    between samples).
     Needs a fixed base (a floating base's pose is not in ``q``) and the recording's joints in the model.
     """
     import mujoco

@@ -148,8 +148,7 @@ def test_ideal_robot_recording_through_its_model_has_no_residual_and_no_cause(
     for imu, doc in docs.items():
         assert doc["causes"] == [], imu
         # what is left is the low-pass applied in the world frame on one side and in the sensor frame
-        # on the other (1e-7 to 2.5e-4 m/s² over six seeds, growing with the motion's rotation rate);
-        # differences of qd instead of the recorded qdd leave 0.02-0.5 m/s²
+        # on the other (1e-7 to 2.5e-4 m/s² over six seeds, growing with the motion's rotation rate)
         assert doc["residual_before"]["acc_rms"] < 1e-3, imu
         assert doc["residual_before"]["gyro_rms"] < 1e-9, imu
     from sim2real.report import robot_references
@@ -161,7 +160,10 @@ def test_ideal_robot_recording_through_its_model_has_no_residual_and_no_cause(
 
     prob = prepare(ref, rec.gyro[:, k], rec.acc[:, k])
     r, _ = residual(prob, {})
-    assert np.sqrt(np.mean(r[prob.index, 3:] ** 2)) > 100 * docs["imu11"]["residual_before"]["acc_rms"]
+    # the recorded qdd is the acceleration the physics realises over each step (one step per sample
+    # here), so differences of qd give the same reference; the sensors' explicit acceleration instead
+    # left 0.02-0.5 m/s² between the two
+    assert np.sqrt(np.mean(r[prob.index, 3:] ** 2)) < 1.1 * docs["imu11"]["residual_before"]["acc_rms"] + 1e-6
 
 
 def test_cli_gravity_case_adds_both_network_forms_to_json_and_report(
@@ -204,3 +206,4 @@ def test_cli_gravity_case_adds_both_network_forms_to_json_and_report(
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "gravity case" in out and "Eq. 11" in out and "kinematics" not in out
+
