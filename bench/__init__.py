@@ -26,6 +26,7 @@ BENCHMARKS: tuple[str, ...] = (
     "ingest",
     "sim2real",
     "sim2real_detect",
+    "sim2real_encoders",
     "gravity",
     "realism",
     "warmstart",

@@ -11,7 +11,8 @@ the physics (and in the ground truth read back from the compiled model):
   while the motor and its encoder keep turning.
 
 Sensor damage acts on the readings: ``imu_dead`` (``frozen`` or ``zero`` output) and
-``encoder_fault`` (``stuck`` at its current value or a constant ``offset``).
+``encoder_fault`` (``stuck`` at its current value, a constant ``offset``, or a ``scale``: the encoder
+reads ``value`` times the angle, a wrong gear ratio).
 
 Geometry drift keeps the topology and shows only in the kinematics (:mod:`bodyschema.kinematic_drift`),
 each with its magnitude (:data:`DRIFT_DAMAGES`):
@@ -83,7 +84,7 @@ class DamageTarget(Protocol):
     locked: set[str]
     #: Joints whose link broke off so far.
     lost: set[str]
-    #: Encoder faults so far: joint -> (``stuck``, ``offset`` or ``backlash``, value).
+    #: Encoder faults so far: joint -> (``stuck``, ``offset``, ``scale`` or ``backlash``, value).
     encoder_faults: dict[str, tuple[str, float]]
 
     def sync(self) -> None:
@@ -261,8 +262,12 @@ def _encoder_fault(
         detail = f"stuck at {value:.3f} rad"
     elif mode == "offset":
         detail = f"offset by {float(value):.3f} rad"
+    elif mode == "scale":
+        if not float(value) > 0.0:
+            raise ValueError("encoder_fault scale must be positive")
+        detail = f"reads {float(value):.4f} times the angle"
     else:
-        raise ValueError("encoder_fault mode must be 'stuck' or 'offset'")
+        raise ValueError("encoder_fault mode must be 'stuck', 'offset' or 'scale'")
     sim.encoder_faults[joint] = (mode, float(value))
     return Finding(kind="encoder_fault", joint=joint, detail=detail)
 

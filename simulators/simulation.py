@@ -216,6 +216,10 @@ class Simulation:
                     qdd[:, j] = 0.0
                 elif mode == "backlash":
                     q[:, j] += 0.5 * value * self._motor_side(joint, s.qd[:, j])
+                elif mode == "scale":
+                    q[:, j] *= value
+                    qd[:, j] *= value
+                    qdd[:, j] *= value
                 else:
                     q[:, j] += value
         self._samples += n

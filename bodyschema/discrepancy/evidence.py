@@ -50,7 +50,7 @@ from scipy.stats import f as f_dist
 from bodyschema.discrepancy.effects import EFFECTS, nominal, pack
 from bodyschema.discrepancy.fit import Problem, jacobian, residual
 
-__all__ = ["CHANNELS", "Evidence", "critical_wald", "effect_evidence", "n_clusters", "signatures"]
+__all__ = ["CHANNELS", "Evidence", "critical_wald", "effect_evidence", "n_clusters", "signatures", "wald"]
 
 #: The residual columns of each channel (gyro xyz, then accelerometer xyz); ``both`` stacks them (the
 #: evidence of a named effect that moves both, such as a time offset).
@@ -156,7 +156,7 @@ def effect_evidence(
                 X = X - q @ (q.T @ X)
             cases.append((c, ch, X, y, rows, least))
     level = alpha / max(1, sum(ch != "both" for _, ch, *_ in cases))
-    out = [_wald(c, ch, X, y, rows, blocks, level, least) for c, ch, X, y, rows, least in cases]
+    out = [wald(c, ch, X, y, rows, blocks, level, least) for c, ch, X, y, rows, least in cases]
     order = {n: i for i, n in enumerate(EFFECTS)}
     return sorted(out, key=lambda e: (order[e.effect], list(CHANNELS).index(e.channel)))
 
@@ -182,7 +182,7 @@ def n_clusters(prob: Problem, block_s: float) -> int:
 
 def critical_wald(level: float, k: int, clusters: int) -> float:
     """The Wald statistic a ``k``-parameter change must reach at ``level`` with ``clusters`` blocks
-    (the F form of :func:`_wald`): a detection limit is ``sqrt`` of it standard errors."""
+    (the F form of :func:`wald`): a detection limit is ``sqrt`` of it standard errors."""
     dof = max(clusters - k, 1)
     return float(f_dist.isf(level, k, dof)) * k * max(clusters - 1, 1) / dof
 
@@ -210,7 +210,7 @@ def _moves(X: np.ndarray, rows: int) -> bool:
     return all(np.sqrt(np.mean(X3[:, i : i + 3] ** 2)) > 1e-9 for i in range(0, rows, 3))
 
 
-def _wald(
+def wald(
     effect: str,
     channel: str,
     X: np.ndarray,

@@ -5,6 +5,11 @@ discrepancy JSON), writes the extended IMU model in the simulator's format (``--
 with residual plots before/after (``--report DIR``). ``--transfer OTHER.npz ...`` checks the fitted
 model end to end on recordings that were not used for the fit.
 
+``--encoders`` (robot recordings, with ``--model``) names what the robot's encoders get wrong, seen
+through all its IMUs at once: the encoder-to-IMU time offset, per joint zero offsets, gear ratios and
+dead bands, each with its value and interval, or its detection limit where it is not named
+(:mod:`bodyschema.discrepancy.encoders`; ``--json``: the report as JSON).
+
 ``--gravity-case`` (robot recordings, ``q`` with gravity) also trains the paper's sensor networks without
 gravity (Eq. 11) and with it (Eq. 24), and adds their residuals, the cause the analysis names for the
 Eq. 11 residual and each form's topology accuracy (``gravity_case`` in the JSON; ``gravity_case.*`` in
@@ -64,6 +69,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="train the sensor networks without (Eq. 11) and with (Eq. 24) gravity: residuals, named cause, "
         "topology accuracy",
     )
+    p.add_argument(
+        "--encoders",
+        action="store_true",
+        help="with --model: the encoder effects (time offset, zero offsets, gear ratios, backlash) instead",
+    )
     p.add_argument("--epochs", type=int, default=40, help="sensor-network epochs (--gravity-case)")
     p.add_argument("--seed", type=int, default=0, help="sensor-network seed (--gravity-case)")
     p.set_defaults(func=_run)
@@ -73,6 +83,8 @@ def _run(args: argparse.Namespace) -> int:
     from simulators.recording_io import load_recording
 
     rec = load_recording(args.recording)
+    if args.encoders:
+        return _encoders(rec, args)
     refs = _robot_references(rec, args)
     imus = _chosen_imus(rec, args)
     case = _gravity_case(rec, args, refs) if args.gravity_case else None
@@ -91,6 +103,22 @@ def _run(args: argparse.Namespace) -> int:
         _print_json(imus, results, case)
     else:
         _print_summaries(args, results, case)
+    return 0
+
+
+def _encoders(rec: Recording, args: argparse.Namespace) -> int:
+    """``--encoders``: the encoder effects of a robot recording against ``--model``."""
+    from bodyschema.discrepancy.encoders import EncoderOptions
+    from sim2real.encoders import encoder_analysis
+
+    if args.model is None:
+        raise ValueError("--encoders compares the recording with a robot model: give --model")
+    report = encoder_analysis(rec, args.model, EncoderOptions(alpha=args.alpha, min_gain=args.min_gain))
+    if args.json:
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        print(f"== {args.recording.name} encoders against {args.model}")
+        print("\n".join(report.summary()))
     return 0
 
 

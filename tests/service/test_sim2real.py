@@ -207,3 +207,29 @@ def test_cli_gravity_case_adds_both_network_forms_to_json_and_report(
     out = capsys.readouterr().out
     assert "gravity case" in out and "Eq. 11" in out and "kinematics" not in out
 
+
+@pytest.mark.slow
+def test_cli_names_a_robot_encoder_zero_offset_through_all_its_imus(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from simulators.simulation import simulate
+
+    rec = simulate(
+        "ur5e",
+        seconds=30.0,
+        seed=4,
+        sensing="robot",
+        damage="encoder_fault:joint=wrist_2,mode=offset,value=0.02",
+    )
+    save_recording(rec, tmp_path / "ur5e.npz")
+    assert main(["sim2real", str(tmp_path / "ur5e.npz"), "--encoders"]) == 1
+    assert "give --model" in capsys.readouterr().err
+    assert main(["sim2real", str(tmp_path / "ur5e.npz"), "--model", "ur5e", "--encoders", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    got = {c["name"]: c for c in doc["causes"]}
+    assert set(got) == {"encoder_time_offset", "encoder_offset[wrist_2]"}
+    lo, hi = got["encoder_offset[wrist_2]"]["interval"]
+    assert lo < 0.02 < hi
+    limits = {x["effect"] + f"[{x['joint']}]": x["detection_limit"] for x in doc["not_named"] if x["joint"]}
+    assert limits["encoder_offset[shoulder_pan]"] is None  # a turn about gravity: nothing to see
+    assert 0.0 < limits["encoder_scale[elbow]"] < 0.005
