@@ -11,9 +11,11 @@ from anywhere updates the figures the docs cite. :data:`BENCHMARKS` lists them i
 from __future__ import annotations
 
 import platform
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
-__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "machine_note"]
+__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "machine_note", "map_jobs"]
 
 BENCHMARKS: tuple[str, ...] = (
     "algebra",
@@ -54,3 +56,26 @@ def machine_note() -> str:
     except OSError:
         model = platform.processor()
     return f"{os.cpu_count()} cores, {model or platform.machine()}, Python {platform.python_version()}"
+
+
+def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: str, unit: str) -> list[Any]:
+    """``[fn(*job) for job in jobs]`` in order, on ``workers`` spawned processes when more than one,
+    with a progress bar (spawned: the parent may hold threads and MuJoCo state a fork would copy)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from bodyschema.progress import progress
+
+    out: list[Any] = []
+    bar = progress(total=len(jobs), desc=desc, unit=unit)
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            for res in pool.map(fn, *zip(*jobs, strict=True)):
+                out.append(res)
+                bar.update(1)
+    else:
+        for job in jobs:
+            out.append(fn(*job))
+            bar.update(1)
+    bar.close()
+    return out

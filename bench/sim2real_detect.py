@@ -35,21 +35,18 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, map_jobs
 from bench.sim2real import trial_paths
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, nominal
 from bodyschema.discrepancy.fit import fit_params
 from bodyschema.discrepancy.separability import Z95
-from bodyschema.progress import progress
 from sim2real.broad import broad_data_dir
 
 __all__ = ["add_arguments", "inject", "run", "summary"]
@@ -441,18 +438,7 @@ def run(args: argparse.Namespace) -> Path:
     paths = trial_paths(args.data, args.trials)
     effects = [e for e in FITTED_EFFECTS if e in args.effects]
     jobs = [(str(p), effects, list(args.factors), args.pairs, args.triples, args.seed) for p in paths]
-    trials: list[dict] = []
-    bar = progress(total=len(jobs), desc="sim2real-detect", unit="trial")
-    if args.jobs > 1:
-        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
-            for res in pool.map(_trial, *zip(*jobs, strict=True)):
-                trials.append(res)
-                bar.update(1)
-    else:
-        for job in jobs:
-            trials.append(_trial(*job))
-            bar.update(1)
-    bar.close()
+    trials = map_jobs(_trial, jobs, args.jobs, "sim2real-detect", "trial")
     argv = ["bodyhealth bench sim2real_detect"]
     if args.trials:
         argv += ["--trials", *args.trials]

@@ -28,16 +28,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, map_jobs
 from bodyschema.discrepancy.encoders import ENCODER_EFFECTS, EncoderReport
-from bodyschema.progress import progress
 
 __all__ = ["TARGET", "Hidden", "add_arguments", "analyze_case", "draw_cases", "run", "score", "summary"]
 
@@ -319,18 +316,7 @@ def run(args: argparse.Namespace) -> Path:
         for r in args.robots
         for s in args.seeds
     ]
-    recordings: list[dict] = []
-    bar = progress(total=len(jobs), desc="sim2real-encoders", unit="recording")
-    if args.jobs > 1:
-        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
-            for res in pool.map(_recording, *zip(*jobs, strict=True)):
-                recordings.append(res)
-                bar.update(1)
-    else:
-        for job in jobs:
-            recordings.append(_recording(*job))
-            bar.update(1)
-    bar.close()
+    recordings = map_jobs(_recording, jobs, args.jobs, "sim2real-encoders", "recording")
     argv = ["bodyhealth bench sim2real_encoders", "--robots", *args.robots, "--seeds", *map(str, args.seeds)]
     data = {
         "command": " ".join(argv),
