@@ -192,6 +192,13 @@ class Robot:
         self.site_ids = np.array([m.site(s).id for s in self.imu_names], dtype=np.intp)
         self.site_body = m.site_bodyid[self.site_ids].astype(np.intp)
         self.site_root = m.body_rootid[self.site_body].astype(np.intp)
+        # (IMU bodies, nv): 1 where the dof moves the body (it is on the body or one of its ancestors)
+        bodies = np.unique(self.site_body)
+        self._body_dofs = np.zeros((len(bodies), m.nv))
+        for i, b in enumerate(bodies):
+            while b > 0:
+                self._body_dofs[i, m.dof_bodyid == b] = 1.0
+                b = int(m.body_parentid[b])
         names = [m.actuator(i).name for i in range(m.nu)]
 
         def act(suffix: str) -> np.ndarray:
@@ -224,6 +231,21 @@ class Robot:
                 lo, hi = m.jnt_range[j]
                 mg = min(margin, 0.25 * (hi - lo))
                 d.qpos[adr] = np.clip(d.qpos[adr], lo + mg, hi - mg)
+
+    def _site_accelerations(
+        self, dqacc: np.ndarray, cdof: np.ndarray, com: np.ndarray, site_pos: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World (linear, angular) accelerations (T, K, 3) the joint accelerations ``dqacc`` (T, nv)
+        give each IMU site, from the recorded motion axes of the dofs ``cdof`` (T, nv, 6: MuJoCo's
+        com-based [rotation, translation], the translation at the root's subtree centre of mass
+        ``com`` (T, nbody, 3)): each site sums its body's ancestor dofs (one array copy per sample
+        instead of a Jacobian per body), moved to the site, ``a + alpha x (p_site - c)``."""
+        m = self.model
+        _, which = np.unique(self.site_body, return_inverse=True)
+        spatial = np.matmul(self._body_dofs, cdof * dqacc[:, :, None])[:, which]  # (T, K, 6)
+        ang, lin = spatial[..., :3], spatial[..., 3:]
+        centre = com[:, m.body_rootid[self.site_body]]
+        return lin + np.cross(ang, site_pos[:, self.site_ids] - centre), ang
 
     def recompile(self) -> None:
         """Recompile the edited spec, keeping the simulation state (time, positions, velocities)."""
@@ -331,10 +353,9 @@ class Robot:
         sens = np.empty((T, m.nsensordata))
         xmat = np.empty((T, m.nsite, 9))
         cacc = np.empty((T, m.nbody, 6)) if poses else None
-        bodies = np.unique(self.site_body)
-        site_pos = np.empty((T, len(self.site_ids), 3))
-        body_pos = np.empty((T, len(bodies), 3))
-        jac = np.empty((T, len(bodies), 6, m.nv))
+        site_pos = np.empty((T, m.nsite, 3))
+        com = np.empty((T, m.nbody, 3))
+        cdof = np.empty((T, m.nv, 6))
         realised = np.empty((T, m.nv))
         h = m.opt.timestep
         integrate, rest = self._integrate, self.substeps - 1
@@ -346,7 +367,7 @@ class Robot:
         # the physics of a small robot (with one step per sample they simply stay on)
         opt.disableflags = on
         # views into MjData, bound once (each attribute access builds a new array object)
-        d_ctrl, d_qpos, d_qvel, d_qacc, d_sens, d_xmat, d_cacc, d_sxpos, d_xpos = (
+        d_ctrl, d_qpos, d_qvel, d_qacc, d_sens, d_xmat, d_cacc, d_sxpos, d_com, d_cdof = (
             d.ctrl,
             d.qpos,
             d.qvel,
@@ -355,9 +376,9 @@ class Robot:
             d.site_xmat,
             d.cacc,
             d.site_xpos,
-            d.xpos,
+            d.subtree_com,
+            d.cdof,
         )
-        jac_body, site_ids, body_ids = mujoco.mj_jacBody, self.site_ids, [int(b) for b in bodies]
         t0 = d.time
         try:
             for i in range(T):
@@ -370,12 +391,11 @@ class Robot:
                 xmat[i] = d_xmat
                 if poses:
                     cacc[i] = d_cacc  # type: ignore[index]
-                site_pos[i] = d_sxpos[site_ids]
-                body_pos[i] = d_xpos[body_ids]
-                for b, body in enumerate(body_ids):
-                    jac_body(m, d, jac[i, b, :3], jac[i, b, 3:], body)
+                site_pos[i] = d_sxpos
+                com[i] = d_com
+                cdof[i] = d_cdof
                 integrate(m, d)
-                realised[i] = (d_qvel - qvel[i]) / h
+                realised[i] = d_qvel  # the velocity one timestep on: differenced below
                 if rest:
                     opt.disableflags = off
                     step(m, d, nstep=rest)
@@ -385,10 +405,10 @@ class Robot:
         t[:] = t0 + np.arange(T) * (self.substeps * m.opt.timestep)
         K = len(self.site_ids)
         R = xmat[:, self.site_ids].reshape(T, K, 3, 3)
-        lin, ang = _site_accelerations(
-            jac, realised - qacc, np.searchsorted(bodies, self.site_body), site_pos, body_pos
-        )
-        acc = sens[:, self.acc_adr] + np.einsum("tkji,tkj->tki", R, lin)
+        realised -= qvel
+        realised /= h
+        lin, ang = self._site_accelerations(realised - qacc, cdof, com, site_pos)
+        acc = sens[:, self.acc_adr] + np.matmul(lin[:, :, None, :], R)[:, :, 0]  # R^T lin per sample
         if poses:
             alpha = cacc[:, self.site_body, :3] + ang  # type: ignore[index]
             gyro_dot = np.einsum("tkji,tkj->tki", R, alpha)
@@ -404,17 +424,6 @@ class Robot:
             gyro_dot=gyro_dot,
             R=R,
         )
-
-
-def _site_accelerations(
-    jac: np.ndarray, dqacc: np.ndarray, which: np.ndarray, site_pos: np.ndarray, body_pos: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """World (linear, angular) accelerations (T, K, 3) the joint accelerations ``dqacc`` (T, nv) give
-    each site: through its body's Jacobian ``jac[:, which]`` (T, B, 6, nv; linear then angular, at
-    the body origin ``body_pos`` (T, B, 3)), moved to the site: ``a + alpha x (p_site - p_body)``."""
-    spatial = np.einsum("tbrn,tn->tbr", jac, dqacc)
-    lin, ang = spatial[:, which, :3], spatial[:, which, 3:]
-    return lin + np.cross(ang, site_pos - body_pos[:, which]), ang
 
 
 def _last_robot_joint_up(model: mujoco.MjModel, body: int, robot: set[str]) -> str | None:
