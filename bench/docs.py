@@ -906,6 +906,13 @@ def _sim2real_detect_doc(b: _Bench) -> str:
     return "\n".join([f"Measured with `{d['command']}` on {d['machine']}:", "", *summary(d)])
 
 
+def _sim2real_encoders_doc(b: _Bench) -> str:
+    from bench.sim2real_encoders import summary
+
+    d = b.json("sim2real-encoders.json")
+    return "\n".join([f"Measured with `{d['command']}` on {d['machine']}:", "", *summary(d)])
+
+
 def _gravity_runs(b: _Bench) -> list[dict]:
     return b.json("gravity.json")  # type: ignore[return-value]
 
@@ -1349,6 +1356,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/sim2real.md", "example", "sim2real/02_undisturbed_slow_rotation_B/report.md", _sim2real_example),
     _f("docs/sim2real.md", "results", "sim2real", _sim2real_doc),
     _f("docs/sim2real.md", "detect", "sim2real-detect.json", _sim2real_detect_doc),
+    _f("docs/sim2real.md", "encoders", "sim2real-encoders.json", _sim2real_encoders_doc),
     _f("docs/sim2real.md", "gravity", "gravity.json", _gravity_doc),
     _f("docs/sim2real.md", "gravity-networks", "gravity.json", _gravity_networks),
     _f("docs/topology.md", "realism", "realism.json", _realism),

@@ -26,7 +26,7 @@ BENCH = REPO / "docs" / "bench"
 MIN_BLOCKS = {
     "README.md": 10,
     "docs/topology.md": 4,
-    "docs/sim2real.md": 4,
+    "docs/sim2real.md": 5,
     "docs/transports.md": 1,
     "docs/simulators.md": 1,
     "docs/store.md": 1,
