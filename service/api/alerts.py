@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response
 
 from service.api.cache import read_cache
-from service.api.deps import RobotName, get_robot, get_store, lookup_robot
+from service.api.deps import RobotName, get_robot, get_store, known_robot
 from service.api.errors import responses
 from service.api.schemas import AlertOut
 from service.store import RobotInfo, Store
@@ -48,7 +48,7 @@ async def robot_alerts(
     limit: int = Query(500, ge=1, le=10000),
 ) -> Response:
     def render() -> list[AlertOut]:
-        name = lookup_robot(store, robot).name
+        name = known_robot(store, robot)
         return [AlertOut.of(a) for a in store.alerts(name, active=active, limit=limit)]
 
     return await read_cache(request).respond(("robot_alerts", robot, active, limit), render)

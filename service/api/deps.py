@@ -29,6 +29,7 @@ __all__ = [
     "get_settings_dep",
     "get_store",
     "get_worker",
+    "known_robot",
     "lookup_robot",
 ]
 
@@ -68,6 +69,15 @@ def lookup_robot(store: Store, robot: str) -> RobotInfo:
     if info is None:
         raise HTTPException(status_code=404, detail=f"unknown robot {robot!r}")
     return info
+
+
+def known_robot(store: Store, robot: str) -> str:
+    """The name ``robot``, or 404 when ``store`` never saw it: for routes that read by name and need
+    nothing else of the robot (no query once the robot's id is known, where :func:`lookup_robot`
+    reads its parts every time)."""
+    if not store.knows(robot):
+        raise HTTPException(status_code=404, detail=f"unknown robot {robot!r}")
+    return robot
 
 
 def get_robot(robot: RobotName, request: Request) -> RobotInfo:

@@ -20,7 +20,7 @@ from bodyschema.lever_pool import PoolOptions, stored_drift
 from bodyschema.topology import Topology
 from bodyschema.urdf import to_urdf
 from service.api.cache import read_cache
-from service.api.deps import RobotName, get_store, lookup_robot
+from service.api.deps import RobotName, get_store, known_robot
 from service.api.errors import responses
 from service.api.schemas import KinematicsOut, KinematicsPair
 from service.store import Store
@@ -38,7 +38,7 @@ Kept = tuple[Topology | None, StoredKinematics | None, StoredKinematics | None]
 
 def _kept(store: Store, robot: str) -> Kept:
     """The current topology baseline, and the first and newest geometry kept under it."""
-    name = lookup_robot(store, robot).name
+    name = known_robot(store, robot)
     base = store.baseline(name)
     if base is None:
         return None, None, None

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 
-from service.api.cache import cached_status, read_cache
+from service.api.cache import FLEET_STATUSES, cached_status, read_cache
 from service.api.deps import RobotName, get_pipeline, get_settings_dep, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import FramesIn, RobotOut, StatusOut
@@ -36,8 +36,13 @@ async def list_robots(request: Request, store: Store = Depends(get_store)) -> Re
     def render() -> list[RobotOut]:
         infos = store.robots()
         names = tuple(r.name for r in infos)
-        # every robot's status in one read of the fleet, kept as one robot's is (cached_status)
-        statuses = read_cache(request).memo(("statuses", names), lambda: robot_statuses(store, names))
+        # every robot's status in one read of the fleet, kept as one robot's is (cached_status) while
+        # it holds every robot listed
+        statuses = read_cache(request).memo(
+            FLEET_STATUSES,
+            lambda: robot_statuses(store, names),
+            usable=lambda kept: set(names) <= kept.keys(),
+        )
         return [_out(request, store, r, statuses.get(r.name)) for r in infos]
 
     return await read_cache(request).respond(("robots",), render)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query, Request, Response
 
 from service.api.cache import cached_status, read_cache
-from service.api.deps import RobotName, get_store, lookup_robot
+from service.api.deps import RobotName, get_store, known_robot
 from service.api.errors import responses
 from service.api.schemas import StatusOut
 from service.api.topology import Method
@@ -37,6 +37,6 @@ async def status(
     ),
 ) -> Response:
     def render() -> StatusOut:
-        return StatusOut.of(cached_status(request, store, lookup_robot(store, robot).name, method))
+        return StatusOut.of(cached_status(request, store, known_robot(store, robot), method))
 
     return await read_cache(request).respond(("status", robot, method), render)

@@ -19,7 +19,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 
 from bodyschema.diff import diff_bodies
 from service.api.cache import read_cache
-from service.api.deps import RobotName, get_robot, get_store, get_worker, lookup_robot
+from service.api.deps import RobotName, get_robot, get_store, get_worker, known_robot
 from service.api.errors import responses
 from service.api.schemas import TopologyOut, TopologyPair
 from service.control import MonitorControl
@@ -80,15 +80,15 @@ async def topology(
     method: Method | None = Query(None, description="newest of this method (default: fast)"),
 ) -> Response:
     return await read_cache(request).respond(
-        ("topology", robot, method), lambda: _pair(store, lookup_robot(store, robot), method)
+        ("topology", robot, method), lambda: _pair(store, known_robot(store, robot), method)
     )
 
 
-def _pair(store: Store, info: RobotInfo, method: str | None) -> TopologyPair:
-    cur = store.latest_topology(info.name, method=method or "fast")
+def _pair(store: Store, robot: str, method: str | None) -> TopologyPair:
+    cur = store.latest_topology(robot, method=method or "fast")
     if cur is None and method is None:
-        cur = store.latest_topology(info.name)
-    base = store.baseline(info.name)
+        cur = store.latest_topology(robot)
+    base = store.baseline(robot)
     diff = None
     if cur is not None and base is not None:
         diff = diff_bodies(base.topology, cur.topology).to_json()
@@ -109,9 +109,7 @@ async def history(
     limit: int = Query(50, ge=1, le=1000),
 ) -> Response:
     def render() -> list[TopologyOut]:
-        return [
-            TopologyOut.of(r) for r in store.topology_history(lookup_robot(store, robot).name, limit=limit)
-        ]
+        return [TopologyOut.of(r) for r in store.topology_history(known_robot(store, robot), limit=limit)]
 
     return await read_cache(request).respond(("history", robot, limit), render)
 

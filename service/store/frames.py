@@ -97,18 +97,17 @@ class FramesMixin(RobotsMixin):
 
     def _write_chunks(self, chunks: list[PendingChunk]) -> None:
         rows: list[dict[str, Any]] = []
-        clocks: dict[int, _Clock] = {}
         imu_last: dict[tuple[int, str], float] = {}
         pending: list[tuple[RegisteredRobot, PendingChunk]] = []
         with self._session() as s, s.begin():
             s.info[FRAMES_ONLY] = True  # frames, clocks and parts: nothing a status is judged on
-            for ch in chunks:  # per robot in batch order (build_chunks keeps it)
+            for ch in chunks:
                 known = self._register_robot(s, ch.robot)
                 self._register_parts(s, known, ch)
                 pending.append((known, ch))
-                clock = clocks.get(known.id)
-                if clock is None:
-                    clock = clocks[known.id] = self._clock(s, known.id)
+            clocks = self._clocks(s, {known.id for known, _ in pending})
+            for known, ch in pending:  # per robot in batch order (build_chunks keeps it)
+                clock = clocks[known.id]
                 if clock.advance(ch.t_start, ch.t_end, self.clock_reset_seconds):
                     # IMU stamps of the old epoch say nothing about the new one
                     imu_last = {k: v for k, v in imu_last.items() if k[0] != known.id}
@@ -120,8 +119,7 @@ class FramesMixin(RobotsMixin):
                     key = (known.id, imu)
                     imu_last[key] = max(imu_last.get(key, -math.inf), imu_end)
             s.execute(insert(Chunk), rows)
-            for rid, clock in clocks.items():
-                self._store_clock(s, rid, clock)
+            self._store_clocks(s, clocks)
             if imu_last:
                 s.connection().execute(
                     text(
@@ -147,25 +145,36 @@ class FramesMixin(RobotsMixin):
                     },
                 )
 
-    def _clock(self, s: Session, rid: int) -> _Clock:
-        """The robot's stored clock state, locked for this transaction where the database can (another
-        process writing the same robot waits, so two writers never both start an epoch)."""
-        q = select(Robot.epoch, Robot.epoch_start_t, Robot.last_frame_t).where(Robot.id == rid)
+    def _clocks(self, s: Session, rids: set[int]) -> dict[int, _Clock]:
+        """The stored clock state of robots ``rids``, in one query, locked for this transaction where
+        the database can (another process writing the same robots waits, so two writers never both
+        start an epoch; rows are locked in id order, so two such writers cannot deadlock). One query,
+        not one per robot: a commit of a hundred robots' frames otherwise spends most of its time
+        here, holding the interpreter lock the API needs."""
+        q = select(Robot.id, Robot.epoch, Robot.epoch_start_t, Robot.last_frame_t)
+        q = q.where(Robot.id.in_(sorted(rids))).order_by(Robot.id)
         if self.dialect == "postgresql":
             q = q.with_for_update()
-        row = s.execute(q).one()
-        return _Clock(int(row.epoch), row.epoch_start_t, row.last_frame_t)
+        return {int(r.id): _Clock(int(r.epoch), r.epoch_start_t, r.last_frame_t) for r in s.execute(q).all()}
 
     @staticmethod
-    def _store_clock(s: Session, rid: int, clock: _Clock) -> None:
-        values: dict[str, Any] = {"last_frame_t": clock.last}
-        if clock.epoch != clock.stored_epoch:
-            values.update(epoch=clock.epoch, epoch_start_t=clock.start)
+    def _store_clocks(s: Session, clocks: dict[int, _Clock]) -> None:
+        """Each robot's newest stamp (one statement for the robots whose epoch stayed), and the new
+        epoch of any robot whose clock went back."""
+        moved = [{"t": c.last, "rid": rid} for rid, c in clocks.items() if c.epoch == c.stored_epoch]
+        if moved:
+            s.connection().execute(text("UPDATE robots SET last_frame_t = :t WHERE id = :rid"), moved)
+        for rid, clock in clocks.items():
+            if clock.epoch == clock.stored_epoch:
+                continue
             # Every IMU counts as heard at the restart: one not heard since is silent from there on.
             s.execute(update(Imu).where(Imu.robot_id == rid).values(last_t=clock.start))
-        s.execute(
-            update(Robot).where(Robot.id == rid).values(**values).execution_options(synchronize_session=False)
-        )
+            s.execute(
+                update(Robot)
+                .where(Robot.id == rid)
+                .values(last_frame_t=clock.last, epoch=clock.epoch, epoch_start_t=clock.start)
+                .execution_options(synchronize_session=False)
+            )
 
     def read_window(
         self,

@@ -226,3 +226,87 @@ def test_a_cached_read_still_needs_its_token(store: Store) -> None:
     resp = c.get("/api/v1/robots")
     assert resp.status_code == 401 and resp.headers["www-authenticate"] == "Bearer"
     assert c.get("/api/v1/robots", headers={"Authorization": "Bearer wrong"}).status_code == 401
+
+
+def test_a_robots_status_is_taken_from_the_fleets_while_no_more_than_frames_was_committed(
+    store: Store,
+) -> None:
+    """The robot list judges every robot's status at once; a robot's own routes asked meanwhile take
+    theirs from it instead of reading the store again, until more than frames is committed."""
+    from bodyschema.topology import Topology
+
+    store.write(frames("b", 0.0))
+    store.set_baseline("arm", Topology({"j1": None}, {"imu0": "j1"}), "operator")
+    c = client(store, api_cache_seconds=60.0)
+    learned: list[str] = []
+
+    def seen(_conn: object, _cursor: object, sql: str, *_args: object) -> None:
+        if any(f"FROM {t}" in sql for t in ("topologies", "baselines", "alerts")):
+            learned.append(sql)
+
+    listed = {r["name"]: r for r in c.get("/api/v1/robots").json()}
+    assert listed["arm"]["has_baseline"] is True and listed["b"]["has_baseline"] is False
+    event.listen(store.engine, "before_cursor_execute", seen)
+    try:
+        assert c.get("/api/v1/robots/arm/status").json() == listed["arm"]["status"]
+        assert c.get("/api/v1/robots/b").json() == listed["b"]
+        assert learned == []  # both from the fleet's statuses
+        store.write(frames("c", 0.0))  # a new robot: frames alone, and the list judges it too
+        assert _until(lambda: len(c.get("/api/v1/robots").json()), 3) == 3
+        assert c.get("/api/v1/robots").json()[2]["status"]["status"] == "undetermined"
+        store.set_baseline("b", Topology({"j1": None}, {"imu0": "j1"}), "operator")
+        learned.clear()
+        assert c.get("/api/v1/robots/b/status").json()["has_baseline"] is True  # judged again
+        assert learned
+    finally:
+        event.remove(store.engine, "before_cursor_execute", seen)
+
+
+def test_answers_are_encoded_as_fastapi_encodes_them() -> None:
+    """The cache writes a route's models with pydantic's serializer: the same bytes as FastAPI's
+    ``jsonable_encoder`` and ``JSONResponse``, and a NaN still refused."""
+    from fastapi.encoders import jsonable_encoder
+    from fastapi.responses import JSONResponse
+
+    from bodyschema.topology import Topology
+    from service.api.cache import _encode
+    from service.api.schemas import RobotOut, StatusOut
+    from service.status import judge
+    from service.store import RobotInfo
+
+    topo = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"})
+    info = RobotInfo(
+        "arm-é", ["j1", "j2"], ["imu0", "imu1"], ["imu1"], 1.5e9, 2.5e-7, True, "ur5e", {"j1": 1e-5}
+    )
+    value = [RobotOut.of(info, True, 0, StatusOut.of(judge("arm-é", topo, topo))), {"x": (1, 2.0, None)}]
+    assert _encode(value) == bytes(JSONResponse(jsonable_encoder(value)).body)
+    with pytest.raises(ValueError):
+        _encode({"loss": float("nan")})
+
+
+def test_routes_that_read_by_name_look_the_robot_up_once(store: Store) -> None:
+    """A robot's status, topology, history and alerts need only to know the robot exists (404
+    otherwise): its id, remembered by the store, not its parts read again at every rendering."""
+    c = client(store, api_cache_seconds=0.0)  # every request renders
+    parts: list[str] = []
+
+    def seen(_conn: object, _cursor: object, sql: str, *_args: object) -> None:
+        if any(f"FROM {t}" in sql for t in ("robots", "joints", "imus")):
+            parts.append(sql)
+
+    paths = [
+        "/api/v1/robots/arm/status",
+        "/api/v1/robots/arm/topology",
+        "/api/v1/robots/arm/topology/history",
+        "/api/v1/robots/arm/alerts",
+    ]
+    assert all(c.get(p).status_code == 200 for p in paths)
+    event.listen(store.engine, "before_cursor_execute", seen)
+    try:
+        assert [c.get(p).status_code for p in paths] == [200] * 4
+        assert parts == []
+        assert [c.get(p.replace("arm", "nobody")).status_code for p in paths] == [404] * 4
+        store.write(frames("nobody", 0.0))
+        assert [c.get(p.replace("arm", "nobody")).status_code for p in paths] == [200] * 4
+    finally:
+        event.remove(store.engine, "before_cursor_execute", seen)

@@ -142,6 +142,67 @@ def test_a_robot_is_looked_up_once_per_store(store: Store, rng: np.random.Genera
         event.remove(store.engine, "before_cursor_execute", seen)
 
 
+def _fleet(rng: np.random.Generator, n: int, t0: float) -> list[FrameBatch]:
+    """One batch per robot ``f00..``; every third robot has other parts, every fourth an IMU less."""
+    return [
+        make_batch(
+            rng,
+            f"f{i:02d}",
+            t0,
+            joints=("j1", "j2") if i % 3 else ("k",),
+            imus=("imu0", "imu1", "imu2") if i % 4 else ("imu2", "imu0"),
+        )
+        for i in range(n)
+    ]
+
+
+def test_a_fleet_is_written_and_listed_in_statements_independent_of_its_size(db_url: str) -> None:
+    """The ingest writer commits every robot's frames each second and the API lists every robot after
+    each commit: both must cost a fixed number of statements, not a few per robot (at a hundred robots
+    those statements were most of the served process's time)."""
+    from sqlalchemy import event
+
+    counts = {}
+    for n in (3, 12):
+        rng = np.random.default_rng(n)
+        store = open_store(db_url)
+        statements: list[str] = []
+
+        def seen(_conn: object, _cursor: object, sql: str, *_args: object, into: list = statements) -> None:
+            into.append(sql)
+
+        try:
+            store.write_many(_fleet(rng, n, 0.0))  # registers robots and parts
+            event.listen(store.engine, "before_cursor_execute", seen)
+            store.write_many(_fleet(rng, n, 1.0))
+            written = len(statements)
+            statements.clear()
+            infos = store.robots()
+            listed = len(statements)
+            event.remove(store.engine, "before_cursor_execute", seen)
+            counts[n] = (written, listed)
+            assert [r.name for r in infos] == [f"f{i:02d}" for i in range(n)]
+            for r in infos:  # the fleet's read gives what each robot's own read gives
+                assert r == store.robot(r.name)
+                assert r.last_frame_t == pytest.approx(1.09)
+            assert infos[0].joints == ["k"] and infos[0].imus == ["imu2", "imu0"]
+            assert infos[1].joints == ["j1", "j2"] and infos[1].imus == ["imu0", "imu1", "imu2"]
+        finally:
+            store.close()
+    assert counts[12] == counts[3], counts
+
+
+def test_one_write_moves_each_robots_clock_on_its_own(store: Store, rng: np.random.Generator) -> None:
+    """Robots written in one transaction: one restarts (a new epoch), the others go on in theirs."""
+    store.write_many([make_batch(rng, "a", 100.0), make_batch(rng, "b", 100.0)])
+    store.write_many([make_batch(rng, "a", 0.0), make_batch(rng, "b", 101.0), make_batch(rng, "c", 7.0)])
+    a, b, c = (store.robot(x) for x in "abc")
+    assert (a.epoch, a.epoch_start_t, a.last_frame_t) == (1, 0.0, pytest.approx(0.09))
+    assert (b.epoch, b.epoch_start_t, b.last_frame_t) == (0, None, pytest.approx(101.09))
+    assert (c.epoch, c.last_frame_t) == (0, pytest.approx(7.09))
+    assert store.read_window("a", 1.0).n_samples == 10 and store.read_window("b", 2.0).n_samples == 20
+
+
 def test_robot_without_encoders(store: Store, rng: np.random.Generator) -> None:
     store.write(make_batch(rng, joints=()))
     rec = store.read_window("r1", 1.0)
