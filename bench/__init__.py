@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "machine_note", "map_jobs"]
+__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "detection_table", "machine_note", "map_jobs"]
 
 BENCHMARKS: tuple[str, ...] = (
     "algebra",
@@ -79,3 +79,29 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: 
             bar.update(1)
     bar.close()
     return out
+
+
+def detection_table(
+    rows: Sequence[tuple[str, Sequence[float], Sequence[dict]]], factors: Sequence[float], over: str
+) -> list[str]:
+    """The hidden-effect benches' table: per effect, the range of its detection limits (``over`` what)
+    and, per factor, how many of the effects hidden alone were named and how many within 3 sigma.
+
+    ``rows``: (effect, its limits, one ``{"n", "named", "within"}`` count per factor).
+
+    >>> row = ("gyro_bias", [0.002, 0.004], [{"n": 2, "named": 2, "within": 1}])
+    >>> detection_table([row], [3.0], "trials")[2]
+    '| gyro_bias | 0.002–0.004 | 2/2 | 1/2 |'
+    """
+    lines = [
+        f"| effect | detection limit (range over {over}) | "
+        + " | ".join([f"named at {x:g}x" for x in factors] + [f"within 3σ at {x:g}x" for x in factors])
+        + " |",
+        "|---|---|" + "---|" * (2 * len(factors)),
+    ]
+    for effect, limits, counts in rows:
+        span = f"{min(limits):.3g}–{max(limits):.3g}" if len(limits) else "–"
+        named = [f"{c['named']}/{c['n']}" for c in counts]
+        cells = [span, *named, *(f"{c['within']}/{c['n']}" for c in counts)]
+        lines.append(f"| {effect} | " + " | ".join(cells) + " |")
+    return lines

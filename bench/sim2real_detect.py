@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench import RESULTS_DIR, machine_note, map_jobs
+from bench import RESULTS_DIR, detection_table, machine_note, map_jobs
 from bench.sim2real import trial_paths
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, nominal
 from bodyschema.discrepancy.fit import fit_params
@@ -362,17 +362,16 @@ def summary(data: dict) -> list[str]:
         f"{r['cpu_s']['median']:.1f} s, max {r['cpu_s']['max']:.1f} s (limit 30 s).",
         *_joint_rule(ff),
         "",
-        "| effect | detection limit (range over trials) | "
-        + " | ".join([f"named at {x:g}x" for x in f] + [f"within 3σ at {x:g}x" for x in f])
-        + " |",
-        "|---|---|" + "---|" * (2 * len(f)),
     ]
-    for e in data["effects"]:
-        lim = [t["limits"][e] for t in data["trials"] if t["limits"][e] is not None]
-        span = f"{min(lim):.3g}–{max(lim):.3g}" if lim else "–"
-        one = [r["single"][f"{e}@{x:g}"] for x in f]
-        cells = [span] + [f"{c['named']}/{c['n']}" for c in one] + [f"{c['within']}/{c['n']}" for c in one]
-        lines.append(f"| {e} | " + " | ".join(cells) + " |")
+    rows = [
+        (
+            e,
+            [t["limits"][e] for t in data["trials"] if t["limits"][e] is not None],
+            [r["single"][f"{e}@{x:g}"] for x in f],
+        )
+        for e in data["effects"]
+    ]
+    lines += detection_table(rows, f, "trials")
     return lines
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note, map_jobs
+from bench import RESULTS_DIR, detection_table, machine_note, map_jobs
 from bodyschema.discrepancy.encoders import ENCODER_EFFECTS, EncoderReport
 
 __all__ = ["TARGET", "Hidden", "add_arguments", "analyze_case", "draw_cases", "run", "score", "summary"]
@@ -233,11 +233,8 @@ def summary(data: dict) -> list[str]:
         f"{r['cases_with_extra']} of {r['cases']}. CPU per analysis: median {r['cpu_s']['median']:.1f} s, "
         f"max {r['cpu_s']['max']:.1f} s.",
         "",
-        "| effect | detection limit (range over recordings and joints) | "
-        + " | ".join([f"named at {x:g}x" for x in f] + [f"within 3σ at {x:g}x" for x in f])
-        + " |",
-        "|---|---|" + "---|" * (2 * len(f)),
     ]
+    rows = []
     for e in ENCODER_EFFECTS:
         lim = [
             v
@@ -245,10 +242,8 @@ def summary(data: dict) -> list[str]:
             for k, v in [*rec["null"]["limits"].items(), *_null_limits(rec)]
             if k.split("[")[0] == e and v is not None
         ]
-        span = f"{min(lim):.3g}–{max(lim):.3g}" if lim else "–"
-        one = [r["by_effect"][f"{e}@{x:g}"] for x in f]
-        cells = [span] + [f"{c['named']}/{c['n']}" for c in one] + [f"{c['within']}/{c['n']}" for c in one]
-        lines.append(f"| {e} | " + " | ".join(cells) + " |")
+        rows.append((e, lim, [r["by_effect"][f"{e}@{x:g}"] for x in f]))
+    lines += detection_table(rows, f, "recordings and joints")
     unobservable = sorted(
         {
             f"{k} ({rec['robot']})"
