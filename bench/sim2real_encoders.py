@@ -34,14 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from bench import RESULTS_DIR, detection_table, machine_note, map_jobs
-from bodyschema.discrepancy.encoders import ENCODER_EFFECTS, EncoderReport
+from bodyschema.discrepancy.encoders import ENCODER_EFFECTS, ENCODER_NULL, EncoderReport
 
 __all__ = ["TARGET", "Hidden", "add_arguments", "analyze_case", "draw_cases", "run", "score", "summary"]
 
 #: The share of effects hidden at the first factor that must be named with their value within 3 sigma.
 TARGET = 0.95
-
-_NULL = {"encoder_time_offset": 0.0, "encoder_offset": 0.0, "encoder_scale": 1.0, "backlash": 0.0}
 
 
 @dataclass(frozen=True)
@@ -143,13 +141,13 @@ def score(rep: EncoderReport, null: EncoderReport, hidden: list[Hidden]) -> dict
         own, se0 = (
             (base.value, base.stderr)
             if base is not None and base.own_name == h.name
-            else (_NULL[h.effect], 0.0)
+            else (ENCODER_NULL[h.effect], 0.0)
         )
         truth = own + h.change
         z = None
         if c is not None:
             factor = 1.0 if c.own_name == h.name else dict(c.alternatives)[h.name]
-            value = _NULL[h.effect] + factor * (c.value - _NULL[c.effect])
+            value = ENCODER_NULL[h.effect] + factor * (c.value - ENCODER_NULL[c.effect])
             z = (value - truth) / float(np.hypot(abs(factor) * c.stderr, se0))
         per.append(
             {

@@ -193,7 +193,7 @@ class Robot:
         self.site_body = m.site_bodyid[self.site_ids].astype(np.intp)
         self.site_root = m.body_rootid[self.site_body].astype(np.intp)
         # (IMU bodies, nv): 1 where the dof moves the body (it is on the body or one of its ancestors)
-        bodies = np.unique(self.site_body)
+        bodies, self._site_body_row = np.unique(self.site_body, return_inverse=True)
         self._body_dofs = np.zeros((len(bodies), m.nv))
         for i, b in enumerate(bodies):
             while b > 0:
@@ -240,11 +240,9 @@ class Robot:
         com-based [rotation, translation], the translation at the root's subtree centre of mass
         ``com`` (T, nbody, 3)): each site sums its body's ancestor dofs (one array copy per sample
         instead of a Jacobian per body), moved to the site, ``a + alpha x (p_site - c)``."""
-        m = self.model
-        _, which = np.unique(self.site_body, return_inverse=True)
-        spatial = np.matmul(self._body_dofs, cdof * dqacc[:, :, None])[:, which]  # (T, K, 6)
+        spatial = np.matmul(self._body_dofs, cdof * dqacc[:, :, None])[:, self._site_body_row]  # (T, K, 6)
         ang, lin = spatial[..., :3], spatial[..., 3:]
-        centre = com[:, m.body_rootid[self.site_body]]
+        centre = com[:, self.site_root]
         return lin + np.cross(ang, site_pos[:, self.site_ids] - centre), ang
 
     def recompile(self) -> None:
@@ -338,8 +336,8 @@ class Robot:
         implicit integrator moves the state with the one implicit in the damping and the drives' gains.
         With the catalog's stiff drives the two differ by several % of the joint accelerations below
         5 Hz (up to 0.06 m/s² at a UR5e's wrist at 1 kHz), so the IMUs would disagree with the motion
-        the encoders report: the accelerometers are corrected by the site Jacobians times the
-        difference (to 0.0006 m/s² there).
+        the encoders report: the accelerometers are corrected by what the difference does at each
+        site, through the dofs' motion axes (to 0.0006 m/s² there).
         """
         m, d = self.model, self.data
         ctrl = np.asarray(ctrl, dtype=np.float64)

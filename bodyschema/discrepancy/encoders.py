@@ -74,6 +74,7 @@ from bodyschema.rigid_motion import lowpass
 
 __all__ = [
     "ENCODER_EFFECTS",
+    "ENCODER_NULL",
     "EncoderCause",
     "EncoderLimit",
     "EncoderOptions",
@@ -92,6 +93,10 @@ _PARAM: dict[str, tuple[str, float, float]] = {
     "encoder_scale": ("gain", 1.0, 1e-3),
     "backlash": ("width", 0.0, 1e-3),
 }
+
+
+#: Each effect's value when it is absent (an encoder that reads the link's angle, on time).
+ENCODER_NULL: dict[str, float] = {e: null for e, (_, null, _) in _PARAM.items()}
 
 
 @dataclass(frozen=True)
@@ -341,7 +346,7 @@ class _Problem:
         self.candidates = [_Candidate("encoder_time_offset", None)] + [
             _Candidate(e, j) for e in ENCODER_EFFECTS[1:] for j in range(len(chain.joint_names))
         ]
-        self.null = np.array([_PARAM[c.effect][1] for c in self.candidates])
+        self.null = np.array([ENCODER_NULL[c.effect] for c in self.candidates])
         self.step = np.array([_PARAM[c.effect][2] for c in self.candidates])
 
     def theta(self, x: np.ndarray) -> tuple[np.ndarray, float]:
