@@ -269,23 +269,53 @@ def _by_robot(alerts: Sequence[AlertRecord]) -> dict[str, list[AlertRecord]]:
     return out
 
 
-def robot_statuses(store: Store, robots: Sequence[str], method: str | None = None) -> dict[str, RobotStatus]:
+def robot_statuses(
+    store: Store,
+    robots: Sequence[str],
+    method: str | None = None,
+    judged: dict[str, tuple[Any, RobotStatus]] | None = None,
+) -> dict[str, RobotStatus]:
     """:func:`robot_status` of each of ``robots``, read for the whole fleet at once: six queries, where
     asking robot by robot takes five per robot (the API's robot list asks every robot's). ``robots``
-    are names the store knows (as :meth:`~service.store.Store.robots` lists them)."""
+    are names the store knows (as :meth:`~service.store.Store.robots` lists them).
+
+    ``judged`` (robot -> what its answer was judged from, and the answer) keeps answers across calls:
+    :func:`judge` is pure, so a robot whose records and alerts are the ones its kept answer came from
+    is not judged again (after a retrain, one robot of the fleet changed; judging is a diff of two
+    bodies per robot). The caller owns it and keeps it as long as it likes; it is updated here.
+    """
     cur = store.latest_topologies(method or "fast")
     anyway = store.latest_topologies() if method is None else {}
     net = store.latest_topologies("network")
     bases = store.baselines()
     active, pending = _by_robot(store.alerts(active=True)), _by_robot(store.alerts(state="pending"))
-    return {
-        robot: _judged(
-            robot,
+    kept: dict[str, tuple[Any, RobotStatus]] = {} if judged is None else judged
+    out: dict[str, RobotStatus] = {}
+    for robot in robots:
+        args = (
             cur.get(robot) or anyway.get(robot),
             bases.get(robot),
             active.get(robot, []),
             pending.get(robot, []),
             net.get(robot),
         )
-        for robot in robots
-    }
+        # compared, never hashed: alert records compare by value (their finding too)
+        key = (
+            _record_key(args[0]),
+            _record_key(args[1]),
+            tuple(args[2]),
+            tuple(args[3]),
+            _record_key(args[4]),
+        )
+        hit = kept.get(robot)
+        if hit is not None and hit[0] == key:
+            out[robot] = hit[1]
+            continue
+        out[robot] = _judged(robot, *args)
+        kept[robot] = (key, out[robot])
+    return out
+
+
+def _record_key(rec: TopologyRecord | None) -> tuple[Any, ...] | None:
+    """What tells a stored topology apart (its rows are never changed, see the store)."""
+    return None if rec is None else (rec.id, rec.wall_time, rec.method, rec.source)

@@ -99,6 +99,9 @@ class ReadCache:
         self.stale_hits = 0
         self._entries: dict[Hashable, _Entry] = {}
         self._memos: dict[Hashable, _Memo] = {}
+        #: Each robot's answer with what it was judged from (:func:`service.status.robot_statuses`):
+        #: after a retrain the fleet's statuses are read again, and only the robot that changed is judged.
+        self.judged: dict[str, tuple[Any, RobotStatus]] = {}
         self._floor = 0  # entries rendered from an older generation are not served (see clear)
         self._inflight: dict[Hashable, tuple[int, Future[bytes], object]] = {}
         self._lock = threading.Lock()

@@ -38,9 +38,10 @@ async def list_robots(request: Request, store: Store = Depends(get_store)) -> Re
         names = tuple(r.name for r in infos)
         # every robot's status in one read of the fleet, kept as one robot's is (cached_status) while
         # it holds every robot listed
-        statuses = read_cache(request).memo(
+        cache = read_cache(request)
+        statuses = cache.memo(
             FLEET_STATUSES,
-            lambda: robot_statuses(store, names),
+            lambda: robot_statuses(store, names, judged=cache.judged),
             usable=lambda kept: set(names) <= kept.keys(),
         )
         return [_out(request, store, r, statuses.get(r.name)) for r in infos]

@@ -99,6 +99,8 @@ class StoreBase:
         # Robots (and their parts) this store has registered, so a stream of frames does not look its
         # robot up batch after batch; see service.store.robots.
         self._known: dict[str, Any] = {}
+        # Parsed topology records by (table, id, wall time); see service.store.topologies.
+        self._parsed_topologies: dict[tuple[str, int, float], Any] = {}
 
     def _committed(self, session: Any) -> None:
         with self._generation_lock:

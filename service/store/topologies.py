@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, func, insert, select
+from sqlalchemy import Select, delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from bodyschema.topology import Topology
@@ -30,6 +30,12 @@ from service.store.robots import robot_id
 from service.store.schema import StoreBase
 
 __all__ = ["BASELINE_SOURCES", "TopologiesMixin", "TopologyRecord"]
+
+#: Parsed topology records a store keeps (:meth:`TopologiesMixin._parsed_records`): a fleet's newest
+#: topologies of each method and its baselines several times over.
+_PARSED_MAX = 8192
+#: Ids per ``IN`` list (SQLite allows 32,766 bound parameters, older builds 999).
+_IN_BATCH = 900
 
 #: Who made a baseline: the worker (the same body learned repeatedly) or an operator.
 BASELINE_SOURCES: tuple[str, ...] = ("auto", "operator")
@@ -107,24 +113,64 @@ class TopologiesMixin(StoreBase):
             ranked = ranked.where(TopologyRow.method == method)
         sub = ranked.subquery()
         q = (
-            select(TopologyRow, Robot.name)
+            select(*_heads(TopologyRow), Robot.name)
             .join(sub, sub.c.id == TopologyRow.id)
             .join(Robot, Robot.id == TopologyRow.robot_id)
             .where(sub.c.newest == 1)
         )
         with self._session() as s:
-            return {name: _record(r, name) for r, name in s.execute(q).all()}
+            return self._parsed_records(s, TopologyRow, q)
 
     def baselines(self) -> dict[str, TopologyRecord]:
         """Every robot's current baseline, by robot name (one query; :meth:`baseline` for one robot)."""
         current = select(func.max(Baseline.id)).group_by(Baseline.robot_id)
         q = (
-            select(Baseline, Robot.name)
+            select(*_heads(Baseline), Baseline.source, Robot.name)
             .join(Robot, Robot.id == Baseline.robot_id)
             .where(Baseline.id.in_(current))
         )
         with self._session() as s:
-            return {name: _baseline_record(r, name) for r, name in s.execute(q).all()}
+            return self._parsed_records(s, Baseline, q)
+
+    def _parsed_records(
+        self, s: Session, table: type[TopologyRow] | type[Baseline], q: Select[Any]
+    ) -> dict[str, TopologyRecord]:
+        """The records of the rows ``q`` selects (their :func:`_heads`, ``source`` for baselines, and the
+        robot's name), by robot name, each row's topology read and parsed once per store.
+
+        A stored topology is never changed, only added or thinned away, so its parsed record is kept by
+        (table, id, wall time): the wall time tells a row apart from a later one that took a freed id (a
+        SQLite file replaced under the service). The fleet's statuses read every robot's newest
+        topologies and baseline after each analysis commit, and parsing them all again was most of it.
+        The topologies of the rows not kept yet are read in a second statement; a row thinned away in
+        between (PostgreSQL's statements each see their own snapshot) sends the read round again.
+        """
+        kept = self._parsed_topologies
+        for _ in range(3):
+            heads = s.execute(q).all()
+            keys = {r.id: (table.__tablename__, r.id, r.wall_time) for r in heads}
+            missing = [i for i, key in keys.items() if key not in kept]
+            parsed: dict[int, Topology] = {}
+            for lo in range(0, len(missing), _IN_BATCH):
+                ids = missing[lo : lo + _IN_BATCH]
+                for rid, js in s.execute(select(table.id, table.topology).where(table.id.in_(ids))):
+                    parsed[rid] = Topology.from_json(js)
+            if len(parsed) < len(missing):
+                continue
+            out: dict[str, TopologyRecord] = {}
+            for r in heads:
+                rec = kept.get(keys[r.id])
+                if rec is None:
+                    source = getattr(r, "source", None)
+                    rec = TopologyRecord(
+                        r.id, r.name, r.wall_time, r.window_end_t, r.method, parsed[r.id], source
+                    )
+                    if len(kept) >= _PARSED_MAX:
+                        kept.clear()  # bounded; refills on the next read
+                    kept[keys[r.id]] = rec
+                out[r.name] = rec
+            return out
+        raise RuntimeError(f"{table.__tablename__}: rows kept vanishing while read")
 
     def set_baseline(
         self,
@@ -242,6 +288,11 @@ def _insert_baseline(
             .returning(Baseline.id)
         )
     )
+
+
+def _heads(table: type[TopologyRow] | type[Baseline]) -> tuple[Any, ...]:
+    """The columns of a topology row but its topology: what tells whether its parse is kept."""
+    return (table.id, table.wall_time, table.window_end_t, table.method)
 
 
 def _record(r: TopologyRow, robot: str) -> TopologyRecord:

@@ -66,3 +66,51 @@ def test_latest_topologies_and_baselines_of_a_fleet(store: Store, method: str | 
     store.set_baseline("a", TRUE, "auto")
     second = store.set_baseline("a", MOVED, "operator")
     assert {r: b.id for r, b in store.baselines().items()} == {"a": second}
+
+
+def test_a_stored_topology_is_parsed_once_per_store(store: Store) -> None:
+    from sqlalchemy import event
+
+    for robot in ("a", "b"):
+        store.write(_frames(robot))
+        store.save_topology(robot, TRUE, 1.0, 1.0)
+        store.set_baseline(robot, TRUE, "auto")
+    reads: list[str] = []
+
+    def seen(conn, cursor, statement, *args) -> None:  # type: ignore[no-untyped-def]
+        reads.append(statement)
+
+    event.listen(store.engine, "before_cursor_execute", seen)
+    try:
+        first, bases = store.latest_topologies("fast"), store.baselines()
+        parses = len(reads)
+        again, bases_again = store.latest_topologies("fast"), store.baselines()
+        assert (parses, len(reads) - parses) == (4, 2)  # parsed rows: their topologies are not read again
+        assert all(again[r] is first[r] for r in first) and all(bases_again[r] is bases[r] for r in bases)
+        newer = store.save_topology("b", MOVED, 2.0, 2.0)
+        now = store.latest_topologies("fast")
+    finally:
+        event.remove(store.engine, "before_cursor_execute", seen)
+    assert now["a"] is first["a"]
+    assert now["b"].id == newer and now["b"].topology.imu_joint == MOVED.imu_joint
+    assert now["b"] == store.latest_topology("b", "fast")
+    assert bases["a"].source == "auto" and bases["a"] == store.baseline("a")
+
+
+def test_a_robot_is_judged_again_only_when_what_it_is_judged_from_changed(store: Store) -> None:
+    for robot in ("a", "b"):
+        store.write(_frames(robot))
+        store.save_topology(robot, TRUE, 1.0, 1.0)
+        store.set_baseline(robot, TRUE, "auto")
+    judged: dict = {}
+    first = robot_statuses(store, ["a", "b"], judged=judged)
+    assert {r: s.status for r, s in first.items()} == {"a": "healthy", "b": "healthy"}
+    assert all(robot_statuses(store, ["a", "b"], judged=judged)[r] is first[r] for r in first)
+    store.save_topology("b", MOVED, 2.0, 2.0)
+    second = robot_statuses(store, ["a", "b"], judged=judged)
+    assert second["a"] is first["a"] and second["b"].status == "undetermined"
+    store.upsert_alert("a", "imu_moved", "imu:imu1", {"kind": "imu_moved", "imu": "imu1"}, "active", 3.0)
+    third = robot_statuses(store, ["a", "b"], judged=judged)
+    assert third["a"].status == "damaged" and third["b"] is second["b"]
+    alone = {r: StatusOut.of(robot_status(store, r)).model_dump() for r in ("a", "b")}
+    assert {r: StatusOut.of(s).model_dump() for r, s in third.items()} == alone
