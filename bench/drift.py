@@ -16,10 +16,11 @@ Two parts, both on the simulated farm with the realistic ``robot`` sensing prese
   ``--angle-deg`` of that IMU's joint, a dead band of ``--backlash-deg`` in that joint, slides of
   ``--slide-mm`` of that IMU. Reported per robot and damage: the findings, whether the first is the
   damage's kind on its part, the change against its limit.
-* **service**: the worker's real cycle (:class:`service.worker.Worker`, production settings but the
-  sensor networks off: fast estimator, hysteresis M = 2, geometry every 6 cycles) on a healthy farm of
-  ``--fleet`` robots for ``--hours`` of simulated time, unpaced, on an SQLite file. Every alert it
-  raises is false; reported with the geometry comparisons made and the CPU seconds.
+* **service**: the worker's real cycle (:class:`service.worker.Worker`, production settings: fast
+  estimator, sensor networks retrained every ``--networks`` cycles in the worker's thread and the
+  authority for baselines, hysteresis M = 2, geometry every 6 cycles) on a healthy farm of ``--fleet``
+  robots for ``--hours`` of simulated time, unpaced, on an SQLite file. Every alert it raises is false;
+  reported with the geometry comparisons made, the network retrains and the CPU seconds.
 
 Writes ``drift.md``, ``drift.json`` and ``drift.png``.
 """
@@ -58,6 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pool-robot", default="ur5e", help="robot of the pooled-slides part ('' skips it)")
     parser.add_argument("--pool-slides-mm", default="5,10,20", help="slides of the pooled part, mm")
     parser.add_argument("--pool-after", type=int, default=30, help="windows judged after each slide")
+    parser.add_argument(
+        "--networks",
+        type=int,
+        default=None,
+        help="service part: network retrain every N worker cycles (default: the service's; 0: off)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
 
@@ -238,14 +245,16 @@ def _service(args: argparse.Namespace) -> dict:
     cpu0 = time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
         url = f"sqlite:///{Path(tmp) / 'drift.db'}"
-        settings = Settings(database_url=url, network_interval_cycles=0)
+        settings = Settings(database_url=url)
+        if args.networks is not None:
+            settings = Settings(database_url=url, network_interval_cycles=args.networks)
         store = open_store(url, settings=settings)
         worker = Worker(store, settings)
         farm = Farm(robots, seed=args.seed, sensing="robot")
         interval = settings.worker_interval_seconds
         cycles = round(args.hours * 3600.0 / interval)
         raised: list[dict] = []
-        judged = found = 0
+        judged = found = retrains = 0
         baselines: dict[str, int] = {}
         for cycle in progress(range(cycles), desc="bench drift: service", unit="cycle"):
             for name, rec in farm.advance(interval).items():
@@ -254,6 +263,7 @@ def _service(args: argparse.Namespace) -> dict:
                 if res.baseline_set:
                     baselines[name] = cycle + 1
                 judged += res.drift_judged
+                retrains += "network" in res.methods
                 if res.drift_judged and res.diff is not None:
                     found += sum(1 for f in res.diff.findings if f.kind in KINEMATIC_KINDS)
                 raised += [
@@ -275,6 +285,8 @@ def _service(args: argparse.Namespace) -> dict:
         "cycles": cycles,
         "interval_s": interval,
         "kinematics_interval_cycles": settings.kinematics_interval_cycles,
+        "network_interval_cycles": settings.network_interval_cycles,
+        "network_retrains": retrains,
         "baseline_cycle": baselines,
         "geometry_kept": kept,
         "geometry_comparisons": judged,
@@ -300,7 +312,7 @@ def run(args: argparse.Namespace) -> Path:
         f"--angle-deg {args.angle_deg:g} --slide-mm {args.slide_mm} --backlash-deg {args.backlash_deg:g} "
         f"--pool-robot {args.pool_robot or _EMPTY} --pool-slides-mm {args.pool_slides_mm} "
         f"--pool-after {args.pool_after} --fleet {args.fleet} "
-        f"--hours {args.hours:g} --seed {args.seed}"
+        f"--hours {args.hours:g} --networks {_networks(args)} --seed {args.seed}"
     )
     data = {
         "machine": machine_note(),
@@ -317,6 +329,13 @@ def run(args: argparse.Namespace) -> Path:
     path = out / "drift.md"
     path.write_text(_markdown(data), encoding="utf-8")
     return path
+
+
+def _networks(args: argparse.Namespace) -> int:
+    """The service part's network interval, in cycles, as it ran (the command line states it)."""
+    from service.settings import Settings
+
+    return Settings().network_interval_cycles if args.networks is None else int(args.networks)
 
 
 def _change(detail: str) -> tuple[float, float] | None:
@@ -394,7 +413,8 @@ def _markdown(d: dict) -> str:
         lines += [
             "",
             f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
-            f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, networks off): "
+            f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, "
+            f"{_networks_text(s)}): "
             f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
             f"{s['cpu_s']:.0f} CPU s.",
@@ -403,6 +423,14 @@ def _markdown(d: dict) -> str:
             lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
     lines += ["", "![drift](drift.png)", ""]
     return "\n".join(lines)
+
+
+def _networks_text(s: dict) -> str:
+    """How the service part ran the sensor networks (runs written before they were on: off)."""
+    n = int(s.get("network_interval_cycles", 0))
+    if n <= 0:
+        return "networks off"
+    return f"networks every {n} cycles: {s.get('network_retrains', 0)} network retrains"
 
 
 def _plot(catalog: list[dict], path: Path) -> None:

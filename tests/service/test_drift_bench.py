@@ -37,6 +37,8 @@ def test_short_run(tmp_path: Path) -> None:
             "ur5e",
             "--hours",
             "0.05",
+            "--networks",
+            "12",
             "--out",
             str(tmp_path),
         )
@@ -59,10 +61,12 @@ def test_short_run(tmp_path: Path) -> None:
     assert all(len(g["scatter_mm"]) == 3 and g["other_findings"] == 0 for g in p["slides"])
     s = d["service"]
     assert s["cycles"] == 36 and s["alerts_raised"] == [] and s["drift_findings"] == 0
+    # the product's schedule (the suite turns it off): the networks retrained every 12 cycles
+    assert s["network_interval_cycles"] == 12 and s["network_retrains"] >= 3
     assert s["geometry_comparisons"] >= 3 and s["geometry_kept"] == {"ur5e-0": True}
     text = md.read_text()
     assert "| ur5e | 12 / 12 | 0 (2) | imu_rotated 2 ° imu:imu11 | yes |" in text
-    assert "0 alerts raised" in text
+    assert "0 alerts raised" in text and "networks every 12 cycles" in text
     assert (
         "Pooled slides (ur5e): the lever arms of the first 40 windows against those of the newest 20" in text
     )
