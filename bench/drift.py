@@ -40,7 +40,7 @@ from bench import RESULTS_DIR, machine_note
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["add_arguments", "networks_text", "run"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -414,7 +414,7 @@ def _markdown(d: dict) -> str:
             "",
             f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
             f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, "
-            f"{_networks_text(s)}): "
+            f"{networks_text(s)}): "
             f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
             f"{s['cpu_s']:.0f} CPU s.",
@@ -425,7 +425,7 @@ def _markdown(d: dict) -> str:
     return "\n".join(lines)
 
 
-def _networks_text(s: dict) -> str:
+def networks_text(s: dict) -> str:
     """How the service part ran the sensor networks (runs written before they were on: off)."""
     n = int(s.get("network_interval_cycles", 0))
     if n <= 0:
