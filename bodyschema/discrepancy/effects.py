@@ -251,36 +251,116 @@ def predict(
 
     Effects absent from ``params`` take their null value; unknown names raise ``ValueError``.
     """
+    gyro, acc = predict_rows(ref, params)
+    return np.array(gyro, dtype=np.float64), np.array(acc, dtype=np.float64)  # never the memo
+
+
+#: Stage results a stage cache of :func:`predict_rows` keeps (the base point of a finite-difference
+#: Jacobian and the point of the column at hand, for every stage, with room to spare).
+_STAGES_SIZE = 24
+
+
+def _stage(stages: dict | None, key: tuple, compute) -> np.ndarray:
+    """``compute()``, kept in ``stages`` under ``key`` (None: not kept), least recently used out."""
+    if stages is None:
+        return compute()
+    hit = stages.pop(key, None)
+    if hit is None:
+        hit = compute()
+    stages[key] = hit  # now the most recently used
+    while len(stages) > _STAGES_SIZE:
+        del stages[next(iter(stages))]
+    return hit
+
+
+def _key(vec: np.ndarray | None) -> bytes:
+    return b"-" if vec is None else vec.tobytes()
+
+
+def predict_rows(
+    ref: ReferenceMotion,
+    params: Mapping[str, Mapping[str, object]],
+    rows: np.ndarray | None = None,
+    stages: dict | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`predict` on the samples ``rows`` (None: all), its stages kept in ``stages``.
+
+    A least-squares fit evaluates the model once per parameter for every finite-difference Jacobian,
+    each time with a single parameter changed: a gyro bias only changes the last stage of the gyro,
+    a lever arm only the accelerometer's last two. ``stages`` (a dict owned by the caller, used for
+    one reference motion and one ``rows``) keeps every stage's result under the values of the
+    parameters it depends on, so such an evaluation recomputes only the stages downstream of the
+    change. Each stage is computed by exactly the operations :func:`predict` uses, on the same
+    inputs, so the result is the same to the last bit; every operation but the angular acceleration
+    acts sample by sample, so it is computed on ``rows`` only. Returned arrays may be cached: do not
+    modify them.
+    """
     unknown = set(params) - set(EFFECTS)
     if unknown:
         raise ValueError(f"unknown effects {sorted(unknown)}; known: {list(EFFECT_NAMES)}")
+    if rows is not None and "time_offset" in params:
+        raise ValueError("a time offset shifts along the whole grid: predict it on all rows")
+
+    def pick(x: np.ndarray) -> np.ndarray:
+        return x if rows is None else x[rows]
+
     g = EFFECTS["gravity"].from_params(params.get("gravity")) if "gravity" in params else ref.gravity
-    acc = _memo(("sf", g.tobytes()), ref, lambda: fx.specific_force(ref.R, ref.acc_world, g))
-    gyro = ref.omega
+    kg = g.tobytes()
+    omega = ref.omega
+
+    def sf() -> np.ndarray:
+        return _memo(("sf", kg), ref, lambda: fx.specific_force(ref.R, ref.acc_world, g))
+
     rv = None
     if "mounting_rotation" in params:
         rv = EFFECTS["mounting_rotation"].from_params(params["mounting_rotation"])
-        both = fx.rotate(np.concatenate([gyro, acc]), rv)  # one call for both triads
-        gyro, acc = both[: len(gyro)], both[len(gyro) :]
+
+        def rotated() -> tuple[np.ndarray, np.ndarray]:
+            # one call for both triads; each row of the product is that of the whole grid's
+            w, f = (
+                _stage(stages, ("omega",), lambda: pick(omega)),
+                _stage(stages, ("sf", kg), lambda: pick(sf())),
+            )
+            both = fx.rotate(np.concatenate([w, f]), rv)
+            return both[: len(w)], both[len(w) :]
+
+        gyro, acc = _stage(stages, ("rot", kg, rv.tobytes()), rotated)
+    else:
+        gyro = _stage(stages, ("omega",), lambda: pick(omega))
+        acc = _stage(stages, ("sf", kg), lambda: pick(sf()))
+    r = None
     if "lever_arm" in params:
         r = EFFECTS["lever_arm"].from_params(params["lever_arm"])
-        key = ("wdot", b"" if rv is None else rv.tobytes())
-        wdot = _memo(key, ref, lambda: fx.angular_acceleration(ref.t, gyro))
-        acc = fx.lever_arm(acc, gyro, wdot, r)
+        key = ("wdot", _key(rv))
+
+        def full_gyro() -> np.ndarray:
+            # the angular acceleration differentiates along the whole grid
+            return omega if rv is None else fx.rotate(np.concatenate([omega, sf()]), rv)[: len(omega)]
+
+        wdot = _stage(
+            stages, key, lambda: pick(_memo(key, ref, lambda: fx.angular_acceleration(ref.t, full_gyro())))
+        )
+        acc = _stage(stages, ("lever", kg, _key(rv), r.tobytes()), lambda: fx.lever_arm(acc, gyro, wdot, r))
+    tau = b"-"
     if "time_offset" in params:
-        tau = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
-        both = fx.time_shift(ref.t, np.stack([gyro, acc], axis=1), tau)
+        seconds = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
+        tau = np.float64(seconds).tobytes()
+        both = fx.time_shift(ref.t, np.stack([gyro, acc], axis=1), seconds)
         gyro, acc = both[:, 0], both[:, 1]
     if "gyro_scale" in params or "gyro_bias" in params:
-        gyro = fx.affine(
-            gyro,
-            EFFECTS["gyro_scale"].from_params(params.get("gyro_scale")),
-            EFFECTS["gyro_bias"].from_params(params.get("gyro_bias")),
+        gs = EFFECTS["gyro_scale"].from_params(params.get("gyro_scale"))
+        gb = EFFECTS["gyro_bias"].from_params(params.get("gyro_bias"))
+        g0 = gyro
+        gyro = _stage(
+            stages, ("gyro", _key(rv), tau, gs.tobytes(), gb.tobytes()), lambda: fx.affine(g0, gs, gb)
         )
     if "acc_scale" in params or "acc_bias" in params:
-        acc = fx.affine(
-            acc,
-            EFFECTS["acc_scale"].from_params(params.get("acc_scale")),
-            EFFECTS["acc_bias"].from_params(params.get("acc_bias")),
+        s_ = EFFECTS["acc_scale"].from_params(params.get("acc_scale"))
+        b_ = EFFECTS["acc_bias"].from_params(params.get("acc_bias"))
+        a0 = acc
+        acc = _stage(
+            stages,
+            ("acc", kg, _key(rv), _key(r), tau, s_.tobytes(), b_.tobytes()),
+            lambda: fx.affine(a0, s_, b_),
         )
-    return np.array(gyro, dtype=np.float64), np.array(acc, dtype=np.float64)  # never the memo
+    return gyro, acc

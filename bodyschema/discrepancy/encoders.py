@@ -348,6 +348,32 @@ class _Problem:
         ]
         self.null = np.array([ENCODER_NULL[c.effect] for c in self.candidates])
         self.step = np.array([_PARAM[c.effect][2] for c in self.candidates])
+        # Every IMU's prediction, filtered and fitted on its own, depends only on the joints from the
+        # root to its link: a change of a joint's encoder moves the IMUs below it and leaves every
+        # other IMU's residual exactly as it was. Per joint: those IMUs (None: all) and their chain.
+        self._below: dict[int, tuple[np.ndarray, RobotChain] | None] = {}
+        for j in range(len(chain.joint_names)):
+            ks = np.array([k for k in range(len(chain.imu_names)) if j in chain.path(k)], dtype=int)
+            sub = (
+                chain.subset([chain.imu_names[k] for k in ks])
+                if 0 < ks.size < len(chain.imu_names)
+                else chain
+            )
+            self._below[j] = None if ks.size == len(chain.imu_names) else (ks, sub)
+        self._residuals: dict[bytes, np.ndarray] = {}
+        self._last_jacobian: tuple[bytes, list[int], np.ndarray] | None = None
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(K, 2) each IMU's gyro and accelerometer normalisation."""
+        return self._scale
+
+    @scale.setter
+    def scale(self, value: np.ndarray) -> None:
+        self._scale = value
+        # the residuals kept are in the units of the old scale
+        self._residuals = {}
+        self._last_jacobian = None
 
     def theta(self, x: np.ndarray) -> tuple[np.ndarray, float]:
         """Link angles (T_q, N) and the time offset of the full parameter vector ``x``."""
@@ -355,36 +381,70 @@ class _Problem:
         tau, off, gain, width = x[0], x[1 : 1 + n], x[1 + n : 1 + 2 * n], x[1 + 2 * n :]
         return (self.q - off - 0.5 * width * self.side) / gain, float(tau)
 
-    def predicted(self, x: np.ndarray) -> np.ndarray:
+    def predicted(self, x: np.ndarray, imus: tuple[np.ndarray, RobotChain] | None = None) -> np.ndarray:
+        """(T, K, 6) the prediction at the parameters ``x``, of the IMUs ``imus`` (indices and their
+        chain; None: all)."""
         theta, tau = self.theta(x)
-        pred = predict_imus(self.chain, self.t, self.t_q + tau, theta, self.gravity, self.opts.cutoff)
+        chain = self.chain if imus is None else imus[1]
+        pred = predict_imus(chain, self.t, self.t_q + tau, theta, self.gravity, self.opts.cutoff)
         return pred[self.index]
 
     def residual(self, x: np.ndarray) -> np.ndarray:
         """(T, K, 6) measured minus predicted, each IMU's affine errors fitted out, normalised."""
-        pred = self.predicted(x)
+        # A fit evaluates its accepted points again for their Jacobian, and the selection asks for the
+        # Jacobian at the same point for its tests, the member tests and the final report.
+        key = x.tobytes()
+        hit = self._residuals.pop(key, None)
+        if hit is None:
+            hit = self._residual(x)
+        self._residuals[key] = hit
+        while len(self._residuals) > 3:
+            del self._residuals[next(iter(self._residuals))]
+        return hit.copy()
+
+    def _residual(self, x: np.ndarray, imus: tuple[np.ndarray, RobotChain] | None = None) -> np.ndarray:
+        """:meth:`residual` of the IMUs ``imus`` (indices and their chain; None: all), in that order."""
+        pred = self.predicted(x, imus)
+        ks = range(pred.shape[1]) if imus is None else imus[0]
         out = np.empty_like(pred)
         one = np.ones((len(pred), 1))
-        for k in range(pred.shape[1]):
-            G = np.hstack([pred[:, k, :3], one])  # gyro: full matrix and bias
+        for i, k in enumerate(ks):
+            G = np.hstack([pred[:, i, :3], one])  # gyro: full matrix and bias
             coef, *_ = np.linalg.lstsq(G, self.meas[:, k, :3], rcond=None)
-            out[:, k, :3] = (self.meas[:, k, :3] - G @ coef) / self.scale[k, 0]
+            out[:, i, :3] = (self.meas[:, k, :3] - G @ coef) / self.scale[k, 0]
             for c in range(3, 6):  # accelerometer: gain and bias per axis
-                A = np.hstack([pred[:, k, c : c + 1], one])
+                A = np.hstack([pred[:, i, c : c + 1], one])
                 coef, *_ = np.linalg.lstsq(A, self.meas[:, k, c], rcond=None)
-                out[:, k, c] = (self.meas[:, k, c] - A @ coef) / self.scale[k, 1]
+                out[:, i, c] = (self.meas[:, k, c] - A @ coef) / self.scale[k, 1]
         return out
 
     def jacobian(self, x: np.ndarray, which: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-        """``(J (T, K, 6, p), residual (T, K, 6))`` for the candidates ``which`` (central differences)."""
+        """``(J (T, K, 6, p), residual (T, K, 6))`` for the candidates ``which`` (central differences).
+
+        A joint's candidate moves only the IMUs below the joint; the other IMUs' columns are exactly
+        zero (both sides of the difference are the same numbers) and are not computed. Columns of
+        the last Jacobian at the same ``x`` are taken over: the selection asks for the named
+        effects' columns after a refit, again for the next round's tests and for the report.
+        """
+        key = x.tobytes()
         r0 = self.residual(x)
-        J = np.empty((*r0.shape, len(which)))
+        J = np.zeros((*r0.shape, len(which)))
+        last = self._last_jacobian if self._last_jacobian and self._last_jacobian[0] == key else None
         for i, c in enumerate(which):
+            if last is not None and c in last[1]:
+                J[..., i] = last[2][..., last[1].index(c)]
+                continue
             h = self.step[c]
             xp, xm = x.copy(), x.copy()
             xp[c] += h
             xm[c] -= h
-            J[..., i] = (self.residual(xp) - self.residual(xm)) / (2 * h)
+            joint = self.candidates[c].joint
+            imus = None if joint is None else self._below[joint]
+            if imus is None:
+                J[..., i] = (self._residual(xp) - self._residual(xm)) / (2 * h)
+            elif imus[0].size:
+                J[..., i][:, imus[0]] = (self._residual(xp, imus) - self._residual(xm, imus)) / (2 * h)
+        self._last_jacobian = (key, list(which), J)
         return J, r0
 
 
@@ -539,7 +599,7 @@ def _refit(prob: _Problem, x: np.ndarray, model: list[int]) -> np.ndarray:
 
     def jac(z: np.ndarray) -> np.ndarray:
         J, _ = prob.jacobian(full(z), model)
-        return J.reshape(-1, len(model))
+        return J.reshape(-1, len(model)).copy()  # the problem keeps J for the next request
 
     res = least_squares(fun, x[sel], jac=jac, x_scale=prob.step[sel] * 10, method="trf", max_nfev=20)
     return full(res.x)

@@ -28,9 +28,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import binary_erosion
-from scipy.optimize import least_squares
+from scipy.optimize import leastsq
 
-from bodyschema.discrepancy.effects import EFFECTS, Params, nominal, pack, predict, unpack
+from bodyschema.discrepancy.effects import EFFECTS, Params, nominal, pack, predict, predict_rows, unpack
 from bodyschema.rigid_motion import ReferenceMotion, lowpass
 
 __all__ = [
@@ -115,6 +115,17 @@ class Problem:
         out = spline(tq)
         self._cache["measured"] = (seconds, out)  # fits ask again for the same offset
         return out.copy()
+
+    def measured_rows(self, seconds: float, rows: np.ndarray) -> np.ndarray:
+        """``measured(seconds)[rows]``, computed on those rows only (the interpolation is pointwise,
+        so each row is the same number :meth:`measured` gives). Returns a new array."""
+        if seconds == 0.0 or self.t_full is None or self.meas_full is None:
+            return np.concatenate([self.gyro, self.acc], axis=1)[rows]
+        spline = self._cache.get("spline")
+        if spline is None:
+            spline = CubicSpline(self.t_full, self.meas_full, axis=0, extrapolate=False)
+            self._cache["spline"] = spline
+        return spline(np.clip(self.ref.t[rows] + seconds, self.t_full[0], self.t_full[-1]))
 
 
 def prepare(
@@ -237,53 +248,149 @@ def fit_params(
     def to_x(z: np.ndarray) -> np.ndarray:
         return null + (z - 1.0) * x_scale
 
-    cache: dict[bytes, np.ndarray] = {}
     # A faint pull towards "effect absent" (weight 1e-6 per typical magnitude squared, relative to a
     # score of 1): it keeps directions the data cannot see — a lever arm along the only axis a link
     # turns about — at null instead of drifting, and moves an observable effect by ~1e-6 of itself.
     ridge = 1e-3 * np.sqrt(6 * index.size)
     pin = _pinned_gravity(prob, free, fixed, index.size)
+    model = _Rows(prob, fixed, free, index)
+    n6 = 6 * index.size
+    cache: dict[bytes, np.ndarray] = {}
 
     def fun(z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
         if key not in cache:
             cache.clear()
-            p = dict(fixed)
-            p.update(unpack(to_x(z), free))
-            r = normalized_residual(prob, p)[index].ravel()
+            p = model.params(to_x(z))
             extra = [ridge * (z - 1.0)]
             if pin is not None:
-                g = np.asarray(p["gravity"]["vector"], dtype=np.float64)
-                extra.append(np.array([pin[1] * (np.linalg.norm(g) - pin[0])]))
-            cache[key] = np.concatenate([r, *extra])
+                extra.append(_pin_row(p, pin))
+            cache[key] = np.concatenate([model.rows(p).ravel(), *extra])
         return cache[key]
 
+    last: dict[bytes, np.ndarray] = {}
+
     def jac(z: np.ndarray) -> np.ndarray:
-        # Forward differences with absolute steps (MINPACK's are relative to |z|).
+        """(parameters, rows): the Jacobian transposed, the layout MINPACK keeps (``col_deriv``)."""
+        key = z.tobytes()
+        if key in last:  # the optimiser's shape check asks for the Jacobian at the start point first
+            return last[key]
+        # Forward differences with absolute steps (MINPACK's are relative to |z|). A parameter that
+        # moves one channel only (a bias, a gain, a lever arm, gravity) leaves the other channel's
+        # rows, every other ridge row and, unless it is gravity, the magnitude row exactly as they
+        # were: their differences are zero, and only the rows it moves are computed (each the same
+        # number the full residual gives, see predict_rows).
         f0 = fun(z).copy()
-        J = np.empty((f0.size, z.size))
+        J = np.zeros((z.size, f0.size))
+        f0r = f0[:n6].reshape(index.size, 6)
         for i in range(z.size):
             zp = z.copy()
             zp[i] += 0.01
-            J[:, i] = (fun(zp) - f0) / 0.01
+            cols = _CHANNEL_OF.get(model.effect_of[i])
+            if cols is None:
+                J[i] = (fun(zp) - f0) / 0.01
+                continue
+            p = model.params(to_x(zp))
+            J[i, :n6].reshape(index.size, 6)[:, cols] = (model.rows(p, cols) - f0r[:, cols]) / 0.01
+            J[i, n6 + i] = (ridge * (zp[i] - 1.0) - f0[n6 + i]) / 0.01
+            if pin is not None and model.effect_of[i] == "gravity":
+                J[i, -1] = (_pin_row(p, pin)[0] - f0[-1]) / 0.01
+        last.clear()
+        last[key] = J
         return J
 
-    # Levenberg-Marquardt (MINPACK, QR) is several times faster here than the bounded trust-region
-    # method, whose exact solver takes an SVD of the full Jacobian every step; the bounds are only
-    # a sanity clamp, applied after.
-    sol = least_squares(
+    # Levenberg-Marquardt (MINPACK's lmder, QR) is several times faster here than the bounded
+    # trust-region method, whose exact solver takes an SVD of the full Jacobian every step; the
+    # bounds are only a sanity clamp, applied after. ``leastsq`` makes the same MINPACK call as
+    # ``least_squares(method="lm")`` with the same tolerances (``gtol`` is least_squares' default),
+    # but takes the Jacobian in MINPACK's own column-major layout and evaluates nothing beyond what
+    # MINPACK asks for.
+    z0 = 1.0 + (x0 - null) / x_scale
+    if not np.all(np.isfinite(fun(z0))):
+        raise ValueError("Residuals are not finite in the initial point.")
+    z, *_ = leastsq(
         fun,
-        1.0 + (x0 - null) / x_scale,
-        jac=jac,
-        method="lm",
-        max_nfev=max_nfev or 30 * (x0.size + 1),
-        xtol=1e-7,
+        z0,
+        Dfun=jac,
+        full_output=True,
+        col_deriv=True,
         ftol=1e-7,
+        xtol=1e-7,
+        gtol=1e-8,
+        maxfev=max_nfev or 30 * (x0.size + 1),
     )
-    x = np.clip(to_x(sol.x), null - width, null + width)
+    x = np.clip(to_x(z), null - width, null + width)
     out = dict(fixed)
     out.update(unpack(x, free))
     return {n: out[n] for n in EFFECTS if n in out}
+
+
+#: The residual columns each effect moves when it alone changes (absent: both channels, or the
+#: measurement itself, as a time offset does): a gravity change turns with the sensor but stays in
+#: the specific force, and the lever arm only adds to the accelerometer.
+_CHANNEL_OF: dict[str, slice] = {
+    "gyro_bias": slice(0, 3),
+    "gyro_scale": slice(0, 3),
+    "acc_bias": slice(3, 6),
+    "acc_scale": slice(3, 6),
+    "lever_arm": slice(3, 6),
+    "gravity": slice(3, 6),
+}
+
+
+class _Rows:
+    """The normalised residual of one fit on its samples (:func:`normalized_residual` restricted to
+    ``index``), with the model's stages and the shifted measurements kept between evaluations.
+
+    Every number is computed by the operations :func:`normalized_residual` uses, sample by sample,
+    so the rows are the same to the last bit; what the caches save is recomputing the stages a
+    parameter change does not reach (:func:`~bodyschema.discrepancy.effects.predict_rows`).
+    """
+
+    def __init__(self, prob: Problem, fixed: Params, free: Sequence[str], index: np.ndarray) -> None:
+        self.prob, self.fixed, self.free, self.index = prob, fixed, list(free), index
+        #: the effect of every entry of the packed parameter vector
+        self.effect_of = [n for n in self.free for _ in range(EFFECTS[n].size)]
+        self.stages: dict = {}
+        self._meas: dict[float, np.ndarray] = {}
+
+    def params(self, x: np.ndarray) -> Params:
+        p = dict(self.fixed)
+        p.update(unpack(x, self.free))
+        return p
+
+    def _measured(self, seconds: float) -> np.ndarray:
+        hit = self._meas.pop(seconds, None)
+        if hit is None:
+            hit = self.prob.measured_rows(seconds, self.index)
+        self._meas[seconds] = hit  # the base point's offset and the one of the column at hand
+        while len(self._meas) > 2:
+            del self._meas[next(iter(self._meas))]
+        return hit
+
+    def rows(self, params: Mapping[str, Mapping[str, object]], cols: slice = slice(0, 6)) -> np.ndarray:
+        """(len(index), columns) normalised residual of ``params``, the channel ``cols`` or both."""
+        tau = 0.0
+        if "time_offset" in params:
+            tau = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
+            params = {k: v for k, v in params.items() if k != "time_offset"}
+        gp, ap = predict_rows(self.prob.ref, params, self.index, self.stages)
+        meas = self._measured(tau)
+        scale = self.prob.scale
+        if cols == slice(0, 3):
+            return (meas[:, :3] - gp) / scale[0]
+        if cols == slice(3, 6):
+            return (meas[:, 3:] - ap) / scale[1]
+        r = meas - np.concatenate([gp, ap], axis=1)
+        r[:, :3] /= scale[0]
+        r[:, 3:] /= scale[1]
+        return r
+
+
+def _pin_row(params: Params, pin: tuple[float, float]) -> np.ndarray:
+    """The row that holds the magnitude of the fitted gravity (:func:`_pinned_gravity`)."""
+    g = np.asarray(params["gravity"]["vector"], dtype=np.float64)
+    return np.array([pin[1] * (np.linalg.norm(g) - pin[0])])
 
 
 #: How closely the magnitude of gravity is held to the reference's when an accelerometer scale is in

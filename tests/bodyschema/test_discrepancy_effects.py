@@ -157,3 +157,24 @@ def test_options_and_keywords_are_one_setting(motion) -> None:
     assert est.options == AnalyzerOptions(n_blocks=5, effects=("gyro_bias", "acc_bias")) and est.n_blocks == 5
     with pytest.raises(TypeError, match="AnalyzerOptions"):
         analyze(ref, g, motion["acc"], n_block=6)
+
+
+def test_predict_rows_with_stages_is_predict_on_those_rows_to_the_last_bit(motion, rng) -> None:
+    # the fits' staged evaluation must give the very numbers of the plain prediction, whatever the
+    # stages kept from earlier calls
+    from bodyschema.discrepancy.effects import predict_rows
+
+    ref = reference_motion(motion["t"], motion["quat"], motion["pos"])
+    rows = np.sort(rng.choice(ref.t.size, size=ref.t.size // 2, replace=False))
+    stages: dict = {}
+    for _ in range(6):
+        params = {e: draw(e, rng) for e in FITTED_EFFECTS if e != "time_offset" and rng.uniform() < 0.7}
+        for _ in range(3):  # one parameter changed at a time, as in a finite-difference Jacobian
+            g, a = predict_rows(ref, params, rows, stages)
+            g0, a0 = predict(ref, params)
+            assert np.array_equal(g, g0[rows]) and np.array_equal(a, a0[rows])
+            if params:
+                e = list(params)[int(rng.integers(len(params)))]
+                x = EFFECTS[e].from_params(params[e]).copy()
+                x[0] += 1e-3
+                params = {**params, e: EFFECTS[e].to_params(x)}

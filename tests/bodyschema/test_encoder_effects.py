@@ -129,3 +129,32 @@ def test_the_imus_the_model_carries_are_compared_in_the_recording_s_order() -> N
     assert a.names == b.names == ["encoder_scale[elbow]"]
     assert a.causes[0].value == pytest.approx(b.causes[0].value, abs=1e-9)
     assert b.meta["imu_names"] == ["imu2", "imu0", "imu1"]
+
+
+def test_the_jacobian_computed_per_imu_is_the_full_central_difference() -> None:
+    # a joint's column is computed on the IMUs below it only; the others must be exactly zero, and
+    # a column taken over from the last Jacobian at the same point must be the one computed there
+    from bodyschema.discrepancy.encoders import _Problem
+
+    rec = _recording(3, seconds=30.0, gain=(1.0, 1.01, 1.0))
+    prob = _Problem(
+        _chain(),
+        rec.encoder_t,
+        rec.q,
+        rec.t,
+        np.concatenate([rec.gyro, rec.acc], axis=2),
+        G,
+        EncoderOptions(),
+    )
+    x = prob.null.copy()
+    which = list(range(len(prob.candidates)))
+    J, r0 = prob.jacobian(x, which)
+    for i, c in enumerate(which):
+        xp, xm = x.copy(), x.copy()
+        xp[c] += prob.step[c]
+        xm[c] -= prob.step[c]
+        full = (prob._residual(xp) - prob._residual(xm)) / (2 * prob.step[c])
+        assert np.allclose(J[..., i], full, rtol=1e-9, atol=1e-9 * np.abs(full).max())
+        assert np.array_equal(J[..., i] == 0.0, full == 0.0)
+    J2, r2 = prob.jacobian(x, which[::-1])
+    assert np.array_equal(J2, J[..., ::-1]) and np.array_equal(r2, r0)
