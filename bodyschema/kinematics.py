@@ -71,13 +71,12 @@ fit is the heteroscedasticity-and-autocorrelation-consistent (Newey-West) sandwi
 window as long as the band's correlation time. ``axis_std_deg`` is the RMS angular error of ``u``: noise
 and what remains of the gyro's lean after the fusion; ``gyro_axis_std_deg`` is the noise of the gyro's
 reading alone (its lean is the same in every recording of one IMU, which is what drift compares).
-``lever_arm_std_m`` is the RMS error of ``r``. Model errors are not in them: on simulated robots some
-accelerometer-decided leans are off by several stds, consistently across windows, most likely because
-MuJoCo's implicit integrator makes the accelerometer report slightly different accelerations than the
-joints move by (with RK4, within 1 to 2 stds on the robot checked); ``bodyhealth bench kinematics``
-reports the share of axes within two stds. An answer is ``converged`` when the joint moved enough, the
-axis gain is plausible and both stds (the gyro's noise and the lever arm's) are within
-:class:`KinematicsOptions` bounds.
+``lever_arm_std_m`` is the RMS error of ``r``. What the sandwich cannot know, a model error of the
+accelerometers' lean that does not shrink with more data, is added to their lean before the fusion
+(``KinematicsOptions.acc_model_error_deg``, measured on simulated trees: :func:`_fuse`);
+``bodyhealth bench kinematics`` reports the share of axes within two stds. An answer is ``converged``
+when the joint moved enough, the axis gain is plausible and both stds (the gyro's noise and the lever
+arm's) are within :class:`KinematicsOptions` bounds.
 
 Example
 -------
@@ -148,8 +147,8 @@ class KinematicsOptions:
     ``gyro_cross_axis`` are the half-widths of the gyro's sensitivity errors (datasheet: MPU-6050 ±3 %
     and ±2 %), the prior on how far the gyro's reading of an axis can lean; ``acc_scale_error`` the
     half-width of the accelerometer's gain errors (±3 %), a prior on the gains those fits leave free.
-    ``acc_model_error_deg`` is the RMS error of the accelerometers' lean beyond its noise: the model
-    error of :func:`_fuse`.
+    ``acc_model_error_deg`` is the RMS error of the accelerometers' lean beyond its noise, measured on
+    simulated trees: the model error of :func:`_fuse`.
     """
 
     band_hz: float | None = None
@@ -162,7 +161,7 @@ class KinematicsOptions:
     gyro_scale_error: float = 0.03
     gyro_cross_axis: float = 0.02
     acc_scale_error: float = 0.03
-    acc_model_error_deg: float = 0.2
+    acc_model_error_deg: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -760,6 +759,7 @@ class _LeverFit:
     r_tangential: np.ndarray | None = None  # the lever arm the tangential term alone implies
     axis: np.ndarray | None = None  # child joint: the axis in the accelerometer's frame
     axis_std_deg: float = math.nan
+    force: np.ndarray | None = None  # the model's specific force (T, 3) at the aligned rate, noise-free
 
 
 def _kmats(sig: _Signals, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -819,14 +819,15 @@ def _fuse(
     they do not, it stays near the gyro's with the prior's uncertainty.
 
     The model error (``acc_model_error_deg`` RMS, split over the two directions) is what the
-    sandwich covariance cannot know: on simulated trees (``bodyhealth bench kinematics --seed 0``, 5 to
-    15 joints) the accelerometer-decided axes were off by more than their noise, by an RMS of 0.20,
-    0.19 and 0.22° beyond it from 15, 30 and 60 s of data. An error that does not shrink with the
-    recording's length is the model's, not the noise's (module docstring: most likely the simulator's
-    integrator). Within two stds from 15, 30 and 60 s: 90, 87 and 81 % of the axes without the term,
-    96, 96 and 95 % with it; on ``--seed 2``, trees it was not set on, 100, 96 and 93 % (71 % from 60 s
-    without it). It weighs the accelerometers' lean a little less and moves the answers by little:
-    the largest error from 60 s 1.40° against 1.44° on seed 0, 1.95° against 1.99° on seed 2.
+    sandwich covariance cannot know. It was measured on simulated trees (``bodyhealth bench kinematics
+    --seed 0``, 5 to 15 joints, MPU-6050 errors, ``robot`` sensing) as the RMS error of the
+    accelerometers' own lean (before this fusion) over the axes it decides (its variance below the
+    gyro's), beyond its reported variance, ``sqrt(mean(err² - var))``: 0.13, 0.19 and 0.14° from 15, 30
+    and 60 s of data (0.14, 0.05 and about 0 on seed 1; 0.12, 0.13 and 0.10 on seed 3). An error that
+    does not shrink with the recording's length is the model's, not the noise's. With it, 95 to 100 %
+    of the axes of seeds 0 to 3 are within two stds from every length. (It was 0.2° while the child
+    model's gain columns read the parent's noisy accelerometer, :func:`_lever_child`, whose
+    errors-in-variables bias made 0.33, 0.28 and 0.22° on seed 0.)
     """
     U = _perp_basis(u)
     Cg = _gyro_lean_cov(u, U, opts) + noise_var * np.eye(2)
@@ -894,12 +895,14 @@ def _lever_root(sig: _Signals, j: int, c: int, u: np.ndarray, omega_c: np.ndarra
     f = _ls(X, sig.band_limit(r.acc[:, c]), sig.lags)
     cov_r = U @ f.cov[-2:, -2:] @ U.T
     G = f.coef[:9].reshape(3, 3)
+    Xa = _stack(np.c_[np.ones_like(q), np.cos(q), np.sin(q)], [Ka @ U, Kw @ U])
     return _LeverFit(
         r=U @ f.coef[-2:],
         std_m=math.sqrt(max(float(np.trace(cov_r)), 0.0)),
         up=G[:, 0] + G[:, 1],
         turning=G[:, 1],
         r_tangential=U @ f.coef[-4:-2],
+        force=np.einsum("tmp,p->tm", Xa, f.coef),
     )
 
 
@@ -922,6 +925,7 @@ def _lever_child(
     parent_axis: np.ndarray,
     opts: KinematicsOptions,
     noise_var: float,
+    fp_model: np.ndarray | None = None,
 ) -> _LeverFit:
     """Child of a link with an IMU: the accelerometer model with ``R(q) = Rot(u, -q) R0`` a rotation.
 
@@ -941,6 +945,16 @@ def _lever_child(
     with the gyro's reading (:func:`_fuse`), and ``R0`` refitted for the fused axis. A rotation of the
     child's frame moves ``u`` and ``R0`` together, and the child's accelerometer, whose gains are free
     but whose axes are square, sees it in the gravity it reads.
+
+    The gain columns (``δ_c ⊙ R(q) f_p`` and ``R(q) (δ_p ⊙ f_p)``) are built from ``fp_model``, the
+    parent's specific force as its own model predicts it (``_LeverFit.force``), not from its noisy
+    reading: free coefficients on a regressor whose noise is also in the residual (``-R(q) n_p``) are an
+    errors-in-variables fit that shrinks the noise. Under a root parent, whose specific force along its
+    axis is a constant the intercepts take, that shrink is almost free for the signal and a turn of
+    ``R0`` about the parent's axis, with the lean, makes up the rest: on ``bench kinematics --seed 2``
+    an axis leaned 1.7° (6 std) from the parent's accelerometer noise alone, the same in every noise
+    draw, and 0.03° with a noise-free parent. The prediction's own noise is the grandparent's,
+    independent of this residual's. ``R(q) f_p`` itself keeps the reading: its coefficient is fixed.
     """
     from scipy.optimize import minimize_scalar
 
@@ -951,25 +965,38 @@ def _lever_child(
     kc = _kmats(sig, omega_c)
     KcU = _lever_basis(sig, kc, U)
     fp = r.acc[:, p]
-    Fm = [sig.band_limit(m[:, None] * fp) for m in mods]
+    gain_fp = fp if fp_model is None else fp_model
     Kp = np.concatenate(_kmats(sig, omega_p), axis=2)  # (T, 3, 6): d_t then d
-    Km = [sig.band_limit(m[:, None, None] * Kp) for m in mods]
+    # the regressors at the aligned rate (the model's prediction below) and through the common band
+    raw = (
+        [m[:, None] * fp for m in mods],
+        [m[:, None] * gain_fp for m in mods],
+        [m[:, None, None] * Kp for m in mods],
+    )
+    Fm, Gm, Km = ([sig.band_limit(x) for x in xs] for xs in raw)
     ones = [sig.band_limit(m) for m in mods]
     Y = sig.band_limit(r.acc[:, c])
 
-    def design(R: np.ndarray, axis: np.ndarray, kcu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def build(
+        R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, arrays: tuple[list[np.ndarray], ...]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Design (T, 3, 22) and the known part ``R(q) f_p`` (T, 3) from the modulated regressors."""
+        F_, G_, K_, o_ = arrays
         uu, ux = np.outer(axis, axis), skew(axis)
         P = (uu @ R, (np.eye(3) - uu) @ R, -ux @ R)
-        RF = sum(F @ Pm.T for Pm, F in zip(P, Fm, strict=True))
-        Dp = sum(Pm[None, :, :] * F[:, None, :] for Pm, F in zip(P, Fm, strict=True))
-        RK = sum(np.matmul(Pm, K) for Pm, K in zip(P, Km, strict=True))
+        RF = sum(F @ Pm.T for Pm, F in zip(P, F_, strict=True))
+        RG = sum(F @ Pm.T for Pm, F in zip(P, G_, strict=True))
         X = np.zeros((RF.shape[0], 3, _CHILD_COLS))
-        X[:, :, 0:3] = RF[:, :, None] * np.eye(3)
-        X[:, :, 3:6] = ones[0][:, None, None] * np.eye(3)
-        X[:, :, 6:9] = sum(Pm[None, :, :] * o[:, None, None] for Pm, o in zip(P, ones, strict=True))
-        X[:, :, 9:12] = Dp
-        X[:, :, 12:18] = RK
+        X[:, :, 0:3] = RG[:, :, None] * np.eye(3)
+        X[:, :, 3:6] = o_[0][:, None, None] * np.eye(3)
+        X[:, :, 6:9] = sum(Pm[None, :, :] * o[:, None, None] for Pm, o in zip(P, o_, strict=True))
+        X[:, :, 9:12] = sum(Pm[None, :, :] * F[:, None, :] for Pm, F in zip(P, G_, strict=True))
+        X[:, :, 12:18] = sum(np.matmul(Pm, K) for Pm, K in zip(P, K_, strict=True))
         X[:, :, 18:22] = kcu
+        return X, RF
+
+    def design(R: np.ndarray, axis: np.ndarray, kcu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        X, RF = build(R, axis, kcu, (Fm, Gm, Km, ones))
         return X, Y - RF
 
     def fit(R: np.ndarray) -> tuple[float, float]:
@@ -1008,6 +1035,7 @@ def _lever_child(
     X, Yr = design(R, axis, KcU)
     f = _ls(X, Yr, sig.lags)
     cov_r = U @ f.cov[-2:, -2:] @ U.T
+    Xa, RFa = build(R, axis, np.concatenate([kc[0] @ U, kc[1] @ U], axis=2), (*raw, list(mods)))
     return _LeverFit(
         r=U @ f.coef[-2:],
         std_m=math.sqrt(max(float(np.trace(cov_r)), 0.0)),
@@ -1016,6 +1044,7 @@ def _lever_child(
         r_tangential=U @ f.coef[-4:-2],
         axis=axis,
         axis_std_deg=axis_std,
+        force=RFa + Xa @ f.coef,
     )
 
 
@@ -1099,6 +1128,7 @@ class _Walk:
     qd_rms: np.ndarray
     imus: dict[str, ImuKinematics] = field(default_factory=dict)
     omega: dict[str, np.ndarray] = field(default_factory=dict)  # each fitted IMU's link, own frame
+    force: dict[str, np.ndarray] = field(default_factory=dict)  # each fitted IMU's modelled specific force
     ref: dict[str, str] = field(default_factory=dict)  # joint -> the IMU whose frame is its link's
     same: dict[str, SameLink] = field(default_factory=dict)  # other IMUs on a link against its ref
 
@@ -1131,7 +1161,9 @@ def _fit_link(w: _Walk, jn: str, j: int) -> None:
         elif pj is not None and parent is None:
             w.imus[imu] = ImuKinematics(imu=imu, joint=jn, reason=f"no fitted IMU on the link of {pj}")
         else:
-            w.imus[imu], w.omega[imu] = _one_imu(w.sig, w.opts, j, jn, kidx[imu], imu, parent, kidx, w.omega)
+            w.imus[imu], w.omega[imu], w.force[imu] = _one_imu(
+                w.sig, w.opts, j, jn, kidx[imu], imu, parent, kidx, w.omega, w.force
+            )
     fitted = [k for k in kids if w.imus[k].axis is not None]
     if not fitted:
         return
@@ -1218,10 +1250,12 @@ def _one_imu(
     parent: str | None,
     kidx: dict[str, int],
     omega: dict[str, np.ndarray],
-) -> tuple[ImuKinematics, np.ndarray]:
-    """Axis, lever arm and the rebuilt angular velocity of one IMU's link, and the joint as the gyros
-    alone read it (:func:`_gyro_reading`); ``parent``: the reference IMU of the parent link (None: a
-    root joint on the fixed base)."""
+    force: dict[str, np.ndarray],
+) -> tuple[ImuKinematics, np.ndarray, np.ndarray]:
+    """Axis, lever arm, the rebuilt angular velocity of one IMU's link and its modelled specific force,
+    and the joint as the gyros alone read it (:func:`_gyro_reading`); ``parent``: the reference IMU of
+    the parent link (None: a root joint on the fixed base); ``force``: the modelled specific forces of
+    the IMUs fitted so far (:func:`_lever_child` reads its parent's)."""
     al = sig.rec
     q, qd = al.q[:, j], al.qd[:, j]  # type: ignore[index]
     R0 = d = None
@@ -1248,7 +1282,9 @@ def _one_imu(
         om = np.einsum("tij,tj->ti", rotation_about(u, -q), om) + u * qd[:, None]
         rank, p_axis = _span_axes(fit.span)  # type: ignore[arg-type]
         noise_var = math.radians(fit.std_deg) ** 2 / 2.0
-        lever = _lever_child(sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis, opts, noise_var)
+        lever = _lever_child(
+            sig, j, c, kidx[best_p], u, om, omega[best_p], Rg, rank, p_axis, opts, noise_var, force[best_p]
+        )
         R0, d = lever.M0, lever.d
         gyro = _gyro_reading(sig, j, c, kidx[best_p])
         axis, axis_std = u, fit.std_deg
@@ -1293,6 +1329,7 @@ def _one_imu(
             backlash_std_deg=gyro.fit.backlash_std_deg,
         ),
         om,
+        lever.force,  # type: ignore[return-value]
     )
 
 
