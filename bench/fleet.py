@@ -159,16 +159,19 @@ class _Ingest:
 
 
 class _Api:
-    """The service's app on uvicorn in a thread, over the fleet's store."""
+    """The service's app on uvicorn in a thread, over the fleet's store; the process's heap frozen
+    before it serves, as the service's (:mod:`service.heap`)."""
 
     def __init__(self, store: Any) -> None:
         import uvicorn
 
         from service.api import create_app
+        from service.heap import freeze_startup_heap
         from service.settings import Settings
 
         self.port = _free_port()
         app = create_app(store, settings=Settings(database_url=store.url))
+        freeze_startup_heap()
         config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_config=None, access_log=False)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, name="bench-api", daemon=True)

@@ -26,6 +26,7 @@ from typing import Any
 from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
 from service.estimation import EstimatorProcess
+from service.heap import freeze_startup_heap
 from service.ingest.base import Source
 from service.ingest.farm import FarmDamage, FarmSource
 from service.ingest.pipeline import CommitLog, Pipeline
@@ -108,8 +109,7 @@ class Daemon:
             estimator = self._estimates = EstimatorProcess(s.imu_filter_delay)
         self.worker = Worker(self.store, s, estimator=estimator, metrics=metrics, remote=remote)
         self.worker.start()
-        log.info("service started", extra={"sources": list(self.specs), "database": repr(self.store)})
-        return create_app(
+        app = create_app(
             self.store,
             settings=s,
             pipeline=self.pipeline,
@@ -117,6 +117,12 @@ class Daemon:
             metrics=metrics,
             damage=farm_damage(self.sources),
         )
+        frozen = freeze_startup_heap()  # before serving: see service.heap
+        log.info(
+            "service started",
+            extra={"sources": list(self.specs), "database": repr(self.store), "frozen_objects": frozen},
+        )
+        return app
 
     def _remote_retrains(self, metrics: Metrics) -> RemoteRetrains | None:
         """The cluster retrains of the worker; None (they run in the worker thread) when the settings
