@@ -244,28 +244,31 @@ def fit_params(
 
     # The optimiser works on z = 1 + (x - null) / typical: O(1) everywhere. MINPACK sizes its first
     # trust region by |z|, so a variable starting at (almost) zero — an offset, a bias — would
-    # otherwise be stuck there.
-    def to_x(z: np.ndarray) -> np.ndarray:
-        return null + (z - 1.0) * x_scale
+    # otherwise be stuck there. With gravity's magnitude pinned, gravity's three entries of z are its
+    # tilt and magnitude instead, in the same units (:class:`_Variables`).
+    pin = _pinned_gravity(prob, free, fixed, index.size)
+    var = _Variables(null, x_scale, free if pin is not None else None)
 
     # A faint pull towards "effect absent" (weight 1e-6 per typical magnitude squared, relative to a
     # score of 1): it keeps directions the data cannot see — a lever arm along the only axis a link
     # turns about — at null instead of drifting, and moves an observable effect by ~1e-6 of itself.
     ridge = 1e-3 * np.sqrt(6 * index.size)
-    pin = _pinned_gravity(prob, free, fixed, index.size)
     model = _Rows(prob, fixed, free, index)
     n6 = 6 * index.size
     cache: dict[bytes, np.ndarray] = {}
+
+    def extra(z: np.ndarray, x: np.ndarray, p: Params) -> list[np.ndarray]:
+        """The rows after the data's: the ridge, and the magnitude pin when there is one."""
+        rows = [ridge * var.deviation(z, x)]
+        return rows if pin is None else [*rows, _pin_row(p, pin)]
 
     def fun(z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
         if key not in cache:
             cache.clear()
-            p = model.params(to_x(z))
-            extra = [ridge * (z - 1.0)]
-            if pin is not None:
-                extra.append(_pin_row(p, pin))
-            cache[key] = np.concatenate([model.rows(p).ravel(), *extra])
+            x = var.x(z)
+            p = model.params(x)
+            cache[key] = np.concatenate([model.rows(p).ravel(), *extra(z, x, p)])
         return cache[key]
 
     last: dict[bytes, np.ndarray] = {}
@@ -277,8 +280,9 @@ def fit_params(
             return last[key]
         # Forward differences with absolute steps (MINPACK's are relative to |z|). A parameter that
         # moves one channel only (a bias, a gain, a lever arm, gravity) leaves the other channel's
-        # rows, every other ridge row and, unless it is gravity, the magnitude row exactly as they
-        # were: their differences are zero, and only the rows it moves are computed (each the same
+        # rows, every ridge row but its own and, unless it is gravity, the magnitude row exactly as
+        # they were (gravity, a tilt and a magnitude when that row is there, moves its three ridge
+        # rows): their differences are zero, and only the rows it moves are computed (each the same
         # number the full residual gives, see predict_rows).
         f0 = fun(z).copy()
         J = np.zeros((z.size, f0.size))
@@ -290,11 +294,13 @@ def fit_params(
             if cols is None:
                 J[i] = (fun(zp) - f0) / 0.01
                 continue
-            p = model.params(to_x(zp))
+            x = var.x(zp)
+            p = model.params(x)
             J[i, :n6].reshape(index.size, 6)[:, cols] = (model.rows(p, cols) - f0r[:, cols]) / 0.01
-            J[i, n6 + i] = (ridge * (zp[i] - 1.0) - f0[n6 + i]) / 0.01
-            if pin is not None and model.effect_of[i] == "gravity":
-                J[i, -1] = (_pin_row(p, pin)[0] - f0[-1]) / 0.01
+            if var.sphere is not None and model.effect_of[i] == "gravity":
+                J[i, n6:] = (np.concatenate(extra(zp, x, p)) - f0[n6:]) / 0.01
+            else:
+                J[i, n6 + i] = (ridge * (zp[i] - 1.0) - f0[n6 + i]) / 0.01
         last.clear()
         last[key] = J
         return J
@@ -305,7 +311,7 @@ def fit_params(
     # ``least_squares(method="lm")`` with the same tolerances (``gtol`` is least_squares' default),
     # but takes the Jacobian in MINPACK's own column-major layout and evaluates nothing beyond what
     # MINPACK asks for.
-    z0 = 1.0 + (x0 - null) / x_scale
+    z0 = var.z(x0)
     if not np.all(np.isfinite(fun(z0))):
         raise ValueError("Residuals are not finite in the initial point.")
     z, *_ = leastsq(
@@ -319,7 +325,7 @@ def fit_params(
         gtol=1e-8,
         maxfev=max_nfev or 30 * (x0.size + 1),
     )
-    x = np.clip(to_x(z), null - width, null + width)
+    x = np.clip(var.x(z), null - width, null + width)
     out = dict(fixed)
     out.update(unpack(x, free))
     return {n: out[n] for n in EFFECTS if n in out}
@@ -387,6 +393,89 @@ class _Rows:
         return r
 
 
+class _Variables:
+    """The optimiser's variables ``z`` of one fit and the parameter vector ``x`` they stand for.
+
+    ``z = 1 + (x - null) / typical``, except gravity's three entries when ``pinned`` (the fit's free
+    effects, given when gravity's magnitude is pinned): those are its tilt and magnitude
+    (:class:`_Sphere`).
+    """
+
+    def __init__(self, null: np.ndarray, typical: np.ndarray, pinned: Sequence[str] | None) -> None:
+        self.null, self.typical = null, typical
+        self.sphere = None
+        if pinned is not None:
+            k = sum(EFFECTS[n].size for n in pinned[: list(pinned).index("gravity")])
+            self.sphere = _Sphere(null[k : k + 3], typical[k : k + 3], k)
+
+    def x(self, z: np.ndarray) -> np.ndarray:
+        x = self.null + (z - 1.0) * self.typical
+        if self.sphere is not None:
+            x[self.sphere.at] = self.sphere.to_vector(z[self.sphere.at])
+        return x
+
+    def z(self, x: np.ndarray) -> np.ndarray:
+        z = 1.0 + (x - self.null) / self.typical
+        if self.sphere is not None:
+            z[self.sphere.at] = self.sphere.from_vector(x[self.sphere.at])
+        return z
+
+    def deviation(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``(x - null) / typical`` of the variables ``z`` (standing for ``x``): the ridge pulls on
+        the parameters themselves, gravity's vector too, whatever the optimiser's variables."""
+        if self.sphere is None:
+            return z - 1.0
+        at = self.sphere.at
+        d = z - 1.0
+        d[at] = (x[at] - self.null[at]) / self.typical[at]
+        return d
+
+
+class _Sphere:
+    """Gravity as a tilt and a magnitude, the optimiser's variables while the magnitude is pinned.
+
+    ``w = 1 + (g0 * t1, g0 * t2, |g| - g0) / typical``, with ``(t1, t2)`` the tangent vector (radians)
+    that turns the reference's gravity ``g_ref`` (magnitude ``g0``) into the direction of ``g``. Near
+    ``g_ref`` these are the Cartesian deviations in the same units; what changes is the pin of
+    :func:`_pinned_gravity`, linear in the magnitude here. On the Cartesian vector it is a sphere
+    held to a few mm/s² by a stiff weight, and a Gauss-Newton step along the sphere's tangent rises
+    off it by (step)² / 2 g0: on a translation trial with a tilted gravity Levenberg-Marquardt crawled
+    along the sphere in steps of ~0.04 m/s², where the pin's rise ate what the step gained (30-40
+    iterations to tilt gravity by 0.8 m/s²; 3-4 in these variables). The objective is the same
+    function of the gravity vector either way, and so is its minimum.
+    """
+
+    def __init__(self, g_ref: np.ndarray, typical: np.ndarray, at: int) -> None:
+        self.g0 = float(np.linalg.norm(g_ref))
+        self.e = np.asarray(g_ref, dtype=np.float64) / self.g0
+        # two unit vectors across e: the axis least along it, made orthogonal, and their cross product
+        a = np.zeros(3)
+        a[int(np.argmin(np.abs(self.e)))] = 1.0
+        e1 = a - (a @ self.e) * self.e
+        self.e1 = e1 / np.linalg.norm(e1)
+        self.e2 = np.cross(self.e, self.e1)
+        self.typical = np.asarray(typical, dtype=np.float64)
+        self.at = slice(at, at + 3)
+
+    def to_vector(self, w: np.ndarray) -> np.ndarray:
+        """The gravity vector of the variables ``w`` (the sphere's exponential map at ``g_ref``)."""
+        d = (w - 1.0) * self.typical
+        t = (d[0] * self.e1 + d[1] * self.e2) / self.g0
+        th = float(np.linalg.norm(t))
+        return (self.g0 + d[2]) * (np.cos(th) * self.e + np.sinc(th / np.pi) * t)
+
+    def from_vector(self, g: np.ndarray) -> np.ndarray:
+        """The variables of the gravity vector ``g`` (inverse of :meth:`to_vector`)."""
+        mag = float(np.linalg.norm(g))
+        u = np.asarray(g, dtype=np.float64) / mag if mag > 0.0 else self.e
+        across = u - (u @ self.e) * self.e
+        s = float(np.linalg.norm(across))
+        th = float(np.arctan2(s, u @ self.e))
+        t = across * (th / s) if s > 0.0 else np.zeros(3)
+        d = np.array([self.g0 * (t @ self.e1), self.g0 * (t @ self.e2), mag - self.g0])
+        return 1.0 + d / self.typical
+
+
 def _pin_row(params: Params, pin: tuple[float, float]) -> np.ndarray:
     """The row that holds the magnitude of the fitted gravity (:func:`_pinned_gravity`)."""
     g = np.asarray(params["gravity"]["vector"], dtype=np.float64)
@@ -412,7 +501,7 @@ def _pinned_gravity(prob: Problem, free: Sequence[str], fixed: Params, n: int) -
     it went to a scale of 0.92 and a gravity of 10.7 m/s², on a translation trial to a bias of 0.5
     m/s² and 9.36 m/s²). Local gravity is known far better than an accelerometer's scale or bias, so
     when either is in the model the magnitude is held, to :data:`_GRAVITY_MAGNITUDE_STD`, and the
-    gravity effect is a tilt. Alone, gravity keeps its
+    gravity effect is a tilt (fitted as one, :class:`_Sphere`). Alone, gravity keeps its
     magnitude free (a reference assuming 9.81 m/s² where it is 9.78 m/s²; the sensor networks'
     Eq. 11 case, where all of it is missing).
     """
