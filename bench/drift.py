@@ -245,9 +245,7 @@ def _service(args: argparse.Namespace) -> dict:
     cpu0 = time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
         url = f"sqlite:///{Path(tmp) / 'drift.db'}"
-        settings = Settings(database_url=url)
-        if args.networks is not None:
-            settings = Settings(database_url=url, network_interval_cycles=args.networks)
+        settings = Settings(database_url=url, network_interval_cycles=_networks(args))
         store = open_store(url, settings=settings)
         worker = Worker(store, settings)
         farm = Farm(robots, seed=args.seed, sensing="robot")
