@@ -85,6 +85,9 @@ def invariant_jacobian(net: Any, theta: torch.Tensor) -> torch.Tensor:
     """
     from torch.func import jvp
 
+    fused = getattr(net, "pose_jacobian_norms", None)
+    if fused is not None:  # the sensor networks' one-pass form of the loop below
+        return fused(theta)
     N = theta.shape[1]
     cols = []
     with torch.no_grad():
@@ -182,7 +185,15 @@ def choose_delta(
     x_all = feats[moving]
     labels = _cluster(np.log(np.maximum(x_all, CLUSTER_FLOOR)), rng)
     labels_full[moving] = labels
-    scores = np.array([eq19_score((x_all > d).astype(float), labels, lam) for d in grid])
+    # a δ between the same two feature values binarizes alike: score each distinct binarization once
+    seen: dict[bytes, float] = {}
+    scores = np.empty(len(grid))
+    for i, d in enumerate(grid):
+        xb = x_all > d
+        key = xb.tobytes()
+        if key not in seen:
+            seen[key] = eq19_score(xb.astype(float), labels, lam)
+        scores[i] = seen[key]
     # Eq. 19 rewards clean clusters (m = 0) that are distinct (det S != 0) but, among those, cannot see a
     # true 1 that drops out for all IMUs of a link at once; so every δ scoring like a clean clustering
     # (m = 0 puts the score at 1e6 x det S) is a candidate, and the one farthest from any feature

@@ -127,6 +127,44 @@ class SensorNetworks(nn.Module):
         out = self.raw(theta)
         return rpy_to_matrix(out[..., 3:]), out[..., :3]
 
+    def pose_jacobian_norms(self, theta: torch.Tensor) -> torch.Tensor:
+        """Eq. 14 at each sample: (K, S, 4, N) column norms of every IMU network's pose Jacobian.
+
+        The same numbers as one ``torch.func.jvp`` of :meth:`pose` per joint (what
+        :func:`bodyschema.dependency.invariant_jacobian` does for any pose model), in one
+        forward-mode pass: each layer carries the value and the N joint tangents stacked into one
+        batched product, so N passes of small kernels become one pass of larger ones, which is what
+        costs on a CPU (a warm retrain reads the Jacobian after every epoch). The rotation part needs
+        no derivative of Eq. 12: for ``Ṙ = R [ω]×`` column i of Ṙ is ``R (ω × e_i)``, whose norm is
+        that of ω's two other components, ω from the roll-pitch-yaw rates in closed form (as in
+        :meth:`predict`).
+        """
+        K, (S, N) = self.n_imus, theta.shape
+        inv = torch.ones(N) if self.in_std is None else 1.0 / self.in_std.reshape(-1)
+        with torch.no_grad():
+            y = self._scale(theta).expand(K, S, N)
+            # d (first layer's input) / d θ_j is the constant 1/std_j e_j: its tangent is a row of w
+            tangent = (self.weights[0] * inv[None, :, None]).unsqueeze(2)  # (K, N, 1, H)
+            last = len(self.weights) - 1
+            for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+                z0 = torch.baddbmm(b, y, w)
+                if i > 0:
+                    tangent = torch.bmm(tangent.reshape(K, N * S, -1), w).reshape(K, N, S, -1)
+                if i == last:
+                    break
+                y = torch.sigmoid(z0)
+                tangent = (y * (1 - y)).unsqueeze(1) * tangent
+            rpy = z0[..., 3:].unsqueeze(1)  # (K, 1, S, 3)
+            d = tangent  # (K, N, S, 6): d output / d θ_j
+            a, bta = rpy[..., 0], rpy[..., 1]
+            da, db, dg = d[..., 3:].unbind(-1)
+            sa, ca, sb, cb = a.sin(), a.cos(), bta.sin(), bta.cos()
+            omega = torch.stack([da - sb * dg, ca * db + sa * cb * dg, -sa * db + ca * cb * dg], -1)
+            s0, s1, s2 = (omega**2).unbind(-1)
+            rot = torch.stack([s1 + s2, s0 + s2, s0 + s1], -1).sqrt()  # |ω × e_i|: ω without component i
+            cols = torch.cat([rot, torch.linalg.vector_norm(d[..., :3], dim=-1, keepdim=True)], -1)
+        return cols.permute(0, 2, 3, 1).contiguous()  # (K, S, 4, N)
+
     def _along(
         self, theta: torch.Tensor, theta_d: torch.Tensor, theta_dd: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -126,6 +126,22 @@ def test_invariant_jacobian_equals_central_differences(seed, rng):
     assert float(jb.min()) > 1e-5  # an untrained network depends on every input, a little
 
 
+def test_fused_jacobian_norms_equal_one_jvp_per_joint(seed, rng):
+    """The sensor networks' one-pass Jacobian norms equal the generic loop (one ``jvp`` of the pose per
+    joint) that any pose model gets, with input scaling on, to float32 rounding."""
+
+    class PoseOnly:  # hides the fused method: invariant_jacobian takes its generic path
+        def __init__(self, net: SensorNetworks) -> None:
+            self.pose = net.pose
+
+    net = SensorNetworks(n_imus=5, n_joints=6, hidden=(16, 16, 16), seed=seed)
+    net.set_input_scaling(torch.zeros(6), torch.as_tensor(rng.uniform(0.2, 2.0, size=6)))
+    theta = torch.as_tensor(rng.normal(scale=2.0, size=(50, 6)), dtype=torch.float32)
+    fused, generic = invariant_jacobian(net, theta), invariant_jacobian(PoseOnly(net), theta)
+    assert tuple(fused.shape) == tuple(generic.shape) == (5, 50, 4, 6)
+    assert torch.allclose(fused, generic, rtol=1e-4, atol=1e-6 * float(generic.abs().max()))
+
+
 def test_loss_scale_is_one_per_sensor_type_not_per_imu(rng):
     # five IMUs; the first barely moves (a first link turning about the vertical near its axis)
     spreads = np.array([0.005, 1.0, 1.5, 2.0, 3.0])
