@@ -236,7 +236,7 @@ def _round(
     ``submitted()`` is called once every job is on the cluster (their windows are fixed then)."""
     from distributed import LocalCluster
 
-    from service.cluster import ClusterOptions, TrainingCluster
+    from service.cluster import WORKER_PRELOAD, ClusterOptions, TrainingCluster
     from service.metrics import Metrics
     from service.training import RemoteRetrains
 
@@ -244,6 +244,7 @@ def _round(
         n_workers=workers,
         threads_per_worker=1,
         processes=True,
+        preload=[WORKER_PRELOAD],
         host="127.0.0.1",
         scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
     )

@@ -31,9 +31,14 @@ from service.settings import Settings
 if TYPE_CHECKING:
     from distributed import Client, Future, LocalCluster
 
-__all__ = ["ClusterOptions", "TrainingCluster", "embedded_workers"]
+__all__ = ["WORKER_PRELOAD", "ClusterOptions", "TrainingCluster", "embedded_workers"]
 
 log = logging.getLogger(__name__)
+
+#: The module every worker process of the embedded cluster imports as it starts
+#: (:mod:`service.worker_preload`), named rather than imported: the service process itself never
+#: trains, and need not load torch.
+WORKER_PRELOAD = "service.worker_preload"
 
 
 def embedded_workers(cpus: int | None = None) -> int:
@@ -188,6 +193,7 @@ class TrainingCluster:
                 n_workers=o.workers or embedded_workers(),
                 threads_per_worker=1,
                 processes=True,
+                preload=[WORKER_PRELOAD],
                 host="127.0.0.1",  # the scheduler and workers listen on loopback only
                 # no dashboard; the scheduler's plain HTTP routes (health, metrics) on a free loopback
                 # port rather than 8787, which another cluster on the machine may hold

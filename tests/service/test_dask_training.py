@@ -357,6 +357,30 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
     assert alive == [], alive
 
 
+def test_embedded_workers_import_the_training_code_before_their_first_task() -> None:
+    """A worker of the embedded cluster is up with the estimators, torch (one thread) and the store
+    imported: its first retrain does not pay for them (service.worker_preload)."""
+
+    def loaded() -> tuple[bool, bool, int]:  # a closure: shipped to the worker by value
+        import sys
+
+        torch = sys.modules.get("torch")
+        threads = torch.get_num_threads() if torch is not None else 0
+        return "bodyschema.estimate" in sys.modules, "service.store" in sys.modules, threads
+
+    cluster = TrainingCluster(ClusterOptions(workers=1))
+    try:
+        cluster.start()
+        t0 = time.monotonic()
+        while cluster.client is None:
+            assert time.monotonic() - t0 < 60, cluster.fault
+            time.sleep(0.1)
+        (answer,) = cluster.client.run(loaded).values()
+        assert answer == (True, True, 1), answer
+    finally:
+        cluster.close()
+
+
 def test_task_reads_only_what_its_job_names(tmp_path: Path) -> None:
     """The task body in this process: the job's window by end and epoch, nothing from the caller."""
     url = f"sqlite:///{tmp_path / 'job.db'}"

@@ -1,5 +1,5 @@
-"""The compose stack and the image are safe by default: nothing here can be run up, so the files are
-read and every property that matters is asserted.
+"""The compose stack and the image are safe by default: no container engine runs here, so the files are
+read and every property that matters is asserted, and the Dask command lines run as plain processes.
 
 Held: the API is published on the loopback address only; no secret is written in the repository (every
 one comes from ``.env``, which git ignores, with ``.env.example`` naming each); the service gets a token,
@@ -10,8 +10,13 @@ healthcheck; the image runs as an unprivileged user.
 from __future__ import annotations
 
 import re
+import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -72,6 +77,48 @@ def test_distributed_training_layout() -> None:
         assert "ports" not in worker
     assert SERVICES["service"]["environment"]["BODYHEALTH_DASK_SCHEDULER"] == "tcp://scheduler:8786"
     assert "8786" not in str([p for svc in SERVICES.values() for p in svc.get("ports", [])])
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.slow
+def test_compose_dask_commands_start_a_cluster_whose_workers_preload_the_training_code() -> None:
+    """The scheduler's and a worker's command lines, as compose runs them (the compose host names and
+    ports swapped for loopback ones), run here as real processes: the worker joins, with the training
+    code imported before its first task (``--preload service.worker_preload``)."""
+    from distributed import Client
+
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+
+    def local(command: list[str]) -> list[str]:
+        swap = {"tcp://scheduler:8786": address, "0.0.0.0": "127.0.0.1", "8786": str(port)}
+        bin_dir = Path(sys.executable).parent
+        return [str(bin_dir / command[0]), *(swap.get(word, word) for word in command[1:])]
+
+    def loaded() -> tuple[bool, bool]:  # a closure: shipped to the worker by value
+        return "bodyschema.estimate" in sys.modules, "service.store" in sys.modules
+
+    procs = [subprocess.Popen(local(SERVICES["scheduler"]["command"]), cwd=ROOT)]
+    try:
+        time.sleep(1.0)
+        procs.append(subprocess.Popen(local(SERVICES["worker-1"]["command"]), cwd=ROOT))
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(1, timeout=90)
+            assert list(client.run(loaded).values()) == [(True, True)]
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
 
 
 def test_image_runs_unprivileged() -> None:
