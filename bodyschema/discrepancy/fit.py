@@ -57,8 +57,8 @@ _BOUND = {
 }
 
 #: Typical size and bound of a gravity fit on a gravity-free reference (the sensor networks' Eq. 11):
-#: all of gravity may be missing, in any direction. With the usual 0.02 m/s² the faint ridge of
-#: :func:`fit_params` would weigh a 9.81 m/s² deviation like a quarter of the residual and shrink it.
+#: all of gravity may be missing, in any direction: a deviation of 9.81 m/s² is about one unit of the
+#: optimiser's variables, not 500 of the usual 0.02 m/s².
 _NO_GRAVITY = (10.0, 15.0)
 
 
@@ -249,10 +249,16 @@ def fit_params(
     pin = _pinned_gravity(prob, free, fixed, index.size)
     var = _Variables(null, x_scale, free if pin is not None else None)
 
-    # A faint pull towards "effect absent" (weight 1e-6 per typical magnitude squared, relative to a
-    # score of 1): it keeps directions the data cannot see — a lever arm along the only axis a link
-    # turns about — at null instead of drifting, and moves an observable effect by ~1e-6 of itself.
-    ridge = 1e-3 * np.sqrt(6 * index.size)
+    # A pull towards "effect absent" (weight 1e-12 per typical magnitude squared, relative to a score
+    # of 1): it keeps directions the data cannot see at all — a lever arm along the only axis a link
+    # turns about — at null instead of drifting. It must stay below what the data see of the weakest
+    # direction anyone reads a value along, or it biases that value: a pull acts on a direction the
+    # data see with curvature c (score per typical squared) as a shrinkage by w / (c + w). At weight
+    # 1e-6 it did: where an accelerometer bias and a gravity tilt nearly share a signature (a BROAD
+    # translation trial, c about 4e-6 apart from each other), a fifth of a hidden tilt went to the
+    # bias, 4-6 standard errors off; beside a 25 ms delay it held a 3 deg/s gyro bias to 80 % of
+    # itself. Nothing real sits as low as 1e-12: the finite-difference columns alone are that coarse.
+    ridge = 1e-6 * np.sqrt(6 * index.size)
     model = _Rows(prob, fixed, free, index)
     n6 = 6 * index.size
     cache: dict[bytes, np.ndarray] = {}
