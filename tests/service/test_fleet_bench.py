@@ -26,10 +26,10 @@ def test_bench_fleet_retrains_every_robot_warm_on_one_and_two_workers(tmp_path: 
     (cold,) = data["cold"]
     for r in data["rows"]:
         assert r["warm"] == 2  # every retrain started from the robot's stored weights
-        # a warm start stops after 3 or 4 epochs; the cold one ran to convergence (the CPU seconds of a
-        # worker's first task also count its imports, so on a short window they say less)
+        # a warm start stops after 3 or 4 epochs; the cold one ran to convergence
         assert r["epochs_median"] <= 4 < cold["epochs"] and 0 < r["cpu_s_median"] <= r["cpu_s_max"]
-        assert r["retrains_per_hour"] == pytest.approx(2 / r["wall_s"] * 3600, rel=0.01)
+        # the rate is from the unrounded wall time; wall_s is written to 0.1 s (a round of a few seconds)
+        assert r["retrains_per_hour"] == pytest.approx(2 / r["wall_s"] * 3600, rel=0.05 / r["wall_s"] + 1e-3)
     alone = [r for r in data["rows"] if r["beside"] == "none"]
     assert all("ingest_lag_s_median" not in r and "api_p99_ms" not in r for r in alone)
     for r in data["rows"][:2]:
