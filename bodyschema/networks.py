@@ -69,6 +69,15 @@ def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
     return torch.stack([row0, row1, row2], -2)
 
 
+def _body_rate(rpy: torch.Tensor, rpy_d: torch.Tensor) -> torch.Tensor:
+    """Body rates ``vee(Rᵀ Ṙ)`` of Z-Y-X Euler angles ``rpy`` changing at ``rpy_d`` (broadcast), in
+    closed form for ``R = Rz(γ) Ry(β) Rx(α)`` (Eq. 12)."""
+    a, bta = rpy[..., 0], rpy[..., 1]
+    da, db, dg = rpy_d.unbind(-1)
+    sa, ca, sb, cb = a.sin(), a.cos(), bta.sin(), bta.cos()
+    return torch.stack([da - sb * dg, ca * db + sa * cb * dg, -sa * db + ca * cb * dg], -1)
+
+
 def batched_layers(
     n_models: int, sizes: Sequence[int], seed: int
 ) -> tuple[nn.ParameterList, nn.ParameterList]:
@@ -136,8 +145,8 @@ class SensorNetworks(nn.Module):
         batched product, so N passes of small kernels become one pass of larger ones, which is what
         costs on a CPU (a warm retrain reads the Jacobian after every epoch). The rotation part needs
         no derivative of Eq. 12: for ``Ṙ = R [ω]×`` column i of Ṙ is ``R (ω × e_i)``, whose norm is
-        that of ω's two other components, ω from the roll-pitch-yaw rates in closed form (as in
-        :meth:`predict`).
+        that of ω's two other components, ω from the roll-pitch-yaw rates (:func:`_body_rate`, as
+        :meth:`predict` takes it).
         """
         K, (S, N) = self.n_imus, theta.shape
         inv = torch.ones(N) if self.in_std is None else 1.0 / self.in_std.reshape(-1)
@@ -156,10 +165,7 @@ class SensorNetworks(nn.Module):
                 tangent = (y * (1 - y)).unsqueeze(1) * tangent
             rpy = z0[..., 3:].unsqueeze(1)  # (K, 1, S, 3)
             d = tangent  # (K, N, S, 6): d output / d θ_j
-            a, bta = rpy[..., 0], rpy[..., 1]
-            da, db, dg = d[..., 3:].unbind(-1)
-            sa, ca, sb, cb = a.sin(), a.cos(), bta.sin(), bta.cos()
-            omega = torch.stack([da - sb * dg, ca * db + sa * cb * dg, -sa * db + ca * cb * dg], -1)
+            omega = _body_rate(rpy, d[..., 3:])  # (K, N, S, 3)
             s0, s1, s2 = (omega**2).unbind(-1)
             rot = torch.stack([s1 + s2, s0 + s2, s0 + s1], -1).sqrt()  # |ω × e_i|: ω without component i
             cols = torch.cat([rot, torch.linalg.vector_norm(d[..., :3], dim=-1, keepdim=True)], -1)
@@ -197,11 +203,7 @@ class SensorNetworks(nn.Module):
         out, out_d, out_dd = self._along(theta, theta_d, theta_dd)
         rpy, rpy_d = out[..., 3:], out_d[..., 3:]
         R = rpy_to_matrix(rpy)
-        # body rates of Z-Y-X Euler angles: the closed form of vee(Rᵀ Ṙ) for R = Rz(γ) Ry(β) Rx(α)
-        a, bta = rpy[..., 0], rpy[..., 1]
-        da, db, dg = rpy_d.unbind(-1)
-        sa, ca, sb, cb = a.sin(), a.cos(), bta.sin(), bta.cos()
-        omega = torch.stack([da - sb * dg, ca * db + sa * cb * dg, -sa * db + ca * cb * dg], -1)
+        omega = _body_rate(rpy, rpy_d)
         b_dd = out_dd[..., :3]
         if gravity is not None:
             g_dir = self.gravity_dir / torch.linalg.vector_norm(self.gravity_dir, dim=-1, keepdim=True)
