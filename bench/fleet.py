@@ -234,20 +234,11 @@ def _round(
 ) -> dict[str, Any]:
     """Every robot retrained once on a local cluster of ``workers`` processes; wall time and costs.
     ``submitted()`` is called once every job is on the cluster (their windows are fixed then)."""
-    from distributed import LocalCluster
-
-    from service.cluster import WORKER_PRELOAD, ClusterOptions, TrainingCluster
+    from service.cluster import ClusterOptions, TrainingCluster, local_cluster
     from service.metrics import Metrics
     from service.training import RemoteRetrains
 
-    cluster = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        preload=[WORKER_PRELOAD],
-        host="127.0.0.1",
-        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
-    )
+    cluster = local_cluster(workers)
     tc = TrainingCluster(ClusterOptions(scheduler=cluster.scheduler_address))
     try:
         tc.start()

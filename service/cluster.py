@@ -31,7 +31,7 @@ from service.settings import Settings
 if TYPE_CHECKING:
     from distributed import Client, Future, LocalCluster
 
-__all__ = ["WORKER_PRELOAD", "ClusterOptions", "TrainingCluster", "embedded_workers"]
+__all__ = ["WORKER_PRELOAD", "ClusterOptions", "TrainingCluster", "embedded_workers", "local_cluster"]
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +49,23 @@ def embedded_workers(cpus: int | None = None) -> int:
     """
     n = cpus if cpus is not None else (os.cpu_count() or 1)
     return max(1, n - 1)
+
+
+def local_cluster(workers: int) -> LocalCluster:
+    """The embedded cluster: ``workers`` worker processes of one thread, each preloading the training
+    code (:data:`WORKER_PRELOAD`), listening on loopback only, without a dashboard."""
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        preload=[WORKER_PRELOAD],
+        host="127.0.0.1",  # the scheduler and workers listen on loopback only
+        # no dashboard; the scheduler's plain HTTP routes (health, metrics) on a free loopback port
+        # rather than 8787, which another cluster on the machine may hold
+        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+    )
 
 
 @dataclass(frozen=True)
@@ -181,7 +198,7 @@ class TrainingCluster:
             return
 
     def _open(self) -> tuple[Client, LocalCluster | None]:
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         o = self.options
         if o.scheduler:
@@ -189,16 +206,7 @@ class TrainingCluster:
         with self._lock:
             cluster = self._cluster
         if cluster is None or cluster.status.name == "closed":
-            cluster = LocalCluster(
-                n_workers=o.workers or embedded_workers(),
-                threads_per_worker=1,
-                processes=True,
-                preload=[WORKER_PRELOAD],
-                host="127.0.0.1",  # the scheduler and workers listen on loopback only
-                # no dashboard; the scheduler's plain HTTP routes (health, metrics) on a free loopback
-                # port rather than 8787, which another cluster on the machine may hold
-                scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
-            )
+            cluster = local_cluster(o.workers or embedded_workers())
             with self._lock:
                 self._cluster = cluster
         try:
