@@ -23,7 +23,7 @@ Example
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -43,6 +43,7 @@ __all__ = [
     "prepare",
     "residual",
     "score",
+    "shifted_residuals",
 ]
 
 #: Bounds of each parameter's deviation from null (wide: they only keep the optimiser sane).
@@ -195,22 +196,43 @@ def _aligned_rms(prob: Problem) -> np.ndarray:
     _, pred = residual(prob, {})
     idx = prob.index
     step = 2.0 / prob.rate
-    bound = _BOUND["time_offset"]
-    grid = np.arange(-bound, bound + step / 2, step)
+    grid = np.arange(-_BOUND["time_offset"], _BOUND["time_offset"] + step / 2, step)
+    channels = (slice(0, 3), slice(3, 6))
+    # one shift of the measurement per grid point serves both channels
+    at = np.array(
+        [
+            [np.sqrt(np.mean(r[:, c] ** 2)) for c in channels]
+            for _, r in shifted_residuals(prob, pred, grid, idx)
+        ]
+    )
     out = []
-    for cols in (slice(0, 3), slice(3, 6)):
+    for k, cols in enumerate(channels):
 
         def rms(tau: float, cols: slice = cols) -> float:
             return float(
                 np.sqrt(np.mean((prob.measured_rows(float(tau), idx)[:, cols] - pred[idx, cols]) ** 2))
             )
 
-        best = float(grid[int(np.argmin([rms(x) for x in grid]))])
+        i = int(np.argmin(at[:, k]))
         found = minimize_scalar(
-            rms, bounds=(best - step, best + step), method="bounded", options={"xatol": 1e-6}
+            rms, bounds=(grid[i] - step, grid[i] + step), method="bounded", options={"xatol": 1e-6}
         )
-        out.append(min(float(found.fun), rms(best)))
+        out.append(min(float(found.fun), float(at[i, k])))
     return np.array(out)
+
+
+def shifted_residuals(
+    prob: Problem, pred: np.ndarray, offsets: np.ndarray, index: np.ndarray
+) -> Iterator[tuple[float, np.ndarray]]:
+    """``(offset, measured(offset) - pred)`` on the samples ``index``, for each offset of a grid.
+
+    ``pred`` (T, 6) is the model's prediction without a time offset, computed once by the caller; only
+    the measurement is shifted (:meth:`Problem.measured_rows`), as a time-offset fit does. A time
+    offset's cost is not convex, so its fit starts from the best of such a grid, and the channel
+    scales are taken at each channel's best.
+    """
+    for tau in offsets:
+        yield float(tau), prob.measured_rows(float(tau), index) - pred[index]
 
 
 def block_folds(index: np.ndarray, n_blocks: int) -> list[np.ndarray]:

@@ -63,6 +63,7 @@ from bodyschema.discrepancy.fit import (
     prepare,
     residual,
     score,
+    shifted_residuals,
 )
 from bodyschema.discrepancy.report import Cause, DiscrepancyReport, JointCause
 from bodyschema.discrepancy.residuals import noise_std, residual_structure
@@ -112,18 +113,18 @@ def _init_time_offset(prob: Problem, params: Params, index: np.ndarray) -> Param
     """Start a time-offset fit at the best of a grid (the cost is not convex in the offset).
 
     The prediction without the offset is computed once; only the measurement is shifted per grid
-    point (:meth:`~bodyschema.discrepancy.fit.Problem.measured`).
+    point (:func:`~bodyschema.discrepancy.fit.shifted_residuals`).
     """
     p0 = {k: v for k, v in params.items() if k != "time_offset"}
     gp, ap = predict(prob.ref, p0)
-    pred = np.concatenate([gp, ap], axis=1)[index]
+    pred = np.concatenate([gp, ap], axis=1)
     w = np.repeat(1.0 / prob.scale, 3)
     best, best_s = 0.0, np.inf
     step = 2.0 / prob.rate
-    for tau in np.arange(-0.2, 0.2 + step / 2, step):
-        s = float(np.mean(((prob.measured(float(tau))[index] - pred) * w) ** 2))
+    for tau, r in shifted_residuals(prob, pred, np.arange(-0.2, 0.2 + step / 2, step), index):
+        s = float(np.mean((r * w) ** 2))
         if s < best_s:
-            best, best_s = float(tau), s
+            best, best_s = tau, s
     out = dict(params)
     out["time_offset"] = {"seconds": best}
     return out
