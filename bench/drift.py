@@ -6,9 +6,9 @@ Two parts, both on the simulated farm with the realistic ``robot`` sensing prese
 
 * **catalog**: every robot of ``--robots`` (default: the whole catalog) in 30 s windows as the worker
   reads them, each window's geometry estimated as the worker does
-  (:func:`bodyschema.kinematics.estimate_kinematics` without the accelerometer-frame refinement, on
-  the first window's tree with each window's encoder timing). The first window's geometry is the
-  baseline; the next ``--nominal`` windows are compared with it
+  (:func:`bodyschema.kinematics.estimate_kinematics` in the frame the service's settings set,
+  ``kinematics_accelerometer_frame``, on the first window's tree with each window's encoder timing).
+  The first window's geometry is the baseline; the next ``--nominal`` windows are compared with it
   (:func:`bodyschema.kinematic_drift.kinematic_findings`: any finding is false). Then each drift
   damage of the simulators' catalog is injected on a fork of the farm, and the first window wholly
   after it is compared: a turn of ``--angle-deg`` of one IMU (about a direction perpendicular to its
@@ -21,8 +21,13 @@ Two parts, both on the simulated farm with the realistic ``robot`` sensing prese
   authority for baselines, hysteresis M = 2, geometry every 6 cycles) on a healthy farm of ``--fleet``
   robots for ``--hours`` of simulated time, unpaced, on an SQLite file. Every alert it raises is false;
   reported with the geometry comparisons made, the network retrains and the CPU seconds.
+* **pooled** (between the two): slides of one robot's IMUs judged on lever arms pooled over windows,
+  as the worker judges them (:func:`_pooled`).
 
-Writes ``drift.md``, ``drift.json`` and ``drift.png``.
+Writes ``drift.md``, ``drift.json`` and ``drift.png``. The parts are independent (each its own farm,
+from ``--seed``): ``--parts`` runs some of them, and ``--from`` takes the others from the
+``drift.json`` of earlier runs with the same arguments, so that the long service part can run in a
+process of its own beside the others. CPU seconds are each part's own process's.
 """
 
 from __future__ import annotations
@@ -67,21 +72,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+    parser.add_argument("--parts", default=",".join(PARTS), help="parts to run (module docstring)")
+    parser.add_argument(
+        "--from",
+        dest="from_dirs",
+        default="",
+        help="folders whose drift.json, of a run with the same arguments, hold the parts not run",
+    )
+
+
+#: The benchmark's parts, in the order they run.
+PARTS = ("catalog", "pooled", "service")
 
 
 def _geometry(rec: Any, tree: Any = None) -> Any:
     """The window's geometry as the worker estimates it: on ``tree`` (the baseline's; None: the one the
-    fast estimator learns from the window) with the encoder timing the fast estimator finds in it."""
+    fast estimator learns from the window) with the encoder timing the fast estimator finds in it, in
+    the frame the service's settings set (``kinematics_accelerometer_frame``)."""
     from dataclasses import replace
 
     from bodyschema.estimate import estimate_topology
     from bodyschema.health import drop_impacts
     from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
+    from service.settings import Settings
 
     topo = estimate_topology(drop_impacts(rec), method="fast")
     if tree is not None:
         topo = replace(tree, timing=dict(topo.timing))
-    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=False))
+    frame = Settings().kinematics_accelerometer_frame
+    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=frame))
 
 
 def _window(farm: Any, seconds: float = WINDOW) -> Any:
@@ -207,7 +226,7 @@ def _pooled(args: argparse.Namespace) -> dict:
                 {
                     "imu": imu,
                     "lever_arm_mm": round(1e3 * arms[imu], 1),
-                    "scatter_mm": [round(1e3 * float(x), 2) for x in pool.arms(imu).std(axis=0, ddof=1)],
+                    "scatter_mm": _scatter(pool.arms(imu), first.imus[imu].axis),
                     "mm": mm,
                     "windows_to_finding": hits[0] + 1 if hits else None,
                     "finding": None if first_hit is None else first_hit.detail,
@@ -225,6 +244,19 @@ def _pooled(args: argparse.Namespace) -> dict:
         "slides": slides,
         "cpu_s": round(time.process_time() - cpu0, 1),
     }
+
+
+def _scatter(arms: np.ndarray, axis: np.ndarray | None) -> list[float]:
+    """The std (mm) of lever arms ``arms`` (k, 3) between windows along their mean (radial), across it
+    in the plane perpendicular to ``axis`` (tangential) and along ``axis``: the components a slide and
+    the axis's lean move."""
+    mean = arms.mean(axis=0)
+    radial = mean / np.linalg.norm(mean)
+    along = radial if axis is None else np.asarray(axis, dtype=float)
+    tangential = np.cross(along, radial)
+    tangential /= max(float(np.linalg.norm(tangential)), 1e-12)
+    e = arms - mean
+    return [round(1e3 * float(np.std(e @ v, ddof=1)), 2) for v in (radial, tangential, along)]
 
 
 def _floats(text: str) -> list[float]:
@@ -299,12 +331,10 @@ def run(args: argparse.Namespace) -> Path:
     from simulators.catalog import CATALOG
 
     names = [x for x in args.robots.split(",") if x.strip()] or sorted(CATALOG)
-    with blas_threads(1):
-        catalog = [
-            _catalog_robot(n, args) for n in progress(names, desc="bench drift: catalog", unit="robot")
-        ]
-        pooled = _pooled(args) if args.pool_robot else None
-        service = _service(args) if args.hours > 0 else None
+    parts = [x.strip() for x in args.parts.split(",") if x.strip()]
+    unknown = sorted(set(parts) - set(PARTS))
+    if unknown:
+        raise SystemExit(f"bench drift: unknown parts {unknown}; the parts are {', '.join(PARTS)}")
     command = (
         f"bodyhealth bench drift --robots {','.join(names)} --nominal {args.nominal} "
         f"--angle-deg {args.angle_deg:g} --slide-mm {args.slide_mm} --backlash-deg {args.backlash_deg:g} "
@@ -312,9 +342,25 @@ def run(args: argparse.Namespace) -> Path:
         f"--pool-after {args.pool_after} --fleet {args.fleet} "
         f"--hours {args.hours:g} --networks {_networks(args)} --seed {args.seed}"
     )
+    earlier = _earlier(args.from_dirs, command)
+    with blas_threads(1):
+        catalog = (
+            [_catalog_robot(n, args) for n in progress(names, desc="bench drift: catalog", unit="robot")]
+            if "catalog" in parts
+            else earlier.get("catalog") or []
+        )
+        if "pooled" in parts:
+            pooled = _pooled(args) if args.pool_robot else None
+        else:
+            pooled = earlier.get("pooled")
+        if "service" in parts:
+            service = _service(args) if args.hours > 0 else None
+        else:
+            service = earlier.get("service")
     data = {
         "machine": machine_note(),
         "command": command,
+        "accelerometer_frame": _frame(),
         "window_s": WINDOW,
         "catalog": catalog,
         "pooled": pooled,
@@ -327,6 +373,25 @@ def run(args: argparse.Namespace) -> Path:
     path = out / "drift.md"
     path.write_text(_markdown(data), encoding="utf-8")
     return path
+
+
+def _frame() -> bool:
+    from service.settings import Settings
+
+    return Settings().kinematics_accelerometer_frame
+
+
+def _earlier(dirs: str, command: str) -> dict:
+    """The parts of the ``drift.json`` files under the folders ``dirs`` (comma-separated; later ones
+    win), each checked to come from ``command`` in the frame now set."""
+    out: dict = {}
+    for folder in [x for x in dirs.split(",") if x.strip()]:
+        path = Path(folder) / "drift.json"
+        d = json.loads(path.read_text(encoding="utf-8"))
+        if d.get("command") != command or d.get("accelerometer_frame") != _frame():
+            raise SystemExit(f"bench drift: {path} comes from another command or frame: {d.get('command')}")
+        out.update({k: d[k] for k in PARTS if d.get(k)})
+    return out
 
 
 def _networks(args: argparse.Namespace) -> int:
@@ -351,8 +416,13 @@ def _markdown(d: dict) -> str:
         f"`{d['command']}`",
         "",
         f"Machine: {d['machine']}. Simulated farm, `robot` sensing preset, MPU-6050 IMUs kept across "
-        f"the run; {d['window_s']:g} s windows; each window's geometry as the worker estimates it (gyro "
-        "readings, no accelerometer-frame refinement, on the first window's tree learned by `fast`). "
+        f"the run; {d['window_s']:g} s windows; each window's geometry as the worker estimates it ("
+        + (
+            "axes in the accelerometers' frame"
+            if d.get("accelerometer_frame")
+            else "gyro readings, no accelerometer-frame refinement"
+        )
+        + ", on the first window's tree learned by `fast`). "
         "Nominal: healthy windows compared with the first (any finding is false). Damages: injected on "
         "a fork, the first window wholly after compared with the first; *first right*: the first "
         "finding is the damage's kind on its part.",
@@ -390,11 +460,13 @@ def _markdown(d: dict) -> str:
         lines += [
             "",
             f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against those "
-            f"of the newest {p['n_recent']} (Hotelling's T², false-alarm rate {p['alpha']:g} per "
-            f"comparison), as the worker judges them. Healthy: {false} findings in {p['nominal_windows']} "
+            f"of the newest {p['n_recent']} (Hotelling's T² in the plane perpendicular to the axis, "
+            f"false-alarm rate {p['alpha']:g} per comparison), as the worker judges them. "
+            f"Healthy: {false} findings in {p['nominal_windows']} "
             f"windows judged. Each slide judged for {p['windows_after']} windows after it:",
             "",
-            "| IMU | lever arm | its scatter per window (x, y, z) | slide | windows to its finding | "
+            "| IMU | lever arm | its scatter per window (radial, tangential, along the axis) | slide | "
+            "windows to its finding | "
             "finding | other findings |",
             "|---|---:|---|---:|---:|---|---:|",
         ]

@@ -111,6 +111,13 @@ class Settings(BaseSettings):
         "the default 5 s interval and 30 s window: each estimate on a window of its own) and compare "
         "them with the geometry learned on its baseline (drift alerts); 0 = never",
     )
+    kinematics_accelerometer_frame: bool = Field(
+        True,
+        description="estimate the geometry's joint axes in each accelerometer's frame, gyros and "
+        "accelerometers together, so that the gyros' sensitivity errors do not lean the axes the lever "
+        "arms are fitted about (a wrist IMU's lever arm then scatters 1 mm between windows, not 3 to 5); "
+        "false = the axes the gyros read, 4 to 6 times cheaper (docs/kinematics.md)",
+    )
     kinematics_pool_base: int = Field(
         40,
         ge=5,

@@ -81,11 +81,23 @@ from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
 from service.training import RemoteRetrains
 
-__all__ = ["HEARTBEAT_COMPONENT", "Compute", "CycleResult", "Estimator", "Worker", "default_estimator"]
+__all__ = [
+    "FRAME_KEY",
+    "HEARTBEAT_COMPONENT",
+    "Compute",
+    "CycleResult",
+    "Estimator",
+    "Worker",
+    "default_estimator",
+]
 
 log = logging.getLogger(__name__)
 
 HEARTBEAT_COMPONENT = "worker"
+
+#: The key of a kept geometry's JSON that says whether its axes are the accelerometers' frame's
+#: (``kinematics_accelerometer_frame``); absent in rows kept before it was recorded, whose were the gyros'.
+FRAME_KEY = "accelerometer_frame"
 
 #: ``(recording, method) -> Topology``; the default is :func:`bodyschema.estimate.estimate_topology`.
 Estimator = Callable[[Recording, str], Topology]
@@ -481,20 +493,36 @@ class Worker:
         from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
         t0 = time.perf_counter()
-        # drift compares what the gyros read: the accelerometer-frame refinement, a tenth of the cost
-        # on a 60-IMU robot, is left out
-        options = KinematicsOptions(accelerometer_frame=False)
+        frame = self.settings.kinematics_accelerometer_frame
         tree = dataclasses.replace(base.topology, timing=dict(fast.timing))
-        kin = self.compute(estimate_kinematics, rec, tree, options)
+        kin = self.compute(estimate_kinematics, rec, tree, KinematicsOptions(accelerometer_frame=frame))
         self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
         kept = self.store.kinematics_baseline(robot, base.id)
-        if kept is None:
+        # a geometry kept with the other frame (or before the frame was recorded: the gyros') has lever
+        # arms fitted about other axes, a mm or so apart: compared with these it would read as a slide
+        if kept is None or bool(kept.data.get(FRAME_KEY, False)) != frame:
             if any(k.axis_converged for k in kin.imus.values()):
-                data = {**kin.to_json(), POOL_KEY: LeverPool().add(kin).to_json()}
-                self.store.save_kinematics(
-                    robot, base.id, data, wall_time=self.clock(), window_end_t=window_end
+                data = {**kin.to_json(), POOL_KEY: LeverPool().add(kin).to_json(), FRAME_KEY: frame}
+                if kept is None:
+                    self.store.save_kinematics(
+                        robot, base.id, data, wall_time=self.clock(), window_end_t=window_end
+                    )
+                else:  # in the kept row's place, and as the newest, whose pool of the other frame goes
+                    self.store.update_kinematics(
+                        kept.id, data, wall_time=self.clock(), window_end_t=window_end
+                    )
+                    self.store.save_kinematics(
+                        robot,
+                        base.id,
+                        {**kin.to_json(), POOL_KEY: []},
+                        wall_time=self.clock(),
+                        window_end_t=window_end,
+                        latest=True,
+                    )
+                log.info(
+                    "geometry baseline kept" + ("" if kept is None else " again, in the frame now set"),
+                    extra={"robot": robot, "baseline_id": base.id},
                 )
-                log.info("geometry baseline kept", extra={"robot": robot, "baseline_id": base.id})
             return None
         pools = self.settings.pool_options
         first = dict(kept.data)

@@ -104,11 +104,22 @@ class KinematicsMixin(StoreBase):
                 )
             )
 
-    def update_kinematics(self, kinematics_id: int, data: dict[str, Any]) -> None:
+    def update_kinematics(
+        self,
+        kinematics_id: int,
+        data: dict[str, Any],
+        *,
+        wall_time: float | None = None,
+        window_end_t: float | None = None,
+    ) -> None:
         """Replace the JSON of the kept geometry ``kinematics_id``: the geometry baseline's pool of lever
-        arms grows with the estimates after it (:mod:`bodyschema.lever_pool`) until it is full."""
+        arms grows with the estimates after it (:mod:`bodyschema.lever_pool`) until it is full. With
+        ``wall_time`` (and ``window_end_t``) the row is another estimate, kept in its place."""
+        values: dict[str, Any] = {"data": data}
+        if wall_time is not None:
+            values.update(wall_time=float(wall_time), window_end_t=window_end_t)
         with self._session() as s, s.begin():
-            s.execute(update(KinematicsRow).where(KinematicsRow.id == int(kinematics_id)).values(data=data))
+            s.execute(update(KinematicsRow).where(KinematicsRow.id == int(kinematics_id)).values(**values))
 
     def kinematics_baseline(self, robot: str, baseline_id: int) -> StoredKinematics | None:
         """The geometry kept for ``robot`` under ``baseline_id`` (the first kept), None before one is."""

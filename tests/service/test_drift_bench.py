@@ -71,3 +71,26 @@ def test_short_run(tmp_path: Path) -> None:
         "Pooled slides (ur5e): the lever arms of the first 40 windows against those of the newest 20" in text
     )
     assert (tmp_path / "drift.png").stat().st_size > 5000
+
+
+def test_parts_from_an_earlier_run_must_come_from_the_same_command(tmp_path: Path) -> None:
+    # the service part alone would take an hour: a run that takes its parts from earlier runs only
+    # renders them, and refuses those of other arguments or of the other frame
+    args = ["--robots", "ur5e", "--hours", "0.05", "--parts", "", "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit, match="unknown parts"):
+        bench.run(_args(*args, "--parts", "catalog,geometry"))
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    service = {"fleet": {"ur5e-0": "ur5e"}, "hours": 0.05, "cycles": 36, "interval_s": 5.0}
+    service |= {"kinematics_interval_cycles": 6, "network_interval_cycles": 0, "geometry_comparisons": 5}
+    service |= {"drift_findings": 0, "alerts_raised": [], "cpu_s": 1.0}
+    data = {"command": "", "accelerometer_frame": True, "catalog": [], "pooled": None, "service": service}
+    bench.run(_args(*args))  # nothing run, nothing taken: an empty table
+    data["command"] = json.loads((tmp_path / "out" / "drift.json").read_text())["command"]
+    (earlier / "drift.json").write_text(json.dumps(data))
+    text = bench.run(_args(*args, "--from", str(earlier))).read_text()
+    assert "5 geometry comparisons, 0 drift findings, 0 alerts raised" in text
+    data["command"] += " --seed 1"
+    (earlier / "drift.json").write_text(json.dumps(data))
+    with pytest.raises(SystemExit, match="another command or frame"):
+        bench.run(_args(*args, "--from", str(earlier)))
