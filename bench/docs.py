@@ -1247,7 +1247,7 @@ def _kinematics(b: _Bench) -> str:
 
 
 def _drift(b: _Bench) -> str:
-    from bench.drift import _change, networks_text
+    from bench.drift import _change, _elsewhere, networks_text
 
     d = b.json("drift.json")
     assert isinstance(d, dict)
@@ -1311,7 +1311,7 @@ def _drift(b: _Bench) -> str:
             f"{s['hours']:g} h of simulated time ({s['cycles']} cycles, geometry every "
             f"{s['kinematics_interval_cycles']} cycles, sensor {networks_text(s)}): "
             f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
-            f"{len(s['alerts_raised'])} alerts raised, {s['cpu_s']:.0f} CPU s.",
+            f"{len(s['alerts_raised'])} alerts raised, {s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
         ]
     return "\n".join(lines)
 

@@ -357,8 +357,10 @@ def run(args: argparse.Namespace) -> Path:
             service = _service(args) if args.hours > 0 else None
         else:
             service = earlier.get("service")
+    here = machine_note()
     data = {
-        "machine": machine_note(),
+        "machine": here,
+        "machines": {k: here if k in parts else earlier["machines"].get(k, here) for k in PARTS},
         "command": command,
         "accelerometer_frame": _frame(),
         "window_s": WINDOW,
@@ -383,14 +385,18 @@ def _frame() -> bool:
 
 def _earlier(dirs: str, command: str) -> dict:
     """The parts of the ``drift.json`` files under the folders ``dirs`` (comma-separated; later ones
-    win), each checked to come from ``command`` in the frame now set."""
-    out: dict = {}
+    win), each checked to come from ``command`` in the frame now set (a file written before the frame
+    was recorded used the gyros'), and under ``"machines"`` the machine each part ran on."""
+    out: dict = {"machines": {}}
     for folder in [x for x in dirs.split(",") if x.strip()]:
         path = Path(folder) / "drift.json"
         d = json.loads(path.read_text(encoding="utf-8"))
-        if d.get("command") != command or d.get("accelerometer_frame") != _frame():
+        if d.get("command") != command or d.get("accelerometer_frame", False) != _frame():
             raise SystemExit(f"bench drift: {path} comes from another command or frame: {d.get('command')}")
-        out.update({k: d[k] for k in PARTS if d.get(k)})
+        for k in PARTS:
+            if d.get(k):
+                out[k] = d[k]
+                out["machines"][k] = d.get("machines", {}).get(k, d["machine"])
     return out
 
 
@@ -487,12 +493,18 @@ def _markdown(d: dict) -> str:
             f"{networks_text(s)}): "
             f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
-            f"{s['cpu_s']:.0f} CPU s.",
+            f"{s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
         ]
         for a in s["alerts_raised"]:
             lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
     lines += ["", "![drift](drift.png)", ""]
     return "\n".join(lines)
+
+
+def _elsewhere(d: dict, part: str) -> str:
+    """', on MACHINE, an earlier run' where ``part`` of ``d`` was taken from a run on another machine."""
+    there = d.get("machines", {}).get(part, d["machine"])
+    return "" if there == d["machine"] else f" (an earlier run, on {there}, taken with `--from`)"
 
 
 def networks_text(s: dict) -> str:

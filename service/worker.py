@@ -498,7 +498,7 @@ class Worker:
         kin = self.compute(estimate_kinematics, rec, tree, KinematicsOptions(accelerometer_frame=frame))
         self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
         kept = self.store.kinematics_baseline(robot, base.id)
-        # a geometry kept with the other frame (or before the frame was recorded: the gyros') has lever
+        # a geometry kept in the other frame (or before the frame was recorded: the gyros') has lever
         # arms fitted about other axes, a mm or so apart: compared with these it would read as a slide
         if kept is None or bool(kept.data.get(FRAME_KEY, False)) != frame:
             if any(k.axis_converged for k in kin.imus.values()):

@@ -84,13 +84,15 @@ def test_parts_from_an_earlier_run_must_come_from_the_same_command(tmp_path: Pat
     service = {"fleet": {"ur5e-0": "ur5e"}, "hours": 0.05, "cycles": 36, "interval_s": 5.0}
     service |= {"kinematics_interval_cycles": 6, "network_interval_cycles": 0, "geometry_comparisons": 5}
     service |= {"drift_findings": 0, "alerts_raised": [], "cpu_s": 1.0}
-    data = {"command": "", "accelerometer_frame": True, "catalog": [], "pooled": None, "service": service}
+    data = {"command": "", "machine": "elsewhere", "catalog": [], "pooled": None, "service": service}
     bench.run(_args(*args))  # nothing run, nothing taken: an empty table
     data["command"] = json.loads((tmp_path / "out" / "drift.json").read_text())["command"]
     (earlier / "drift.json").write_text(json.dumps(data))
     text = bench.run(_args(*args, "--from", str(earlier))).read_text()
     assert "5 geometry comparisons, 0 drift findings, 0 alerts raised" in text
-    data["command"] += " --seed 1"
-    (earlier / "drift.json").write_text(json.dumps(data))
-    with pytest.raises(SystemExit, match="another command or frame"):
-        bench.run(_args(*args, "--from", str(earlier)))
+    # written before the frame was recorded: the gyros', as now; the part says where it ran
+    assert "1 CPU s (an earlier run, on elsewhere, taken with `--from`)." in text
+    for key, value in (("command", data["command"] + " --seed 1"), ("accelerometer_frame", True)):
+        (earlier / "drift.json").write_text(json.dumps({**data, key: value}))
+        with pytest.raises(SystemExit, match="another command or frame"):
+            bench.run(_args(*args, "--from", str(earlier)))
