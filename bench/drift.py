@@ -424,7 +424,7 @@ def _markdown(d: dict) -> str:
         f"Machine: {d['machine']}. Simulated farm, `robot` sensing preset, MPU-6050 IMUs kept across "
         f"the run; {d['window_s']:g} s windows; each window's geometry as the worker estimates it ("
         + (
-            "axes in the accelerometers' frame"
+            "axes in the accelerometers' frame, `BODYHEALTH_KINEMATICS_ACCELEROMETER_FRAME=true`"
             if d.get("accelerometer_frame")
             else "gyro readings, no accelerometer-frame refinement"
         )

@@ -1,10 +1,10 @@
 """Slides of an IMU on its link, from lever arms pooled over many estimates.
 
 One window's lever arm (:mod:`bodyschema.kinematics`) scatters between healthy windows by more than a
-slide worth reporting: on a UR5e (``robot`` sensing preset, MPU-6050, 30 s windows, axes in the
-accelerometers' frame) by about 3 mm radially and 2.3 mm tangentially for an IMU 0.21 m from its axis
-and by 1.1 and 1.2 mm for the wrist's, 30 mm from its own (3.5 and 5.1 mm about the axes the gyros
-read, :mod:`bodyschema.kinematics`), about as its reported std says, with errors that move with the
+slide worth reporting: on a UR5e (``robot`` sensing preset, MPU-6050, 30 s windows, the axes the
+gyros read) by about 3.2 mm radially and 2.5 mm tangentially for an IMU 0.21 m from its axis and by
+3.6 and 5.4 mm for the wrist's, 30 mm from its own (1.1 and 1.3 mm about axes in the accelerometers'
+frame, :mod:`bodyschema.kinematics`), about as its reported std says, with errors that move with the
 motion. The error is the motion's, so it
 averages out over windows of other motion, and a slide is permanent: the lever arms of ``n_base``
 estimates under the baseline (:class:`LeverPool`) are compared with those of the ``n_recent`` newest

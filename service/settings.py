@@ -115,8 +115,8 @@ class Settings(BaseSettings):
         False,
         description="estimate the geometry's joint axes in each accelerometer's frame, gyros and "
         "accelerometers together, so that the gyros' sensitivity errors do not lean the axes the lever "
-        "arms are fitted about (a UR5e wrist IMU's lever arm then scatters 1 mm between windows, not 3 "
-        "to 5), at 4 to 6 times the cost; off by default: on some robots its lever arms move between "
+        "arms are fitted about (a UR5e wrist IMU's lever arm then scatters 1 mm between windows, not 4 "
+        "to 5), at several times the cost; off by default: on some robots its lever arms move between "
         "healthy windows beyond their stated std (docs/kinematics.md)",
     )
     kinematics_pool_base: int = Field(
