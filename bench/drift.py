@@ -94,13 +94,11 @@ def _geometry(rec: Any, tree: Any = None) -> Any:
     from bodyschema.estimate import estimate_topology
     from bodyschema.health import drop_impacts
     from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
-    from service.settings import Settings
 
     topo = estimate_topology(drop_impacts(rec), method="fast")
     if tree is not None:
         topo = replace(tree, timing=dict(topo.timing))
-    frame = Settings().kinematics_accelerometer_frame
-    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=frame))
+    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=_frame()))
 
 
 def _window(farm: Any, seconds: float = WINDOW) -> Any:
@@ -378,6 +376,7 @@ def run(args: argparse.Namespace) -> Path:
 
 
 def _frame() -> bool:
+    """The frame the service's settings set for the worker's geometry (``kinematics_accelerometer_frame``)."""
     from service.settings import Settings
 
     return Settings().kinematics_accelerometer_frame

@@ -209,9 +209,8 @@ def _aligned_rms(prob: Problem) -> np.ndarray:
     for k, cols in enumerate(channels):
 
         def rms(tau: float, cols: slice = cols) -> float:
-            return float(
-                np.sqrt(np.mean((prob.measured_rows(float(tau), idx)[:, cols] - pred[idx, cols]) ** 2))
-            )
+            ((_, r),) = shifted_residuals(prob, pred, np.array([tau]), idx)
+            return float(np.sqrt(np.mean(r[:, cols] ** 2)))
 
         i = int(np.argmin(at[:, k]))
         found = minimize_scalar(
