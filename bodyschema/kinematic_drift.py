@@ -27,7 +27,10 @@ combined standard deviations plus a small floor:
   where the link turned about two axes or more): a mount turned about its joint's axis, which no axis
   comparison sees. Which of the two turned the gyros cannot tell; the finding names both;
 * ``imu_shifted`` — the lever arm changed by more than its combined std plus a floor (for an IMU that
-  also turned, only its length is compared: a turn alone rotates the vector, not its length);
+  also turned, only its length is compared: a turn alone rotates the vector, not its length). The
+  stated std is one window's noise: on some links the window's motion moves lever arms by several
+  times it, so the service judges slides against many estimates' scatter instead
+  (:mod:`bodyschema.lever_pool`, ``DriftOptions.lever_arms``);
 * ``backlash`` — the dead band between a joint's encoder and its link changed: the encoder steps by
   the band at each reversal and the gyros do not (``ImuKinematics.backlash_deg``, read by the joint's
   IMU whose two estimates are surest; limit ``sigmas`` combined stds plus ``floor_backlash_deg``).
@@ -68,12 +71,16 @@ __all__ = ["DriftOptions", "kinematic_findings"]
 @dataclass(frozen=True)
 class DriftOptions:
     """How far beyond the estimates' own uncertainty a change must be: ``sigmas`` combined stds plus
-    ``floor_deg`` (angles) or ``floor_m`` (lever arms)."""
+    ``floor_deg`` (angles) or ``floor_m`` (lever arms). ``lever_arms=False`` leaves slides out: their
+    stated std holds one window's noise, not how the window's motion moves the fit, and on some links
+    lever arms move between healthy windows by several times it (module docstring); a caller with
+    many estimates judges them against their scatter instead (:mod:`bodyschema.lever_pool`)."""
 
     sigmas: float = 5.0
     floor_deg: float = 0.2
     floor_m: float = 0.002
     floor_backlash_deg: float = 0.1
+    lever_arms: bool = True
 
     def limit(self, std_a: float, std_b: float, floor: float) -> float:
         """The change two estimates of stds ``std_a`` and ``std_b`` must exceed: ``sigmas`` combined
@@ -199,7 +206,7 @@ def kinematic_findings(
             if turned and not (bend or every):
                 rotated.add(x.old.imu)
                 out.append(_rotated(jn, x))
-            shifted = _shifted(x.old, x.new, turned, o)
+            shifted = _shifted(x.old, x.new, turned, o) if o.lever_arms else None
             if shifted is not None:
                 out.append(shifted)
         slack = _backlash(jn, seen, o)

@@ -27,6 +27,15 @@ axis (about 0.1 mm at 0.2 m): kept, it raised the quantile by a fifth (44 agains
 ``alpha = 1e-5``) for nothing. Without an axis (an IMU the baseline holds none for) the test is in
 three dimensions, ``p = 3``.
 
+**One window against the pool.** The same pool judges the newest estimate alone, as soon as the
+baseline's pool is full: a prediction, whose covariance is one window's own, ``S (1 + κ/n_b)``, with
+the same quantile. This is the only single-window slide test the stored drift makes. Comparing two
+estimates by their stated stds (:func:`~bodyschema.kinematic_drift.kinematic_findings`) takes each
+window's error to be its noise; on some links the window's motion moves the fit by several times that
+(paper-3's fourth link on the ``robot`` preset: 10 to 27 mm between healthy windows against stated
+stds of 2 to 4 mm, several IMUs of the link at once), and the pool's scatter holds it. A slide about
+six of the pool's stds along it is found in the window after it; smaller ones wait for the recent pool.
+
 What it can see depends on the IMU: a slide must be about six times ``Σ``'s std along it, and ``Σ``
 grows with the scatter of the IMU's lever arm and with how long its errors follow the motion from one
 window to the next (the AR(1) inflation and the fewer degrees of freedom both cost). On a UR5e,
@@ -52,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -60,7 +69,7 @@ from scipy import stats
 from scipy.linalg import null_space
 
 from bodyschema.findings import Finding
-from bodyschema.kinematic_drift import kinematic_findings
+from bodyschema.kinematic_drift import DriftOptions, kinematic_findings
 from bodyschema.kinematics import Kinematics
 from bodyschema.topology import Topology
 
@@ -146,7 +155,8 @@ def _t2(
     base: np.ndarray, recent: np.ndarray, o: PoolOptions, axis: np.ndarray | None = None
 ) -> tuple[float, float, np.ndarray]:
     """Hotelling's ``T²`` of the change of mean from ``base`` to ``recent`` lever arms, its limit and
-    the change; with ``axis``, in the plane perpendicular to it (module docstring)."""
+    the change; with ``axis``, in the plane perpendicular to it (module docstring). One recent
+    estimate is a prediction: its own error is one window's, ``S``, not inflated by ``κ``."""
     if axis is not None:
         plane = null_space(np.asarray(axis, dtype=float).reshape(1, 3))  # (3, 2), orthonormal
         base, recent = base @ plane, recent @ plane
@@ -155,8 +165,22 @@ def _t2(
     nu = max(base.shape[0] / kappa - 1.0, p + 1.0)
     cov = np.cov(base.T).reshape(p, p) + o.ridge_m**2 * np.eye(p)
     d = recent.mean(axis=0) - base.mean(axis=0)
-    sigma = kappa * cov * (1.0 / base.shape[0] + 1.0 / recent.shape[0])
+    n_r = recent.shape[0]
+    sigma = cov * (kappa / base.shape[0] + (kappa if n_r > 1 else 1.0) / n_r)
     return float(d @ np.linalg.solve(sigma, d)), _limit(nu, o.alpha, p), d
+
+
+def _shift_finding(imu: str, joint: str, t2: float, limit: float, d: np.ndarray, what: str) -> Finding:
+    return Finding(
+        kind="imu_shifted",
+        imu=imu,
+        joint=joint,
+        confidence=round(1.0 - 0.5 * math.sqrt(limit / t2), 4),
+        detail=(
+            f"lever arm moved {float(np.linalg.norm(d)) * 1e3:.1f} mm, {what} "
+            f"(T² {t2:.0f}, limit {limit:.0f})"
+        ),
+    )
 
 
 def pooled_shifts(
@@ -180,24 +204,19 @@ def pooled_shifts(
         if imu in skip or joint is None:
             continue
         a, b = base.arms(imu), recent.arms(imu)
-        if a.shape[0] < max(o.min_share * base.n, 5) or b.shape[0] < max(o.min_share * recent.n, 3):
+        if a.shape[0] < max(o.min_share * base.n, 5) or b.shape[0] < max(
+            o.min_share * recent.n, min(3, o.n_recent)
+        ):
             continue
         t2, limit, d = _t2(a, b, o, (axes or {}).get(imu))
-        shift = float(np.linalg.norm(d))
-        if t2 <= limit or shift <= o.floor_m:
+        if t2 <= limit or float(np.linalg.norm(d)) <= o.floor_m:
             continue
-        out.append(
-            Finding(
-                kind="imu_shifted",
-                imu=imu,
-                joint=joint,
-                confidence=round(1.0 - 0.5 * math.sqrt(limit / t2), 4),
-                detail=(
-                    f"lever arm moved {shift * 1e3:.1f} mm, the mean of the last {b.shape[0]} estimates "
-                    f"against {a.shape[0]} under the baseline (T² {t2:.0f}, limit {limit:.0f})"
-                ),
-            )
+        what = (
+            f"the mean of the last {b.shape[0]} estimates against {a.shape[0]} under the baseline"
+            if b.shape[0] > 1
+            else f"the newest estimate against the mean of {a.shape[0]} under the baseline"
         )
+        out.append(_shift_finding(imu, joint, t2, limit, d, what))
     return tuple(out)
 
 
@@ -209,17 +228,22 @@ def stored_drift(
 ) -> tuple[Finding, ...]:
     """The drift from a robot's kept geometry baseline to its newest estimate, both as kept (kinematics
     JSON, each with its :data:`POOL_KEY`): :func:`~bodyschema.kinematic_drift.kinematic_findings` of the
-    two estimates, then the slides the pools show (:func:`pooled_shifts`, each in the plane perpendicular
-    to the baseline's axis) of the IMUs those left alone (a turned IMU, or one on a joint whose axis
-    bent, moves its lever arm with the turn). The worker's
+    two estimates without their lever arms (turns, bends, dead bands), then the slides of the IMUs those
+    left alone (a turned IMU, or one on a joint whose axis bent, moves its lever arm with the turn):
+    the newest estimate's lever arm against the baseline's pool, then the recent pool's mean against it
+    (:func:`pooled_shifts`, each in the plane perpendicular to the baseline's axis; module docstring).
+    Until the baseline's pool is full no slide is judged. The worker's
     alerts and the API's drift both come from here, on the same stored rows."""
     then, now = Kinematics.from_json(dict(baseline), topology), Kinematics.from_json(dict(latest), topology)
-    found = kinematic_findings(then, now)
+    found = kinematic_findings(then, now, DriftOptions(lever_arms=False))
     bent = {f.joint for f in found if f.kind == "axis_changed"}
     skip = {f.imu for f in found if f.imu is not None} | {
         imu for imu, k in then.imus.items() if k.joint in bent
     }
     joints = {imu: k.joint for imu, k in then.imus.items()}
     axes = {imu: k.axis for imu, k in then.imus.items()}
-    pools = LeverPool.from_json(baseline.get(POOL_KEY)), LeverPool.from_json(latest.get(POOL_KEY))
-    return (*found, *pooled_shifts(*pools, joints, options, skip, axes))
+    o = options or PoolOptions()
+    base, recent = LeverPool.from_json(baseline.get(POOL_KEY)), LeverPool.from_json(latest.get(POOL_KEY))
+    newest = pooled_shifts(base, LeverPool().add(now), joints, replace(o, n_recent=1), skip, axes)
+    skip |= {f.imu for f in newest if f.imu is not None}
+    return (*found, *newest, *pooled_shifts(base, recent, joints, o, skip, axes))

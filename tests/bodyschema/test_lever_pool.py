@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from bodyschema.kinematic_drift import kinematic_findings
 from bodyschema.kinematics import ImuKinematics, JointKinematics, Kinematics
 from bodyschema.lever_pool import POOL_KEY, LeverPool, PoolOptions, pooled_shifts, stored_drift
 from bodyschema.topology import Topology
@@ -150,3 +151,62 @@ def test_stored_drift_reads_both_pools_and_leaves_a_turned_imu_to_its_turn() -> 
     turned = np.array([0.0, np.sin(np.radians(3)), np.cos(np.radians(3))])
     kinds = [g.kind for g in stored_drift(base, {**_kin(turned).to_json(), POOL_KEY: slid}, topo)]
     assert kinds == ["imu_rotated"]
+
+
+def _one_window_rate(rho: float, options: PoolOptions, shift: float = 0.0, seeds: int = 1000) -> int:
+    """How many of ``seeds`` draws the newest window alone, slid by ``shift``, is found slid against a
+    full baseline pool of the same AR(1) scatter (the next window after the pool)."""
+    found = 0
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        arms = _arms(rng, options.n_base + 1, rho)
+        newest = arms[-1] + [0.0, shift, 0.0]
+        found += bool(pooled_shifts(_pool(arms[:-1]), _pool([newest]), JOINTS, options, axes=AXES))
+    return found
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.3, 0.6])
+def test_one_window_against_the_pool_holds_its_stated_rate(rho: float) -> None:
+    # one estimate against the baseline's pool is a prediction: its own error is one window's S,
+    # the pool mean's is κ S / n_b. At alpha = 5 % seeds 0-999 must stay under the binomial's 1e-6
+    # bound (86); at the default rate (1e-5) under its bound of 2 (seeds 0-999 at rho = 0 hold one: a
+    # 4.9 std draw of the newest window)
+    loose = PoolOptions(alpha=0.05, floor_m=0.0, n_recent=1)
+    assert _one_window_rate(rho, loose) <= stats.binom.isf(1e-6, 1000, 0.05)
+    strict = PoolOptions(n_recent=1)
+    assert _one_window_rate(rho, strict) <= stats.binom.isf(1e-6, 1000, strict.alpha)
+
+
+def test_one_window_finds_a_slide_far_beyond_the_scatter() -> None:
+    # 2 mm of scatter along y: 20 mm is 10 std, found in every one of seeds 0-999 from one window;
+    # 5 mm (2.5 std) in 6 of them: that is the pooled test's to find
+    assert _one_window_rate(0.0, PoolOptions(n_recent=1), shift=0.02) == 1000
+    assert _one_window_rate(0.0, PoolOptions(n_recent=1), shift=0.005) <= 20
+
+
+def test_stored_drift_judges_one_window_by_the_pools_scatter_not_its_stated_std() -> None:
+    # the hidden effect: lever arms that move 10 mm between healthy windows while each estimate
+    # states 3 mm (a link whose windows' motion moves the fit: paper-3's fourth link on the robot
+    # preset). Two estimates 25 mm apart exceed 5 combined stated stds plus the floor (5·√2·3 + 2 =
+    # 23 mm), yet the pool shows that scatter is healthy; a slide of 80 mm (about 8 of the pool's
+    # stds; the one-window limit is T² 32, near 6 std) is beyond it and found from the one window,
+    # before any recent pool exists
+    rng = np.random.default_rng(3)
+    topo = Topology({"j1": None}, {"imu1": "j1"})
+    up = np.array([0.0, 0.0, 1.0])
+    wide = [ARM + 0.01 * np.array([rng.normal(), rng.normal(), 0.0]) for _ in range(40)]
+    first = {**_kin(up).to_json(), POOL_KEY: _pool(wide).to_json()}
+    first["imus"]["imu1"]["lever_arm"] = [0.2, 0.0, 0.0]
+
+    def window(arm: list[float]) -> dict:
+        latest = {**_kin(up).to_json(), POOL_KEY: []}
+        latest["imus"]["imu1"]["lever_arm"] = arm
+        return latest
+
+    healthy = window([0.2, 0.025, 0.0])  # 2.5 of the pool's std: within its scatter
+    stated = kinematic_findings(Kinematics.from_json(first, topo), Kinematics.from_json(healthy, topo))
+    assert [f.kind for f in stated] == ["imu_shifted"]  # what the stated std alone would raise
+    assert stored_drift(first, healthy, topo) == ()
+    (f,) = stored_drift(first, window([0.2, 0.08, 0.0]), topo)
+    assert (f.kind, f.imu) == ("imu_shifted", "imu1")
+    assert "newest estimate against the mean of 40" in f.detail
