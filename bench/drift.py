@@ -430,7 +430,9 @@ def _markdown(d: dict) -> str:
         + ", on the first window's tree learned by `fast`). "
         "Nominal: healthy windows compared with the first (any finding is false). Damages: injected on "
         "a fork, the first window wholly after compared with the first; *first right*: the first "
-        "finding is the damage's kind on its part.",
+        "finding is the damage's kind on its part. Here two estimates are compared by their stated stds "
+        "(`kinematic_findings`), slides too; the service judges slides against the baseline's pool "
+        "instead (below), and raises no `imu_shifted` from two estimates alone.",
         "",
         "| robot | axes converged | false findings (windows) | damage | first right | findings | CPU s |",
         "|---|---:|---:|---|---|---|---:|",
@@ -464,9 +466,10 @@ def _markdown(d: dict) -> str:
         false = sum(len(n) for n in p["nominal_findings"])
         lines += [
             "",
-            f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against those "
-            f"of the newest {p['n_recent']} (Hotelling's T² in the plane perpendicular to the axis, "
-            f"false-alarm rate {p['alpha']:g} per comparison), as the worker judges them. "
+            f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against the "
+            f"mean of the newest k, for every k up to {p['n_recent']} (Hotelling's T² in the plane "
+            f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison, each look at "
+            f"{p['alpha']:g}/{p['n_recent']}), as the worker judges them. "
             f"Healthy: {false} findings in {p['nominal_windows']} "
             f"windows judged. Each slide judged for {p['windows_after']} windows after it:",
             "",

@@ -7,8 +7,7 @@ gyros read) by about 3.2 mm radially and 2.5 mm tangentially for an IMU 0.21 m f
 frame, :mod:`bodyschema.kinematics`), about as its reported std says, with errors that move with the
 motion. The error is the motion's, so it
 averages out over windows of other motion, and a slide is permanent: the lever arms of ``n_base``
-estimates under the baseline (:class:`LeverPool`) are compared with those of the ``n_recent`` newest
-estimates.
+estimates under the baseline (:class:`LeverPool`) are compared with those of the newest estimates.
 
 **The error model.** Each estimate's lever arm is the IMU's true one plus an error ``e`` with a
 covariance ``S`` the motion sets (the same for every window of one robot's motion), estimated by the
@@ -18,23 +17,28 @@ windows' errors are correlated when the motion changes slowly: an AR(1) with the
 and cuts the degrees of freedom to ``n_b / κ - 1``. The lever arm lies in the plane perpendicular to
 its joint's axis, and so does every slide it can show (one along the axis moves nothing a recording
 sees): the test is in that plane, the baseline's axis given, ``p = 2``. The change of the mean
-``d = r̄_recent - r̄_base`` there has covariance ``Σ = κ S (1/n_b + 1/n_recent)`` (plus a small ridge),
-and Hotelling's ``T² = dᵀ Σ⁻¹ d`` follows ``ν p / (ν - p + 1) F(p, ν - p + 1)``. A slide is reported
-when ``T²`` exceeds that distribution's ``1 - alpha`` quantile and ``|d|`` exceeds ``floor_m``:
+``d = r̄_recent - r̄_base`` of ``k`` recent estimates there has covariance ``Σ = κ S (1/n_b + 1/k)``
+(a small ridge added), and Hotelling's ``T² = dᵀ Σ⁻¹ d`` follows ``ν p / (ν - p + 1) F(p, ν - p + 1)``.
+A slide is reported when ``T²`` exceeds that distribution's quantile (below) and ``|d|`` exceeds ``floor_m``:
 ``alpha`` is the false alarm rate of one comparison on a healthy robot, the floor a change too small
 to matter. The third dimension, along the axis, holds no slide and only the lean of each window's
 axis (about 0.1 mm at 0.2 m): kept, it raised the quantile by a fifth (44 against 36 at ``ν = 30``,
 ``alpha = 1e-5``) for nothing. Without an axis (an IMU the baseline holds none for) the test is in
 three dimensions, ``p = 3``.
 
-**One window against the pool.** The same pool judges the newest estimate alone, as soon as the
-baseline's pool is full: a prediction, whose covariance is one window's own, ``S (1 + κ/n_b)``, with
-the same quantile. This is the only single-window slide test the stored drift makes. Comparing two
-estimates by their stated stds (:func:`~bodyschema.kinematic_drift.kinematic_findings`) takes each
-window's error to be its noise; on some links the window's motion moves the fit by several times that
-(paper-3's fourth link on the ``robot`` preset: 10 to 27 mm between healthy windows against stated
-stds of 2 to 4 mm, several IMUs of the link at once), and the pool's scatter holds it. A slide about
-six of the pool's stds along it is found in the window after it; smaller ones wait for the recent pool.
+**A step, looked for at every age.** A slide is a step: the estimates after it share it, those
+before do not. The newest ``k`` estimates are compared with the baseline's pool for every ``k`` from 1
+to ``n_recent``: a large slide shows in the newest window alone, a small one once enough windows after
+it are averaged, undiluted by the windows before it (a fixed mean of ``n_recent`` holds only ``k /
+n_recent`` of a slide ``k`` windows old). Each look is tested at ``alpha / n_recent`` (Bonferroni), so
+a comparison's false alarm rate stays at most ``alpha``; the surest look is reported. One estimate
+(``k = 1``) is a prediction: its covariance is one window's own, ``S (1 + κ/n_b)``.
+
+Comparing two estimates by their stated stds (:func:`~bodyschema.kinematic_drift.kinematic_findings`)
+instead takes each window's error to be its noise; on some links the window's motion moves the fit by
+several times that (paper-3's fourth link on the ``robot`` preset: 10 to 27 mm between healthy windows
+against stated stds of 2 to 4 mm, several IMUs of the link at once), and the pool's scatter holds it.
+The stored drift makes no such comparison of lever arms.
 
 What it can see depends on the IMU: a slide must be about six times ``Σ``'s std along it, and ``Σ``
 grows with the scatter of the IMU's lever arm and with how long its errors follow the motion from one
@@ -61,7 +65,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -151,36 +155,36 @@ def _limit(nu: float, alpha: float, p: int = 3) -> float:
     return nu * p / (nu - p + 1) * float(stats.f.isf(alpha, p, nu - p + 1))
 
 
-def _t2(
-    base: np.ndarray, recent: np.ndarray, o: PoolOptions, axis: np.ndarray | None = None
-) -> tuple[float, float, np.ndarray]:
-    """Hotelling's ``T²`` of the change of mean from ``base`` to ``recent`` lever arms, its limit and
-    the change; with ``axis``, in the plane perpendicular to it (module docstring). One recent
-    estimate is a prediction: its own error is one window's, ``S``, not inflated by ``κ``."""
-    if axis is not None:
-        plane = null_space(np.asarray(axis, dtype=float).reshape(1, 3))  # (3, 2), orthonormal
-        base, recent = base @ plane, recent @ plane
-    p = base.shape[1]
-    kappa = _inflation(base)
-    nu = max(base.shape[0] / kappa - 1.0, p + 1.0)
-    cov = np.cov(base.T).reshape(p, p) + o.ridge_m**2 * np.eye(p)
-    d = recent.mean(axis=0) - base.mean(axis=0)
-    n_r = recent.shape[0]
-    sigma = cov * (kappa / base.shape[0] + (kappa if n_r > 1 else 1.0) / n_r)
-    return float(d @ np.linalg.solve(sigma, d)), _limit(nu, o.alpha, p), d
+@dataclass(frozen=True)
+class _Base:
+    """One IMU's baseline pool as the test reads it: in the plane perpendicular to its axis (``plane``,
+    None: all three directions), its mean, covariance ``S`` (plus the ridge), ``κ`` and degrees of
+    freedom ``ν``."""
 
+    plane: np.ndarray | None
+    n: int
+    mean: np.ndarray
+    cov: np.ndarray
+    kappa: float
+    nu: float
 
-def _shift_finding(imu: str, joint: str, t2: float, limit: float, d: np.ndarray, what: str) -> Finding:
-    return Finding(
-        kind="imu_shifted",
-        imu=imu,
-        joint=joint,
-        confidence=round(1.0 - 0.5 * math.sqrt(limit / t2), 4),
-        detail=(
-            f"lever arm moved {float(np.linalg.norm(d)) * 1e3:.1f} mm, {what} "
-            f"(T² {t2:.0f}, limit {limit:.0f})"
-        ),
-    )
+    @classmethod
+    def of(cls, arms: np.ndarray, o: PoolOptions, axis: np.ndarray | None) -> _Base:
+        plane = None if axis is None else null_space(np.asarray(axis, dtype=float).reshape(1, 3))
+        x = arms if plane is None else arms @ plane  # plane: (3, 2), orthonormal
+        p = x.shape[1]
+        kappa = _inflation(x)
+        cov = np.cov(x.T).reshape(p, p) + o.ridge_m**2 * np.eye(p)
+        return cls(plane, x.shape[0], x.mean(axis=0), cov, kappa, max(x.shape[0] / kappa - 1.0, p + 1.0))
+
+    def t2(self, recent: np.ndarray) -> tuple[float, np.ndarray]:
+        """``T²`` of the mean of ``recent`` (k, 3) against the pool's, and the change. One recent
+        estimate is a prediction: its own error is one window's, ``S``, not inflated by ``κ``."""
+        x = recent if self.plane is None else recent @ self.plane
+        k = x.shape[0]
+        d = x.mean(axis=0) - self.mean
+        sigma = self.cov * (self.kappa / self.n + (self.kappa if k > 1 else 1.0) / k)
+        return float(d @ np.linalg.solve(sigma, d)), d
 
 
 def pooled_shifts(
@@ -191,32 +195,46 @@ def pooled_shifts(
     skip: Collection[str] = (),
     axes: Mapping[str, np.ndarray | None] | None = None,
 ) -> tuple[Finding, ...]:
-    """``imu_shifted`` for each IMU of ``joints`` (``{imu: joint}``) whose mean lever arm moved between
-    the pools beyond what their scatter allows (module docstring); none until both pools are full.
-    IMUs in ``skip`` are left out (found turned, or their joint's axis bent: their lever arm moves
-    with the turn). ``axes`` (``{imu: its joint's axis in its frame}``, the baseline's) puts each
-    IMU's test in the plane perpendicular to its axis."""
+    """``imu_shifted`` for each IMU of ``joints`` (``{imu: joint}``) whose newest lever arms moved from
+    the baseline pool's beyond what its scatter allows (module docstring): the newest ``k`` of
+    ``recent`` for every ``k`` up to ``n_recent``, each look at ``alpha / n_recent``, the surest look
+    reported; none until the baseline's pool is full. IMUs in ``skip`` are left out (found turned, or
+    their joint's axis bent: their lever arm moves with the turn). ``axes`` (``{imu: its joint's axis
+    in its frame}``, the baseline's) puts each IMU's test in the plane perpendicular to its axis."""
     o = options or PoolOptions()
-    if base.n < o.n_base or recent.n < o.n_recent:
+    if base.n < o.n_base or recent.n == 0:
         return ()
     out: list[Finding] = []
     for imu, joint in joints.items():
         if imu in skip or joint is None:
             continue
-        a, b = base.arms(imu), recent.arms(imu)
-        if a.shape[0] < max(o.min_share * base.n, 5) or b.shape[0] < max(
-            o.min_share * recent.n, min(3, o.n_recent)
-        ):
+        a, b = base.arms(imu), recent.arms(imu)[-o.n_recent :]
+        if a.shape[0] < max(o.min_share * base.n, 5) or b.shape[0] < o.min_share * min(recent.n, o.n_recent):
             continue
-        t2, limit, d = _t2(a, b, o, (axes or {}).get(imu))
-        if t2 <= limit or float(np.linalg.norm(d)) <= o.floor_m:
+        pool = _Base.of(a, o, (axes or {}).get(imu))
+        limit = _limit(pool.nu, o.alpha / o.n_recent, len(pool.mean))
+        looks = [(*pool.t2(b[-k:]), k) for k in range(1, b.shape[0] + 1)]
+        seen = [(t2, d, k) for t2, d, k in looks if t2 > limit and float(np.linalg.norm(d)) > o.floor_m]
+        if not seen:
             continue
+        t2, d, k = max(seen, key=lambda x: x[0])
         what = (
-            f"the mean of the last {b.shape[0]} estimates against {a.shape[0]} under the baseline"
-            if b.shape[0] > 1
+            f"the mean of the last {k} estimates against {a.shape[0]} under the baseline"
+            if k > 1
             else f"the newest estimate against the mean of {a.shape[0]} under the baseline"
         )
-        out.append(_shift_finding(imu, joint, t2, limit, d, what))
+        out.append(
+            Finding(
+                kind="imu_shifted",
+                imu=imu,
+                joint=joint,
+                confidence=round(1.0 - 0.5 * math.sqrt(limit / t2), 4),
+                detail=(
+                    f"lever arm moved {float(np.linalg.norm(d)) * 1e3:.1f} mm, {what} "
+                    f"(T² {t2:.0f}, limit {limit:.0f})"
+                ),
+            )
+        )
     return tuple(out)
 
 
@@ -230,9 +248,9 @@ def stored_drift(
     JSON, each with its :data:`POOL_KEY`): :func:`~bodyschema.kinematic_drift.kinematic_findings` of the
     two estimates without their lever arms (turns, bends, dead bands), then the slides of the IMUs those
     left alone (a turned IMU, or one on a joint whose axis bent, moves its lever arm with the turn):
-    the newest estimate's lever arm against the baseline's pool, then the recent pool's mean against it
-    (:func:`pooled_shifts`, each in the plane perpendicular to the baseline's axis; module docstring).
-    Until the baseline's pool is full no slide is judged. The worker's
+    the newest ``k`` estimates of the recent pool against the baseline's, for every ``k`` up to
+    ``n_recent`` (:func:`pooled_shifts`, each in the plane perpendicular to the baseline's axis; module
+    docstring). Until the baseline's pool is full no slide is judged. The worker's
     alerts and the API's drift both come from here, on the same stored rows."""
     then, now = Kinematics.from_json(dict(baseline), topology), Kinematics.from_json(dict(latest), topology)
     found = kinematic_findings(then, now, DriftOptions(lever_arms=False))
@@ -242,8 +260,5 @@ def stored_drift(
     }
     joints = {imu: k.joint for imu, k in then.imus.items()}
     axes = {imu: k.axis for imu, k in then.imus.items()}
-    o = options or PoolOptions()
-    base, recent = LeverPool.from_json(baseline.get(POOL_KEY)), LeverPool.from_json(latest.get(POOL_KEY))
-    newest = pooled_shifts(base, LeverPool().add(now), joints, replace(o, n_recent=1), skip, axes)
-    skip |= {f.imu for f in newest if f.imu is not None}
-    return (*found, *newest, *pooled_shifts(base, recent, joints, o, skip, axes))
+    pools = LeverPool.from_json(baseline.get(POOL_KEY)), LeverPool.from_json(latest.get(POOL_KEY))
+    return (*found, *pooled_shifts(*pools, joints, options, skip, axes))

@@ -29,9 +29,10 @@ One cycle, for every robot the store knows:
    when the diff holds no finding, the robot's geometry is estimated
    (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
-   with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates, and the lever arms of
-   the ``kinematics_pool_recent`` newest estimates pooled against those of the first
-   ``kinematics_pool_base``, for slides smaller than one window's scatter) and their ``imu_rotated``,
+   with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates' axes, turns and dead
+   bands; lever arms against those of the first ``kinematics_pool_base`` estimates pooled, the
+   newest one's and the mean of the ``kinematics_pool_recent`` newest, for slides smaller than one
+   window's scatter) and their ``imu_rotated``,
    ``imu_shifted``, ``axis_changed`` and ``backlash`` findings join the diff; in the cycles between,
    those kinds are held (:meth:`Worker._drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.

@@ -68,7 +68,8 @@ def test_short_run(tmp_path: Path) -> None:
     assert "| ur5e | 12 / 12 | 0 (2) | imu_rotated 2 ° imu:imu11 | yes |" in text
     assert "0 alerts raised" in text and "networks every 12 cycles" in text
     assert (
-        "Pooled slides (ur5e): the lever arms of the first 40 windows against those of the newest 20" in text
+        "Pooled slides (ur5e): the lever arms of the first 40 windows against the mean of the newest k, "
+        "for every k up to 20" in text
     )
     assert (tmp_path / "drift.png").stat().st_size > 5000
 
