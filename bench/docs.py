@@ -1246,6 +1246,14 @@ def _kinematics(b: _Bench) -> str:
     return "\n".join(lines)
 
 
+def _kinds(cat: list[dict]) -> str:
+    """The kinds of the catalog part's false findings, counted ("4 imu_shifted"; "none")."""
+    from collections import Counter
+
+    n = Counter(f["kind"] for r in cat for w in r["nominal_findings"] for f in w)
+    return ", ".join(f"{v} {k}" for k, v in sorted(n.items())) or "none"
+
+
 def _drift(b: _Bench) -> str:
     from bench.drift import _change, _elsewhere, networks_text
 
@@ -1284,7 +1292,9 @@ def _drift(b: _Bench) -> str:
         f"Measured with {b.provenance('drift')}: {len(cat)} catalog robots "
         f"({', '.join(r['robot'] for r in cat)}), `robot` sensing preset, MPU-6050 IMUs kept across the "
         f"run, {d['window_s']:g} s windows: {false} false findings in {windows} healthy windows compared "
-        "with each robot's first; " + "; ".join(parts) + "."
+        f"with each robot's first ({_kinds(cat)}); " + "; ".join(parts) + ". Two estimates are compared "
+        "here by their stated stds, slides too; the service judges slides against the baseline's pool "
+        "(below) and raises none from two estimates."
     ]
     p = d.get("pooled")
     if p is not None:
@@ -1299,8 +1309,9 @@ def _drift(b: _Bench) -> str:
         )
         lines += [
             "",
-            f"Slides judged on pooled lever arms ({p['robot']}, {p['n_base']} estimates against the newest "
-            f"{p['n_recent']}): {sum(len(n) for n in p['nominal_findings'])} findings in "
+            f"Slides judged on pooled lever arms ({p['robot']}, {p['n_base']} estimates against the mean of "
+            f"the newest k, every k up to {p['n_recent']}): {sum(len(n) for n in p['nominal_findings'])} "
+            "findings in "
             f"{p['nominal_windows']} healthy windows judged; found: {found}.",
         ]
     s = d["service"]

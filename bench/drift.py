@@ -468,8 +468,8 @@ def _markdown(d: dict) -> str:
             "",
             f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against the "
             f"mean of the newest k, for every k up to {p['n_recent']} (Hotelling's T² in the plane "
-            f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison, each look at "
-            f"{p['alpha']:g}/{p['n_recent']}), as the worker judges them. "
+            f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison: half for the look "
+            f"at all {p['n_recent']}, half shared by the others), as the worker judges them. "
             f"Healthy: {false} findings in {p['nominal_windows']} "
             f"windows judged. Each slide judged for {p['windows_after']} windows after it:",
             "",
