@@ -1301,7 +1301,7 @@ def _drift(b: _Bench) -> str:
         found = "; ".join(
             f"{g['mm']:g} mm of {g['imu']} ({g['lever_arm_mm']:.0f} mm from its axis) "
             + (
-                f"after {g['windows_to_finding']} windows"
+                f"after {g['windows_to_finding']} window{'s' if g['windows_to_finding'] > 1 else ''}"
                 if g["windows_to_finding"]
                 else f"not within {p['windows_after']} windows"
             )
@@ -1310,7 +1310,8 @@ def _drift(b: _Bench) -> str:
         lines += [
             "",
             f"Slides judged on pooled lever arms ({p['robot']}, {p['n_base']} estimates against the mean of "
-            f"the newest k, every k up to {p['n_recent']}): {sum(len(n) for n in p['nominal_findings'])} "
+            f"the newest k, every k up to {p['n_recent']}, each without its farthest): "
+            f"{sum(len(n) for n in p['nominal_findings'])} "
             "findings in "
             f"{p['nominal_windows']} healthy windows judged; found: {found}.",
         ]

@@ -467,7 +467,8 @@ def _markdown(d: dict) -> str:
         lines += [
             "",
             f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against the "
-            f"mean of the newest k, for every k up to {p['n_recent']} (Hotelling's T² in the plane "
+            f"mean of the newest k, for every k up to {p['n_recent']}, each without its farthest "
+            "(Hotelling's T² in the plane "
             f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison: half for the look "
             f"at all {p['n_recent']}, half shared by the others), as the worker judges them. "
             f"Healthy: {false} findings in {p['nominal_windows']} "

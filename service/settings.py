@@ -128,7 +128,8 @@ class Settings(BaseSettings):
     kinematics_pool_recent: int = Field(
         20,
         ge=3,
-        description="newest geometry estimates whose lever arms, pooled, are compared with the baseline's",
+        description="newest geometry estimates whose lever arms, pooled, are compared with the baseline's "
+        "(the newest k of them, for every k up to this)",
     )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")

@@ -30,9 +30,9 @@ One cycle, for every robot the store knows:
    (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
    with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates' axes, turns and dead
-   bands; lever arms against those of the first ``kinematics_pool_base`` estimates pooled, the
-   newest one's and the mean of the ``kinematics_pool_recent`` newest, for slides smaller than one
-   window's scatter) and their ``imu_rotated``,
+   bands; lever arms against those of the first ``kinematics_pool_base`` estimates pooled: the mean
+   of the newest ``k`` for every ``k`` up to ``kinematics_pool_recent``, down to slides smaller than
+   one window's scatter) and their ``imu_rotated``,
    ``imu_shifted``, ``axis_changed`` and ``backlash`` findings join the diff; in the cycles between,
    those kinds are held (:meth:`Worker._drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.
