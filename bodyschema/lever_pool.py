@@ -225,11 +225,12 @@ def _looks(pool: _Base, b: np.ndarray, o: PoolOptions) -> list[tuple[float, np.n
     full, part = _limits(pool, o)
     if o.n_recent == 1:
         return [(*pool.t2(b[-1:]), full, 1)]
+    far = pool.distances(b)  # once: each look's farthest is the argmax over its own tail of these
     out = []
     for k in range(2, b.shape[0] + 1):
         x = b[-k:]
-        far = int(np.argmax(pool.distances(x)))
-        out.append((*pool.t2(np.delete(x, far, axis=0)), full if k == o.n_recent else part, k))
+        x = np.delete(x, int(np.argmax(far[-k:])), axis=0)
+        out.append((*pool.t2(x), full if k == o.n_recent else part, k))
     return out
 
 
