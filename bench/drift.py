@@ -282,7 +282,8 @@ def _service(args: argparse.Namespace) -> dict:
         interval = settings.worker_interval_seconds
         cycles = round(args.hours * 3600.0 / interval)
         raised: list[dict] = []
-        judged = found = retrains = 0
+        drift: list[dict] = []
+        judged = retrains = 0
         baselines: dict[str, int] = {}
         for cycle in progress(range(cycles), desc="bench drift: service", unit="cycle"):
             for name, rec in farm.advance(interval).items():
@@ -293,7 +294,12 @@ def _service(args: argparse.Namespace) -> dict:
                 judged += res.drift_judged
                 retrains += "network" in res.methods
                 if res.drift_judged and res.diff is not None:
-                    found += sum(1 for f in res.diff.findings if f.kind in KINEMATIC_KINDS)
+                    drift += [
+                        {"robot": name, "cycle": cycle + 1, "kind": f.kind, "part": f.part}
+                        | {"detail": f.detail}
+                        for f in res.diff.findings
+                        if f.kind in KINEMATIC_KINDS
+                    ]
                 raised += [
                     {"robot": name, "kind": t.kind, "part": t.part, "cycle": cycle + 1}
                     for t in res.transitions
@@ -318,7 +324,8 @@ def _service(args: argparse.Namespace) -> dict:
         "baseline_cycle": baselines,
         "geometry_kept": kept,
         "geometry_comparisons": judged,
-        "drift_findings": found,
+        "drift_findings": len(drift),
+        "drift_finding_details": drift,
         "alerts_raised": raised,
         "cpu_s": round(time.process_time() - cpu0, 1),
     }
@@ -500,6 +507,12 @@ def _markdown(d: dict) -> str:
         ]
         for a in s["alerts_raised"]:
             lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
+        if s.get("drift_finding_details"):
+            lines += ["", "Drift findings of the service run (a finding raises an alert after M cycles):", ""]
+            lines += [
+                f"- {f['robot']}, cycle {f['cycle']}: {f['kind']} {f['part']}: {f['detail']}"
+                for f in s["drift_finding_details"]
+            ]
     lines += ["", "![drift](drift.png)", ""]
     return "\n".join(lines)
 

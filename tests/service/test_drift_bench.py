@@ -61,6 +61,7 @@ def test_short_run(tmp_path: Path) -> None:
     assert all(len(g["scatter_mm"]) == 3 and g["other_findings"] == 0 for g in p["slides"])
     s = d["service"]
     assert s["cycles"] == 36 and s["alerts_raised"] == [] and s["drift_findings"] == 0
+    assert s["drift_finding_details"] == []
     # the product's schedule (the suite turns it off): the networks retrained every 12 cycles
     assert s["network_interval_cycles"] == 12 and s["network_retrains"] >= 3
     assert s["geometry_comparisons"] >= 3 and s["geometry_kept"] == {"ur5e-0": True}
