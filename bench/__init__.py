@@ -36,6 +36,7 @@ BENCHMARKS: tuple[str, ...] = (
     "import_",
     "kinematics",
     "drift",
+    "lever_budget",
     "docs",
 )
 

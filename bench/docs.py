@@ -1328,6 +1328,35 @@ def _drift(b: _Bench) -> str:
     return "\n".join(lines)
 
 
+def _lever_budget(b: _Bench) -> str:
+    from bench.lever_budget import summary
+
+    d = b.json("lever-budget.json")
+    assert isinstance(d, dict)
+    conds = d["conditions"]
+    first = next(iter(conds.values()))["frames"]["gyro"]
+    windows = max(r["windows"] for r in first.values())
+    lines = [
+        f"Measured with {b.provenance('lever-budget')}: the lever arms of the {d['robot']}'s {len(first)} "
+        f"IMUs in {windows} windows of {d['window_s']:g} s, the same motion under each condition. Scatter: "
+        "RMS distance of one window's lever arm from the windows' mean, median over the IMUs (largest); "
+        "understated: IMUs scattering more than twice the std they state.",
+        "",
+        "| condition | gyros' frame | understated | accelerometers' frame | understated |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for label, c in conds.items():
+        cells = []
+        for frame in ("gyro", "accelerometer"):
+            s = summary(c, frame)
+            cells += [
+                f"{s['scatter_median_mm']:.1f} ({s['scatter_max_mm']:.1f}) mm",
+                f"{s['understated']} of {s['imus']}",
+            ]
+        lines.append(_row([label, *cells]))
+    return "\n".join(lines)
+
+
 @dataclass(frozen=True)
 class Figure:
     """One marked block: which doc, which marker id, which bench file it is rendered from, and how."""
@@ -1377,6 +1406,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),
     _f("docs/kinematics.md", "drift", "drift.json", _drift),
+    _f("docs/kinematics.md", "lever-budget", "lever-budget.json", _lever_budget),
     _f("docs/scale.md", "fleet", "fleet.json", _scale_doc),
 )
 
