@@ -1354,6 +1354,15 @@ def _lever_budget(b: _Bench) -> str:
                 f"{s['understated']} of {s['imus']}",
             ]
         lines.append(_row([label, *cells]))
+    far = []
+    for label, said in (("MPU-6050", "the MPU-6050 model"), ("noise only", "its noise alone")):
+        g = conds.get(label, {}).get("frames", {}).get("gyro")
+        if g:
+            n = max(g, key=lambda k: g[k]["worst_mm"])
+            far.append(f"{g[n]['worst_mm']:.1f} mm ({n}) with {said}")
+    if far:
+        head = "The farthest one window's lever arm came from its IMU's mean, about the gyros' axes: "
+        lines += ["", head + "; ".join(far) + "."]
     return "\n".join(lines)
 
 
