@@ -15,7 +15,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BENCHMARKS", "REPO_ROOT", "RESULTS_DIR", "detection_table", "machine_note", "map_jobs"]
+__all__ = [
+    "BENCHMARKS",
+    "REPO_ROOT",
+    "RESULTS_DIR",
+    "detection_table",
+    "machine_note",
+    "map_jobs",
+    "write_results",
+]
 
 BENCHMARKS: tuple[str, ...] = (
     "algebra",
@@ -80,6 +88,22 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: 
             bar.update(1)
     bar.close()
     return out
+
+
+def write_results(
+    out: Path | str, stem: str, data: dict, markdown: str, plot: Callable[[Path], None]
+) -> Path:
+    """Write a bench's ``STEM.json`` (``data``), ``STEM.png`` (``plot(path)``) and ``STEM.md``
+    (``markdown``) under ``out``, creating it; returns the markdown's path, the file the docs cite."""
+    import json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    plot(out / f"{stem}.png")
+    path = out / f"{stem}.md"
+    path.write_text(markdown, encoding="utf-8")
+    return path
 
 
 def detection_table(

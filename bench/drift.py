@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
@@ -375,13 +375,7 @@ def run(args: argparse.Namespace) -> Path:
         "pooled": pooled,
         "service": service,
     }
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "drift.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    _plot(catalog, out / "drift.png")
-    path = out / "drift.md"
-    path.write_text(_markdown(data), encoding="utf-8")
-    return path
+    return write_results(args.out, "drift", data, _markdown(data), lambda path: _plot(catalog, path))
 
 
 def _frame() -> bool:

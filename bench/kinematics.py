@@ -16,13 +16,12 @@ axes whose error is at most twice their reported ``axis_std_deg``. Writes ``kine
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
@@ -185,11 +184,7 @@ def run(args: argparse.Namespace) -> Path:
         "summary": summary,
         "rows": rows,
     }
-    (out / "kinematics.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    _plot(summary, out / "kinematics.png")
-    path = out / "kinematics.md"
-    path.write_text(_markdown(data), encoding="utf-8")
-    return path
+    return write_results(out, "kinematics", data, _markdown(data), lambda path: _plot(summary, path))
 
 
 def _fmt(x: float | None, f: str) -> str:

@@ -23,14 +23,13 @@ that mean from the truth; *lag-one correlation* of the errors between consecutiv
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note, map_jobs
+from bench import RESULTS_DIR, machine_note, map_jobs, write_results
 from sim2real.figures import save_figure
 
 __all__ = ["CONDITIONS", "add_arguments", "run"]
@@ -157,13 +156,7 @@ def run(args: argparse.Namespace) -> Path:
         "window_s": args.window_s,
         "conditions": {r["label"]: {"frames": r["frames"], "cpu_s": r["cpu_s"]} for r in results},
     }
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "lever-budget.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    _plot(data, out / "lever-budget.png")
-    path = out / "lever-budget.md"
-    path.write_text(_markdown(data), encoding="utf-8")
-    return path
+    return write_results(args.out, "lever-budget", data, _markdown(data), lambda path: _plot(data, path))
 
 
 def summary(cond: dict, frame: str) -> dict:

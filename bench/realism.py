@@ -20,7 +20,6 @@ Writes ``realism.json``, ``realism.md`` and ``realism.png``.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
@@ -29,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 from simulators.sensing import PRESETS, SensingOptions
@@ -226,12 +225,8 @@ def run(args: argparse.Namespace) -> Path:
     summary = _summary(rows, sizes, methods)
     data = {"machine": machine_note(), "command": command, "summary": summary, "rows": rows}
     data["catalog"] = catalog
-    (out / "realism.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    _plot(summary, sizes, methods, out / "realism.png")
-    path = out / "realism.md"
     text = _markdown(summary, sizes, methods, command, rows) + _catalog_markdown(catalog)
-    path.write_text(text, encoding="utf-8")
-    return path
+    return write_results(out, "realism", data, text, lambda path: _plot(summary, sizes, methods, path))
 
 
 def _catalog_markdown(catalog: list[dict[str, Any]]) -> str:

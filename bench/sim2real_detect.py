@@ -33,7 +33,6 @@ Orientation Estimation", Data 6(7), 2021, CC BY 4.0).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -42,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench import RESULTS_DIR, detection_table, machine_note, map_jobs
+from bench import RESULTS_DIR, detection_table, machine_note, map_jobs, write_results
 from bench.sim2real import trial_paths
 from bodyschema.discrepancy.effects import EFFECTS, FITTED_EFFECTS, nominal
 from bodyschema.discrepancy.fit import fit_params
@@ -450,10 +449,4 @@ def run(args: argparse.Namespace) -> Path:
         "trials": trials,
         "rates": _rates(trials, effects, list(args.factors)),
     }
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "sim2real-detect.json").write_text(json.dumps(data, indent=1) + "\n")
-    _plot(data, out / "sim2real-detect.png")
-    md = out / "sim2real-detect.md"
-    md.write_text(_markdown(data))
-    return md
+    return write_results(args.out, "sim2real-detect", data, _markdown(data), lambda path: _plot(data, path))
