@@ -333,8 +333,10 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
             assert daemon.worker is not None
             # the worker thread stores the topology row, then files the result: wait for both, or the
             # check below can run between the two (seen once in ten fresh-clone runs)
+            # the retrain runs in the idle class: on a machine busy with other work it waits for a
+            # free core, so the bound catches a hang, not a slow start (90 s failed beside a bench)
             while not (_network_rows(daemon.store) and daemon.worker.remote.results):
-                assert time.monotonic() - t0 < 90, http.get("/readyz").json()
+                assert time.monotonic() - t0 < 240, http.get("/readyz").json()
                 time.sleep(0.2)
         ours = [p for p in _children() if p.pid not in before]
         assert ours, "the embedded cluster runs worker processes"
