@@ -1313,7 +1313,7 @@ def _drift(b: _Bench) -> str:
             f"the newest k, every k up to {p['n_recent']}, each without its farthest): "
             f"{sum(len(n) for n in p['nominal_findings'])} "
             "findings in "
-            f"{p['nominal_windows']} healthy windows judged; found: {found}.",
+            f"{p['nominal_windows']} healthy windows judged{_elsewhere(d, 'pooled')}; found: {found}.",
         ]
     s = d["service"]
     if s is not None:

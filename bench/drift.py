@@ -365,9 +365,11 @@ def run(args: argparse.Namespace) -> Path:
         else:
             service = earlier.get("service")
     here = machine_note()
+    machines = {k: here if k in parts else earlier["machines"].get(k, here) for k in PARTS}
     data = {
-        "machine": here,
-        "machines": {k: here if k in parts else earlier["machines"].get(k, here) for k in PARTS},
+        # where the catalog part ran, the table's CPU column: the others name theirs where it differs
+        "machine": machines["catalog"],
+        "machines": machines,
         "command": command,
         "accelerometer_frame": _frame(),
         "window_s": WINDOW,
@@ -475,7 +477,8 @@ def _markdown(d: dict) -> str:
             f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison: half for the look "
             f"at all {p['n_recent']}, half shared by the others), as the worker judges them. "
             f"Healthy: {false} findings in {p['nominal_windows']} "
-            f"windows judged. Each slide judged for {p['windows_after']} windows after it:",
+            f"windows judged{_elsewhere(d, 'pooled')}. Each slide judged for {p['windows_after']} windows "
+            "after it:",
             "",
             "| IMU | lever arm | its scatter per window (radial, tangential, along the axis) | slide | "
             "windows to its finding | "
@@ -514,9 +517,9 @@ def _markdown(d: dict) -> str:
 
 
 def _elsewhere(d: dict, part: str) -> str:
-    """', on MACHINE, an earlier run' where ``part`` of ``d`` was taken from a run on another machine."""
+    """' (run on MACHINE, ...)' where ``part`` of ``d`` ran on another machine than the catalog part."""
     there = d.get("machines", {}).get(part, d["machine"])
-    return "" if there == d["machine"] else f" (an earlier run, on {there}, taken with `--from`)"
+    return "" if there == d["machine"] else f" (run on {there}, taken with `--from`)"
 
 
 def networks_text(s: dict) -> str:

@@ -93,7 +93,7 @@ def test_parts_from_an_earlier_run_must_come_from_the_same_command(tmp_path: Pat
     text = bench.run(_args(*args, "--from", str(earlier))).read_text()
     assert "5 geometry comparisons, 0 drift findings, 0 alerts raised" in text
     # written before the frame was recorded: the gyros', as now; the part says where it ran
-    assert "1 CPU s (an earlier run, on elsewhere, taken with `--from`)." in text
+    assert "1 CPU s (run on elsewhere, taken with `--from`)." in text
     for key, value in (("command", data["command"] + " --seed 1"), ("accelerometer_frame", True)):
         (earlier / "drift.json").write_text(json.dumps({**data, key: value}))
         with pytest.raises(SystemExit, match="another command or frame"):
