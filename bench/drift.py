@@ -45,7 +45,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "networks_text", "run", "window_geometry"]
+__all__ = ["add_arguments", "networks_text", "run", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -85,22 +85,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 PARTS = ("catalog", "pooled", "service")
 
 
-def window_geometry(rec: Any, tree: Any = None, accelerometer_frame: bool | None = None) -> Any:
-    """The window's geometry as the worker estimates it: on ``tree`` (the baseline's; None: the one the
-    fast estimator learns from the window) with the encoder timing the fast estimator finds in it, in
-    the accelerometers' frame or the gyros' (None: the frame the service's settings set,
-    ``kinematics_accelerometer_frame``)."""
+def window_tree(rec: Any, tree: Any = None) -> Any:
+    """The tree a window's geometry is estimated on, as the worker takes it: ``tree`` (the baseline's;
+    None: the one the fast estimator learns from the window) with the encoder timing the fast
+    estimator finds in the window."""
     from dataclasses import replace
 
     from bodyschema.estimate import estimate_topology
     from bodyschema.health import drop_impacts
-    from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
     topo = estimate_topology(drop_impacts(rec), method="fast")
-    if tree is not None:
-        topo = replace(tree, timing=dict(topo.timing))
-    frame = _frame() if accelerometer_frame is None else accelerometer_frame
-    return estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=frame))
+    return topo if tree is None else replace(tree, timing=dict(topo.timing))
+
+
+def _geometry(rec: Any, tree: Any = None) -> Any:
+    """The window's geometry as the worker estimates it, on :func:`window_tree`, in the frame the
+    service's settings set (``kinematics_accelerometer_frame``)."""
+    from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
+
+    return estimate_kinematics(rec, window_tree(rec, tree), KinematicsOptions(accelerometer_frame=_frame()))
 
 
 def _window(farm: Any, seconds: float = WINDOW) -> Any:
@@ -131,9 +134,9 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
 
     cpu0 = time.process_time()
     farm = Farm({"r": name}, seed=args.seed, sensing="robot")
-    base = window_geometry(_window(farm))
+    base = _geometry(_window(farm))
     tree = base.topology
-    nominal = [kinematic_findings(base, window_geometry(_window(farm), tree)) for _ in range(args.nominal)]
+    nominal = [kinematic_findings(base, _geometry(_window(farm), tree)) for _ in range(args.nominal)]
     sim = farm.simulation("r")
     truth = kinematics_truth(sim.robot)
     # the damaged IMU: the robot's last IMU on a moving link whose axis converged in the baseline
@@ -160,7 +163,7 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
     for kind, part, kw in damages:
         branch = farm.fork()
         branch.apply_damage("r", kind, **kw)
-        got = _found(kinematic_findings(base, window_geometry(_window(branch), tree)), kind, part)
+        got = _found(kinematic_findings(base, _geometry(_window(branch), tree)), kind, part)
         magnitude = kw.get("angle_deg", kw.get("deg", 1e3 * kw.get("meters", 0.0)))
         out.append({"kind": kind, "part": part, "magnitude": magnitude, **got})
     return {
@@ -188,17 +191,17 @@ def _pooled(args: argparse.Namespace) -> dict:
     cpu0 = time.process_time()
     o = PoolOptions()
     farm = Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot")
-    first = window_geometry(_window(farm))
+    first = _geometry(_window(farm))
     tree = first.topology
     pool = LeverPool().add(first)
     for _ in progress(range(o.n_base - 1), desc="bench drift: pooled baseline", unit="window"):
-        pool = pool.add(window_geometry(_window(farm), tree))
+        pool = pool.add(_geometry(_window(farm), tree))
     base = {**first.to_json(), POOL_KEY: pool.to_json()}
 
     def judged(f: Farm, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
         out = []
         for _ in range(n):
-            kin = window_geometry(_window(f), tree)
+            kin = _geometry(_window(f), tree)
             recent = recent.add(kin, keep=o.n_recent)
             out.append(stored_drift(base, {**kin.to_json(), POOL_KEY: recent.to_json()}, tree, o))
         return out, recent
@@ -297,8 +300,13 @@ def _service(args: argparse.Namespace) -> dict:
                 retrains += "network" in res.methods
                 if res.drift_judged and res.diff is not None:
                     drift += [
-                        {"robot": name, "cycle": cycle + 1, "kind": f.kind, "part": f.part}
-                        | {"detail": f.detail}
+                        {
+                            "robot": name,
+                            "cycle": cycle + 1,
+                            "kind": f.kind,
+                            "part": f.part,
+                            "detail": f.detail,
+                        }
                         for f in res.diff.findings
                         if f.kind in KINEMATIC_KINDS
                     ]

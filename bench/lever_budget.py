@@ -4,7 +4,7 @@ The service judges a slide of an IMU on its link against the scatter of its leve
 windows (:mod:`bodyschema.lever_pool`), so that scatter sets the smallest slide it can find. This
 bench splits it by cause. One catalog robot (``--robot``) runs on a simulated farm, ``robot`` sensing
 preset, for ``--windows`` windows of ``--window-s``; each window's geometry is estimated as the worker
-estimates it (:func:`bench.drift.window_geometry`: the tree of the first window, the timing of each), in
+estimates it (:func:`bench.drift.window_tree`: the tree of the first window, the timing of each), in
 the gyros' frame and in the accelerometers', and every IMU's lever arm is compared with the model's
 (:mod:`simulators.kinematics_truth`). The same robot, seed and motion run under each condition:
 
@@ -79,7 +79,8 @@ def _imu_model(spec: str | None) -> Any:
 
 def _condition(label: str, robot: str, windows: int, seconds: float, seed: int) -> dict:
     """Every IMU's lever-arm scatter, stated std and bias (:func:`_stats`) in both frames."""
-    from bench.drift import window_geometry
+    from bench.drift import window_tree
+    from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
     from bodyschema.threads import blas_threads
     from simulators.farm import Farm
     from simulators.kinematics_truth import kinematics_truth
@@ -94,9 +95,10 @@ def _condition(label: str, robot: str, windows: int, seconds: float, seed: int) 
     with blas_threads(1):
         for _ in range(windows):
             rec = farm.advance(seconds)["r"]
+            topo = window_tree(rec, tree)  # one tree, both frames
+            tree = tree or topo
             for frame, acc in _FRAMES.items():
-                kin = window_geometry(rec, tree, accelerometer_frame=acc)
-                tree = tree or kin.topology
+                kin = estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=acc))
                 for name, k in kin.imus.items():
                     true = truth[name].lever_arm
                     if k.lever_arm is None or true is None or truth[name].joint != k.joint:

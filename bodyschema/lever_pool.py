@@ -171,6 +171,11 @@ def _limit(nu: float, alpha: float, p: int = 3) -> float:
     return nu * p / (nu - p + 1) * float(stats.f.isf(alpha, p, nu - p + 1))
 
 
+def _in_plane(arms: np.ndarray, plane: np.ndarray | None) -> np.ndarray:
+    """Lever arms (k, 3) in the coordinates of ``plane`` (3, 2, orthonormal); None: as they are."""
+    return arms if plane is None else arms @ plane
+
+
 @dataclass(frozen=True)
 class _Base:
     """One IMU's baseline pool as the test reads it: in the plane perpendicular to its axis (``plane``,
@@ -187,7 +192,7 @@ class _Base:
     @classmethod
     def of(cls, arms: np.ndarray, o: PoolOptions, axis: np.ndarray | None) -> _Base:
         plane = None if axis is None else null_space(np.asarray(axis, dtype=float).reshape(1, 3))
-        x = arms if plane is None else arms @ plane  # plane: (3, 2), orthonormal
+        x = _in_plane(arms, plane)
         p = x.shape[1]
         rho = _rho(x)
         kappa = (1.0 + rho) / (1.0 - rho)
@@ -196,14 +201,14 @@ class _Base:
 
     def distances(self, recent: np.ndarray) -> np.ndarray:
         """Each of ``recent``'s (k, 3) squared distance from the pool's mean, in the pool's metric."""
-        e = (recent if self.plane is None else recent @ self.plane) - self.mean
+        e = _in_plane(recent, self.plane) - self.mean
         return np.einsum("ij,ij->i", e, np.linalg.solve(self.cov, e.T).T)
 
     def t2(self, recent: np.ndarray) -> tuple[float, np.ndarray]:
         """``T²`` of the mean of ``recent`` (k, 3) against the pool's, and the change; each mean's
         variance that of ``k`` (``n``) consecutive AR(1) errors, so one recent estimate is a
         prediction: its own error is one window's, ``S``."""
-        x = recent if self.plane is None else recent @ self.plane
+        x = _in_plane(recent, self.plane)
         d = x.mean(axis=0) - self.mean
         sigma = self.cov * (_mean_variance(self.n, self.rho) + _mean_variance(x.shape[0], self.rho))
         return float(d @ np.linalg.solve(sigma, d)), d
