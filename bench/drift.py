@@ -45,7 +45,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "networks_text", "run", "window_tree"]
+__all__ = ["add_arguments", "networks_text", "pools_text", "run", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -185,11 +185,12 @@ def _pooled(args: argparse.Namespace) -> dict:
     judged (any finding is false), then each slide of ``--pool-slides-mm`` on a fork, of the IMU whose
     lever arm is longest and of the robot's last IMU (a wrist's, a few cm from its axis), judged window
     by window for ``--pool-after`` windows: the windows until the first finding on its part."""
-    from bodyschema.lever_pool import POOL_KEY, LeverPool, PoolOptions, stored_drift
+    from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
+    from service.settings import Settings
     from simulators.farm import Farm
 
     cpu0 = time.process_time()
-    o = PoolOptions()
+    o = Settings().pool_options
     farm = Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot")
     first = _geometry(_window(farm))
     tree = first.topology
@@ -330,6 +331,7 @@ def _service(args: argparse.Namespace) -> dict:
         "interval_s": interval,
         "kinematics_interval_cycles": settings.kinematics_interval_cycles,
         "network_interval_cycles": settings.network_interval_cycles,
+        "pool_sizes": [settings.kinematics_pool_base, settings.kinematics_pool_recent],
         "network_retrains": retrains,
         "baseline_cycle": baselines,
         "geometry_kept": kept,
@@ -507,7 +509,7 @@ def _markdown(d: dict) -> str:
             "",
             f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
             f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, "
-            f"{networks_text(s)}): "
+            f"{pools_text(s)}, {networks_text(s)}): "
             f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
             f"{s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
@@ -528,6 +530,13 @@ def _elsewhere(d: dict, part: str) -> str:
     """' (run on MACHINE, ...)' where ``part`` of ``d`` ran on another machine than the catalog part."""
     there = d.get("machines", {}).get(part, d["machine"])
     return "" if there == d["machine"] else f" (run on {there}, taken with `--from`)"
+
+
+def pools_text(s: dict) -> str:
+    """The pool sizes the service part judged slides with (runs written before they were recorded ran
+    at the defaults of then: 40 and 20)."""
+    n_base, n_recent = s.get("pool_sizes", (40, 20))
+    return f"slides judged on pools of {n_base} and {n_recent} estimates"
 
 
 def networks_text(s: dict) -> str:

@@ -39,10 +39,21 @@ at the newest one and two), while a slide moves every estimate after it. The loo
 full recent pool, the surest for the smallest slides, is tested at ``alpha / 2``; the ``n_recent - 2``
 shorter looks share the other half (Bonferroni), so a comparison's false alarm rate stays at most
 ``alpha`` (leaving out the farthest only lowers it); the surest look is reported. Judged window by
-window after a slide across 2 mm of scatter (the tests' model, seeds 0-299), 5 mm is found after 12
-windows at the median and 10 mm after 4, against 13 and 7 for the full pool's look alone at
-``alpha``; at the 90th percentile 19 and 5 against 17 and 9. With ``n_recent = 1`` the one look is the
-newest estimate as it is: a prediction, whose covariance is one window's own.
+window after a slide across 2 mm of scatter (the tests' model, seeds 0-299, the default pools), 5 mm
+is found after 9 windows at the median and 10 mm after 3, against 17 and 9 for the full pool's look
+alone at ``alpha``; at the 90th percentile 14 and 4 against 21 and 11. With ``n_recent = 1`` the one
+look is the newest estimate as it is: a prediction, whose covariance is one window's own.
+
+**How many estimates.** The smallest slide found is set by the std of the change of two means,
+``S (v(n_b) + v(k))``, and by the limit, which falls towards the χ² quantile as ``ν`` grows; both ask
+for a large baseline pool. On a UR5e the upper-arm IMUs' lever arms scatter about 3.2 mm radially and
+2.5 mm tangentially per 30 s window (``bodyhealth bench drift``), so a 5 mm radial slide is about
+1.6 window stds. In that model (independent windows, seeds 0-99, 100 windows judged after the slide),
+pools of 40 and 20 estimates leave a quarter of such slides unfound for good, a baseline mean off by
+chance holding them back; pools of 80 and 40 (the defaults) find every one, after 25 windows at the
+median and 36 at the 90th percentile. A larger baseline buys little more (120 and 40: 21 and 32)
+and takes an hour to fill. The price is time: the baseline's pool fills 40 minutes after the
+geometry baseline at the service's pace (one estimate per 30 s), and no slide is judged before.
 
 Comparing two estimates by their stated stds (:func:`~bodyschema.kinematic_drift.kinematic_findings`)
 instead takes each window's error to be its noise; on some links the window's motion moves the fit by
@@ -63,10 +74,10 @@ Example
 >>> arm = np.array([0.2, 0.0, 0.0])
 >>> def estimates(n, shift=0.0):
 ...     return [{"imu1": arm + [0.0, shift, 0.0] + rng.normal(0, 0.003, 3)} for _ in range(n)]
->>> base, healthy = LeverPool(tuple(estimates(40))), LeverPool(tuple(estimates(20)))
+>>> base, healthy = LeverPool(tuple(estimates(80))), LeverPool(tuple(estimates(40)))
 >>> pooled_shifts(base, healthy, {"imu1": "j1"}, axes={"imu1": np.array([0.0, 0.0, 1.0])})
 ()
->>> slid = LeverPool(tuple(estimates(20, shift=0.008)))
+>>> slid = LeverPool(tuple(estimates(40, shift=0.006)))
 >>> [(f.kind, f.imu) for f in pooled_shifts(base, slid, {"imu1": "j1"})]
 [('imu_shifted', 'imu1')]
 """
@@ -104,8 +115,8 @@ class PoolOptions:
     pool's estimates; ``ridge_m``: the std added along every direction (without an axis, the scatter
     along it is nil and would make ``Σ`` singular)."""
 
-    n_base: int = 40
-    n_recent: int = 20
+    n_base: int = 80
+    n_recent: int = 40
     alpha: float = 1e-5
     floor_m: float = 0.002
     min_share: float = 0.5

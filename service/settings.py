@@ -120,13 +120,13 @@ class Settings(BaseSettings):
         "healthy windows beyond their stated std (docs/kinematics.md)",
     )
     kinematics_pool_base: int = Field(
-        40,
+        PoolOptions.n_base,
         ge=5,
         description="geometry estimates whose lever arms, pooled, stand for the baseline's when slides "
-        "of an IMU on its link are judged (at the default pace: 20 minutes after the baseline)",
+        "of an IMU on its link are judged (at the default pace: 40 minutes after the baseline)",
     )
     kinematics_pool_recent: int = Field(
-        20,
+        PoolOptions.n_recent,
         ge=3,
         description="newest geometry estimates whose lever arms, pooled, are compared with the baseline's "
         "(the newest k of them, for every k up to this)",

@@ -346,14 +346,14 @@ def test_kinematics_drift_judges_slides_on_the_kept_pools(client: TestClient, ss
         ]
 
     base_id = sstore.set_baseline("arm", TOPO, "operator", wall_time=1.0)
-    first = {**geometry_json(TOPO), "lever_arm_pool": pool(40, 0.0)}
+    first = {**geometry_json(TOPO), "lever_arm_pool": pool(80, 0.0)}
     sstore.save_kinematics("arm", base_id, first, wall_time=2.0, window_end_t=30.0)
-    latest = {**geometry_json(TOPO), "lever_arm_pool": pool(20, 0.008)}
+    latest = {**geometry_json(TOPO), "lever_arm_pool": pool(40, 0.008)}
     sstore.save_kinematics("arm", base_id, latest, wall_time=3.0, window_end_t=60.0, latest=True)
     body = client.get("/api/v1/robots/arm/kinematics").json()
     assert [(f["kind"], f.get("imu")) for f in body["drift"]] == [("imu_shifted", "imu1")]
-    assert "mean of the last 20 estimates but the farthest against 40" in body["drift"][0]["detail"]
-    assert (body["baseline"]["pooled_estimates"], body["latest"]["pooled_estimates"]) == (40, 20)
+    assert "mean of the last 40 estimates but the farthest against 80" in body["drift"][0]["detail"]
+    assert (body["baseline"]["pooled_estimates"], body["latest"]["pooled_estimates"]) == (80, 40)
     assert "lever_arm_pool" not in body["baseline"]["kinematics"]
     assert "lever_arm_pool" not in body["latest"]["kinematics"]
 

@@ -20,7 +20,10 @@ def _args(*argv: str) -> argparse.Namespace:
     return p.parse_args(list(argv))
 
 
-def test_short_run(tmp_path: Path) -> None:
+def test_short_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # the pooled part and the service take the service's pool sizes: half the defaults keep it short
+    monkeypatch.setenv("BODYHEALTH_KINEMATICS_POOL_BASE", "40")
+    monkeypatch.setenv("BODYHEALTH_KINEMATICS_POOL_RECENT", "20")
     md = bench.run(
         _args(
             "--robots",
@@ -61,6 +64,7 @@ def test_short_run(tmp_path: Path) -> None:
     assert all(len(g["scatter_mm"]) == 3 and g["other_findings"] == 0 for g in p["slides"])
     s = d["service"]
     assert s["cycles"] == 36 and s["alerts_raised"] == [] and s["drift_findings"] == 0
+    assert s["pool_sizes"] == [40, 20]
     assert s["drift_finding_details"] == []
     # the product's schedule (the suite turns it off): the networks retrained every 12 cycles
     assert s["network_interval_cycles"] == 12 and s["network_retrains"] >= 3
@@ -68,6 +72,7 @@ def test_short_run(tmp_path: Path) -> None:
     text = md.read_text()
     assert "| ur5e | 12 / 12 | 0 (2) | imu_rotated 2 ° imu:imu11 | yes |" in text
     assert "0 alerts raised" in text and "networks every 12 cycles" in text
+    assert "slides judged on pools of 40 and 20 estimates" in text
     assert (
         "Pooled slides (ur5e): the lever arms of the first 40 windows against the mean of the newest k, "
         "for every k up to 20" in text
@@ -92,6 +97,8 @@ def test_parts_from_an_earlier_run_must_come_from_the_same_command(tmp_path: Pat
     (earlier / "drift.json").write_text(json.dumps(data))
     text = bench.run(_args(*args, "--from", str(earlier))).read_text()
     assert "5 geometry comparisons, 0 drift findings, 0 alerts raised" in text
+    # written before the pool sizes were recorded: the defaults of then
+    assert "slides judged on pools of 40 and 20 estimates" in text
     # written before the frame was recorded: the gyros', as now; the part says where it ran
     assert "1 CPU s (run on elsewhere, taken with `--from`)." in text
     for key, value in (("command", data["command"] + " --seed 1"), ("accelerometer_frame", True)):
