@@ -36,6 +36,7 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "networks_text", "pools_text", "run", "window_tree"]
+__all__ = ["add_arguments", "measured_lag", "networks_text", "pools_text", "run", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -85,25 +86,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 PARTS = ("catalog", "pooled", "service")
 
 
-def window_tree(rec: Any, tree: Any = None) -> Any:
+def window_tree(rec: Any, tree: Any = None, last_lag: float = 0.0) -> Any:
     """The tree a window's geometry is estimated on, as the worker takes it: ``tree`` (the baseline's;
     None: the one the fast estimator learns from the window) with the encoder timing the fast
-    estimator finds in the window."""
+    estimator finds in the window, its lag search centred on ``last_lag`` (s), the lag the window
+    before measured, as the worker centres it (:func:`bodyschema.timing.lag_search_centre`): two
+    clocks 30 ppm apart leave the ±100 ms search within an hour."""
     from dataclasses import replace
 
     from bodyschema.estimate import estimate_topology
+    from bodyschema.fast import FastOptions
     from bodyschema.health import drop_impacts
+    from bodyschema.timing import lag_hinted, lag_search_centre
 
-    topo = estimate_topology(drop_impacts(rec), method="fast")
+    hint = lag_search_centre(last_lag, FastOptions.max_lag)
+    topo = lag_hinted(lambda r: estimate_topology(r, method="fast"), drop_impacts(rec), hint)
     return topo if tree is None else replace(tree, timing=dict(topo.timing))
 
 
-def _geometry(rec: Any, tree: Any = None) -> Any:
-    """The window's geometry as the worker estimates it, on :func:`window_tree`, in the frame the
-    service's settings set (``kinematics_accelerometer_frame``)."""
-    from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
+def measured_lag(topo: Any) -> float:
+    """The encoder-to-IMU lag (s) a window's tree was found with (0: none measured)."""
+    return 1e-3 * float(topo.timing.get("lag_ms", 0.0))
 
-    return estimate_kinematics(rec, window_tree(rec, tree), KinematicsOptions(accelerometer_frame=_frame()))
+
+@dataclass
+class _Watch:
+    """One robot's farm as the worker follows it window by window: the baseline's tree once the first
+    window has given it, and the lag the last window measured."""
+
+    farm: Any
+    tree: Any = None
+    lag: float = 0.0
+
+    def geometry(self) -> Any:
+        """The next window's geometry, in the frame the service's settings set
+        (``kinematics_accelerometer_frame``); the first sets the tree."""
+        from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
+
+        rec = _window(self.farm)
+        topo = window_tree(rec, self.tree, self.lag)
+        self.lag = measured_lag(topo)
+        kin = estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=_frame()))
+        self.tree = self.tree or kin.topology
+        return kin
+
+    def fork(self) -> _Watch:
+        """A fork of the farm, followed from where this one is."""
+        return _Watch(self.farm.fork(), self.tree, self.lag)
 
 
 def _window(farm: Any, seconds: float = WINDOW) -> Any:
@@ -133,11 +162,10 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
     from simulators.kinematics_truth import kinematics_truth
 
     cpu0 = time.process_time()
-    farm = Farm({"r": name}, seed=args.seed, sensing="robot")
-    base = _geometry(_window(farm))
-    tree = base.topology
-    nominal = [kinematic_findings(base, _geometry(_window(farm), tree)) for _ in range(args.nominal)]
-    sim = farm.simulation("r")
+    watch = _Watch(Farm({"r": name}, seed=args.seed, sensing="robot"))
+    base = watch.geometry()
+    nominal = [kinematic_findings(base, watch.geometry()) for _ in range(args.nominal)]
+    sim = watch.farm.simulation("r")
     truth = kinematics_truth(sim.robot)
     # the damaged IMU: the robot's last IMU on a moving link whose axis converged in the baseline
     imu = next(
@@ -161,9 +189,9 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
     ]
     out = []
     for kind, part, kw in damages:
-        branch = farm.fork()
-        branch.apply_damage("r", kind, **kw)
-        got = _found(kinematic_findings(base, _geometry(_window(branch), tree)), kind, part)
+        branch = watch.fork()
+        branch.farm.apply_damage("r", kind, **kw)
+        got = _found(kinematic_findings(base, branch.geometry()), kind, part)
         magnitude = kw.get("angle_deg", kw.get("deg", 1e3 * kw.get("meters", 0.0)))
         out.append({"kind": kind, "part": part, "magnitude": magnitude, **got})
     return {
@@ -191,24 +219,24 @@ def _pooled(args: argparse.Namespace) -> dict:
 
     cpu0 = time.process_time()
     o = Settings().pool_options
-    farm = Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot")
-    first = _geometry(_window(farm))
+    watch = _Watch(Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot"))
+    first = watch.geometry()
     tree = first.topology
     pool = LeverPool().add(first)
     for _ in progress(range(o.n_base - 1), desc="bench drift: pooled baseline", unit="window"):
-        pool = pool.add(_geometry(_window(farm), tree))
+        pool = pool.add(watch.geometry())
     base = {**first.to_json(), POOL_KEY: pool.to_json()}
 
-    def judged(f: Farm, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
+    def judged(w: _Watch, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
         out = []
         for _ in range(n):
-            kin = _geometry(_window(f), tree)
+            kin = w.geometry()
             recent = recent.add(kin, keep=o.n_recent)
             out.append(stored_drift(base, {**kin.to_json(), POOL_KEY: recent.to_json()}, tree, o))
         return out, recent
 
-    warm, recent = judged(farm, o.n_recent, LeverPool())
-    nominal, recent = judged(farm, args.nominal, recent)
+    warm, recent = judged(watch, o.n_recent, LeverPool())
+    nominal, recent = judged(watch, args.nominal, recent)
     arms = {
         k: float(np.linalg.norm(v.lever_arm))
         for k, v in first.imus.items()
@@ -216,13 +244,13 @@ def _pooled(args: argparse.Namespace) -> dict:
     }
     imus = [
         max(arms, key=arms.__getitem__),
-        max(arms, key=lambda k: farm.simulation("r").robot.imu_names.index(k)),
+        max(arms, key=lambda k: watch.farm.simulation("r").robot.imu_names.index(k)),
     ]
     slides = []
     for imu in imus:
         for mm in _floats(args.pool_slides_mm):
-            branch = farm.fork()
-            branch.apply_damage("r", "imu_shifted", imu=imu, meters=mm / 1e3)
+            branch = watch.fork()
+            branch.farm.apply_damage("r", "imu_shifted", imu=imu, meters=mm / 1e3)
             found, _ = judged(branch, args.pool_after, recent)
             hits = [i for i, fs in enumerate(found) if any(f.part == f"imu:{imu}" for f in fs)]
             first_hit = next((f for f in found[hits[0]] if f.part == f"imu:{imu}"), None) if hits else None

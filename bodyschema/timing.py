@@ -47,6 +47,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from bodyschema.recording import Recording
+from bodyschema.topology import Topology
 
 __all__ = [
     "DLPF_ACC",
@@ -57,6 +58,7 @@ __all__ = [
     "edge_margin",
     "encoders_moved",
     "estimate_lag",
+    "lag_hinted",
     "lag_moved",
     "lag_search_centre",
     "lowpass",
@@ -337,6 +339,28 @@ def lag_moved(timing: dict[str, float], seconds: float) -> dict[str, float]:
         if key in out:
             out[key] = float(out[key]) + 1e3 * float(seconds)
     return out
+
+
+def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: float) -> Topology:
+    """``estimate(rec)`` with ``rec``'s encoder stamps moved by the lag ``hint`` (s,
+    :func:`lag_search_centre`) and the move put back into the timing it reports: a lag that drifted
+    past the search range stays in it. How a monitor that follows one robot from window to window
+    estimates its tree; ``hint`` 0 (or a single-clock ``rec``) is the estimate as it is.
+
+    >>> import numpy as np
+    >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
+    ...                 acc=np.zeros((4, 0, 3)), gyro=np.zeros((4, 0, 3)), t_q=np.arange(4.0))
+    >>> def search(r):  # a lag of 130 ms, searched within ±100 ms
+    ...     return Topology({"j": None}, {}, timing={"lag_ms": min(130.0 - 1e3 * float(r.t_q[0]), 100.0)})
+    >>> search(rec).timing["lag_ms"], round(lag_hinted(search, rec, 0.12).timing["lag_ms"], 6)
+    (100.0, 130.0)
+    """
+    from dataclasses import replace
+
+    if not hint or rec.t_q is None:
+        return estimate(rec)
+    topo = estimate(encoders_moved(rec, hint))
+    return replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
 
 
 def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: float = 0.0) -> Recording:

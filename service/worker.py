@@ -74,7 +74,7 @@ from bodyschema.health import (
 )
 from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording, RecordingError
-from bodyschema.timing import encoders_moved, lag_moved, lag_search_centre
+from bodyschema.timing import lag_hinted, lag_search_centre
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
 from service.metrics import Metrics
@@ -463,10 +463,7 @@ class Worker:
         """``self.estimator`` on ``rec``, its encoder stamps moved by the lag ``hint`` (s) and the move put
         back into the timing reported (:func:`bodyschema.timing.encoders_moved`): a lag that drifted
         past the search range stays in it."""
-        if not hint or rec.t_q is None:
-            return self.estimator(rec, method)
-        topo = self.estimator(encoders_moved(rec, hint), method)
-        return dataclasses.replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
+        return lag_hinted(lambda r: self.estimator(r, method), rec, hint)
 
     def _drift(
         self, robot: str, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff, window_end: float

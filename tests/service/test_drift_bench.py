@@ -105,3 +105,20 @@ def test_parts_from_an_earlier_run_must_come_from_the_same_command(tmp_path: Pat
         (earlier / "drift.json").write_text(json.dumps({**data, key: value}))
         with pytest.raises(SystemExit, match="another command or frame"):
             bench.run(_args(*args, "--from", str(earlier)))
+
+
+def test_each_window_is_searched_about_the_lag_the_one_before_measured() -> None:
+    # encoder stamps 120 ms behind the IMU's (an hour of two clocks 30 ppm apart, plus the skew): the
+    # ±100 ms search finds a wrong peak of the quadruped's repeating gait in the second window, the
+    # search centred on the lag the first window measured (as the worker centres it) finds the lag
+    from dataclasses import replace
+
+    from simulators.farm import Farm
+    from simulators.sensing import PRESETS
+
+    farm = Farm({"r": "quadruped"}, seed=0, sensing=replace(PRESETS["robot"], skew=0.12))
+    first = bench.measured_lag(bench.window_tree(farm.advance(30.0)["r"]))
+    rec = farm.advance(30.0)["r"]
+    assert first == pytest.approx(0.1257, abs=0.002)
+    assert bench.measured_lag(bench.window_tree(rec)) < 0.0
+    assert bench.measured_lag(bench.window_tree(rec, None, first)) == pytest.approx(0.1266, abs=0.002)
