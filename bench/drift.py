@@ -46,7 +46,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["add_arguments", "measured_lag", "networks_text", "pools_text", "run", "window_tree"]
+__all__ = ["Watch", "add_arguments", "networks_text", "pools_text", "run", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -104,35 +104,38 @@ def window_tree(rec: Any, tree: Any = None, last_lag: float = 0.0) -> Any:
     return topo if tree is None else replace(tree, timing=dict(topo.timing))
 
 
-def measured_lag(topo: Any) -> float:
-    """The encoder-to-IMU lag (s) a window's tree was found with (0: none measured)."""
-    return 1e-3 * float(topo.timing.get("lag_ms", 0.0))
-
-
 @dataclass
-class _Watch:
+class Watch:
     """One robot's farm as the worker follows it window by window: the baseline's tree once the first
-    window has given it, and the lag the last window measured."""
+    window has given it, and the lag last measured (kept where a window measures none, as the worker
+    keeps it)."""
 
     farm: Any
     tree: Any = None
     lag: float = 0.0
 
+    def tree_of(self, rec: Any) -> Any:
+        """The tree ``rec``, the robot's next window, is estimated on (:func:`window_tree`); the first
+        sets the tree."""
+        from bodyschema.timing import measured_lag
+
+        topo = window_tree(rec, self.tree, self.lag)
+        lag = measured_lag(topo)
+        self.lag = self.lag if lag is None else lag
+        self.tree = self.tree or topo
+        return topo
+
     def geometry(self) -> Any:
         """The next window's geometry, in the frame the service's settings set
-        (``kinematics_accelerometer_frame``); the first sets the tree."""
+        (``kinematics_accelerometer_frame``)."""
         from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
         rec = _window(self.farm)
-        topo = window_tree(rec, self.tree, self.lag)
-        self.lag = measured_lag(topo)
-        kin = estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=_frame()))
-        self.tree = self.tree or kin.topology
-        return kin
+        return estimate_kinematics(rec, self.tree_of(rec), KinematicsOptions(accelerometer_frame=_frame()))
 
-    def fork(self) -> _Watch:
+    def fork(self) -> Watch:
         """A fork of the farm, followed from where this one is."""
-        return _Watch(self.farm.fork(), self.tree, self.lag)
+        return Watch(self.farm.fork(), self.tree, self.lag)
 
 
 def _window(farm: Any, seconds: float = WINDOW) -> Any:
@@ -162,7 +165,7 @@ def _catalog_robot(name: str, args: argparse.Namespace) -> dict:
     from simulators.kinematics_truth import kinematics_truth
 
     cpu0 = time.process_time()
-    watch = _Watch(Farm({"r": name}, seed=args.seed, sensing="robot"))
+    watch = Watch(Farm({"r": name}, seed=args.seed, sensing="robot"))
     base = watch.geometry()
     nominal = [kinematic_findings(base, watch.geometry()) for _ in range(args.nominal)]
     sim = watch.farm.simulation("r")
@@ -219,7 +222,7 @@ def _pooled(args: argparse.Namespace) -> dict:
 
     cpu0 = time.process_time()
     o = Settings().pool_options
-    watch = _Watch(Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot"))
+    watch = Watch(Farm({"r": args.pool_robot}, seed=args.seed, sensing="robot"))
     first = watch.geometry()
     tree = first.topology
     pool = LeverPool().add(first)
@@ -227,7 +230,7 @@ def _pooled(args: argparse.Namespace) -> dict:
         pool = pool.add(watch.geometry())
     base = {**first.to_json(), POOL_KEY: pool.to_json()}
 
-    def judged(w: _Watch, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
+    def judged(w: Watch, n: int, recent: LeverPool) -> tuple[list[tuple], LeverPool]:
         out = []
         for _ in range(n):
             kin = w.geometry()

@@ -79,7 +79,7 @@ def _imu_model(spec: str | None) -> Any:
 
 def _condition(label: str, robot: str, windows: int, seconds: float, seed: int) -> dict:
     """Every IMU's lever-arm scatter, stated std and bias (:func:`_stats`) in both frames."""
-    from bench.drift import measured_lag, window_tree
+    from bench.drift import Watch
     from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
     from bodyschema.threads import blas_threads
     from simulators.farm import Farm
@@ -91,12 +91,11 @@ def _condition(label: str, robot: str, windows: int, seconds: float, seed: int) 
     farm = Farm({"r": robot}, seed=seed, imu_model=_imu_model(spec), sensing=sensing)
     out: dict = {frame: {} for frame in _FRAMES}
     cpu0 = time.process_time()
-    tree, lag = None, 0.0
+    watch = Watch(farm)
     with blas_threads(1):
         for _ in range(windows):
             rec = farm.advance(seconds)["r"]
-            topo = window_tree(rec, tree, lag)  # one tree, both frames
-            tree, lag = tree or topo, measured_lag(topo)
+            topo = watch.tree_of(rec)  # one tree, both frames
             for frame, acc in _FRAMES.items():
                 kin = estimate_kinematics(rec, topo, KinematicsOptions(accelerometer_frame=acc))
                 for name, k in kin.imus.items():

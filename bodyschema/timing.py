@@ -62,6 +62,7 @@ __all__ = [
     "lag_moved",
     "lag_search_centre",
     "lowpass",
+    "measured_lag",
     "median_rate",
     "position_noise",
     "resample",
@@ -361,6 +362,12 @@ def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: 
         return estimate(rec)
     topo = estimate(encoders_moved(rec, hint))
     return replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
+
+
+def measured_lag(topo: Topology) -> float | None:
+    """The encoder-to-IMU lag (s) a tree was found with (its ``timing``), None where none was measured:
+    what a monitor centres the next window's search on (:func:`lag_search_centre`)."""
+    return 1e-3 * float(topo.timing["lag_ms"]) if "lag_ms" in topo.timing else None
 
 
 def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: float = 0.0) -> Recording:

@@ -74,7 +74,7 @@ from bodyschema.health import (
 )
 from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording, RecordingError
-from bodyschema.timing import lag_hinted, lag_search_centre
+from bodyschema.timing import lag_hinted, lag_search_centre, measured_lag
 from bodyschema.topology import Topology
 from service.alerts import AlertTracker, Transition
 from service.metrics import Metrics
@@ -398,8 +398,9 @@ class Worker:
                 fast = topo
         if fast is None:
             return res
-        if "lag_ms" in fast.timing:
-            self._lags[robot] = 1e-3 * float(fast.timing["lag_ms"])
+        lag = measured_lag(fast)
+        if lag is not None:
+            self._lags[robot] = lag
         res.health = self.compute(
             signal_health,
             rec,

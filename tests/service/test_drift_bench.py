@@ -113,12 +113,13 @@ def test_each_window_is_searched_about_the_lag_the_one_before_measured() -> None
     # search centred on the lag the first window measured (as the worker centres it) finds the lag
     from dataclasses import replace
 
+    from bodyschema.timing import measured_lag
     from simulators.farm import Farm
     from simulators.sensing import PRESETS
 
     farm = Farm({"r": "quadruped"}, seed=0, sensing=replace(PRESETS["robot"], skew=0.12))
-    first = bench.measured_lag(bench.window_tree(farm.advance(30.0)["r"]))
+    first = measured_lag(bench.window_tree(farm.advance(30.0)["r"]))
     rec = farm.advance(30.0)["r"]
     assert first == pytest.approx(0.1257, abs=0.002)
-    assert bench.measured_lag(bench.window_tree(rec)) < 0.0
-    assert bench.measured_lag(bench.window_tree(rec, None, first)) == pytest.approx(0.1266, abs=0.002)
+    assert measured_lag(bench.window_tree(rec)) < 0.0
+    assert measured_lag(bench.window_tree(rec, None, first)) == pytest.approx(0.1266, abs=0.002)
