@@ -197,14 +197,21 @@ class Daemon:
                 lifespan="off",
             )
             server = uvicorn.Server(config)
+            # Bound here, before the address is announced, so that the announced port is the one held
+            # (port 0: the system picks a free one, which a caller reads from the announcement, with
+            # no window in which another process can take it).
+            sock = config.bind_socket()
             if announce:
                 host = "127.0.0.1" if self.settings.host in ("0.0.0.0", "::") else self.settings.host
+                if ":" in host:
+                    host = f"[{host}]"
                 print(
-                    f"bodyhealth: dashboard at http://{host}:{self.settings.port}/  (API docs at /docs)",
+                    f"bodyhealth: dashboard at http://{host}:{sock.getsockname()[1]}/  (API docs at /docs)",
                     flush=True,
                 )
             if not self._stop.is_set():
-                server.run()
+                server.run(sockets=[sock])
+            sock.close()
         except SystemExit as err:  # uvicorn exits this way when it cannot bind the port
             code = int(err.code or 1)
         finally:

@@ -45,7 +45,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="ingest source, e.g. farm:ur5e@2, replay:run.npz@10, rosbag:run.mcap@10, can:..., serial:... "
         "(repeatable)",
     )
-    p.add_argument("--port", type=int, help="HTTP port (default: settings, 8000)")
+    p.add_argument(
+        "--port",
+        type=int,
+        help="HTTP port (default: settings, 8000); 0 takes a free one, announced on stdout once bound",
+    )
     p.add_argument(
         "--host",
         help="HTTP host (default: settings, 127.0.0.1); any address but loopback needs "

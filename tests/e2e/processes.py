@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import socket
+import re
+import select
 import subprocess
 import sys
 import threading
@@ -12,14 +13,13 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["emulator_command", "free_port", "serve_command", "wait_answering"]
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+__all__ = [
+    "announced_url",
+    "emulator_command",
+    "serve_command",
+    "start_service",
+    "wait_answering",
+]
 
 
 def serve_command(port: int, database_url: str, *args: str) -> list[str]:
@@ -35,6 +35,48 @@ def serve_command(port: int, database_url: str, *args: str) -> list[str]:
         database_url,
         *args,
     ]
+
+
+def announced_url(proc: subprocess.Popen[Any], err: Path, timeout: float = 90.0) -> str:
+    """The base URL ``bodyhealth serve`` prints on stdout once its socket is bound (``proc`` must have
+    ``stdout=PIPE``, text mode). Fails with the tail of ``err`` if the process ends first.
+
+    Tests start the service on ``--port 0`` and read the port from here: a port picked by the test and
+    handed over can be taken by any other process (an outgoing connection's ephemeral port, a parallel
+    test) before the service binds it."""
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline()
+            m = re.search(r"(http://\S+?:\d+)/", line)
+            assert m, f"service ended or printed no URL ({line!r}):\n{err.read_text()[-3000:]}"
+            return m.group(1)
+        assert proc.poll() is None, f"service died before binding:\n{err.read_text()[-3000:]}"
+    raise AssertionError(f"service announced no URL within {timeout:g} s:\n{err.read_text()[-3000:]}")
+
+
+def start_service(
+    database_url: str, *args: str, err: Path, env: dict[str, str] | None = None, cwd: Path | None = None
+) -> tuple[subprocess.Popen[str], str]:
+    """``bodyhealth serve`` on a port the system picks, with ``database_url`` and ``args``; stderr goes
+    to the file ``err``. Returns the process and its base URL once the socket is bound."""
+    with err.open("w") as err_file:
+        proc = subprocess.Popen(
+            serve_command(0, database_url, *args),
+            cwd=cwd,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=err_file,
+            text=True,
+        )
+    try:
+        return proc, announced_url(proc, err)
+    except BaseException:
+        proc.kill()
+        proc.wait(30)
+        raise
 
 
 def wait_answering(
@@ -82,9 +124,11 @@ def serve_in_thread(app: Any) -> Iterator[str]:
     URL once the server has started, and stops it on exit (the browser tests need a real socket)."""
     import uvicorn
 
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None, lifespan="off"))
-    th = threading.Thread(target=server.run, daemon=True)
+    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, lifespan="off")
+    sock = config.bind_socket()  # the system's free port, held from here on
+    port = sock.getsockname()[1]
+    server = uvicorn.Server(config)
+    th = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     th.start()
     deadline = time.monotonic() + 20
     while not server.started and time.monotonic() < deadline:
@@ -94,3 +138,4 @@ def serve_in_thread(app: Any) -> Iterator[str]:
     finally:
         server.should_exit = True
         th.join(10)
+        sock.close()

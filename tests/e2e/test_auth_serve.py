@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.e2e.processes import free_port, serve_command, wait_answering
+from tests.e2e.processes import serve_command, start_service, wait_answering
 
 pytestmark = [pytest.mark.e2e]
 
@@ -32,14 +32,9 @@ def _env(**extra: str) -> dict[str, str]:
 
 
 def test_token_is_required_over_real_http(tmp_path: Path) -> None:
-    port = free_port()
     db = f"sqlite:///{tmp_path / 'auth.db'}"
-    err = (tmp_path / "serve.err").open("w")
     env = _env(BODYHEALTH_API_TOKEN=TOKEN, BODYHEALTH_WORKER_INTERVAL_SECONDS="60")
-    proc = subprocess.Popen(
-        serve_command(port, db), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=err
-    )
-    url = f"http://127.0.0.1:{port}"
+    proc, url = start_service(db, err=tmp_path / "serve.err", env=env, cwd=tmp_path)
     try:
         with httpx.Client(base_url=url, timeout=10) as c:
             wait_answering(proc, c, tmp_path / "serve.err")
@@ -62,13 +57,11 @@ def test_token_is_required_over_real_http(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(60)
-        err.close()
     assert rc == 0
 
 
 def test_serve_on_every_address_without_a_token_exits_2(tmp_path: Path) -> None:
-    port = free_port()
-    cmd = serve_command(port, f"sqlite:///{tmp_path / 'x.db'}", "--host", "0.0.0.0")
+    cmd = serve_command(0, f"sqlite:///{tmp_path / 'x.db'}", "--host", "0.0.0.0")
     done = subprocess.run(cmd, cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert "refusing to listen on 0.0.0.0 without an API token" in done.stderr

@@ -22,7 +22,7 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.e2e.processes import free_port, serve_command, serve_in_thread
+from tests.e2e.processes import serve_in_thread, start_service
 from tests.service.geometry import geometry_json
 
 CHROMIUM = "/usr/bin/chromium"
@@ -231,26 +231,18 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
     of each status.)"""
     import os
     import signal
-    import subprocess
 
     import httpx
 
-    port = free_port()
     env = {
         **os.environ,
         "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
         "BODYHEALTH_WINDOW_SECONDS": "20",
         "BODYHEALTH_BASELINE_REPEAT_K": "2",
     }
-    err = (tmp_path / "serve.err").open("w")
-    proc = subprocess.Popen(
-        serve_command(port, e2e_db_url, "--demo", "--speed", "20"),
-        cwd=tmp_path,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=err,
+    proc, url = start_service(
+        e2e_db_url, "--demo", "--speed", "20", err=tmp_path / "serve.err", env=env, cwd=tmp_path
     )
-    url = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 240
         robots: list[dict] = []
@@ -292,5 +284,4 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
     finally:
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(60)
-        err.close()
     assert rc == 0

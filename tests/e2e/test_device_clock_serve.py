@@ -20,7 +20,7 @@ import pytest
 
 from bodyschema.recording import Recording
 from tests.bodyschema.test_health import synth
-from tests.e2e.processes import free_port, serve_command, wait_answering
+from tests.e2e.processes import start_service, wait_answering
 
 pytestmark = [pytest.mark.e2e]
 
@@ -47,7 +47,6 @@ def pruned(c: httpx.Client) -> float:
 
 
 def test_restarted_clock_is_kept_and_learned_from(e2e_db_url: str, tmp_path: Path) -> None:
-    port = free_port()
     env = {
         **{k: v for k, v in os.environ.items() if not k.startswith("BODYHEALTH_")},
         "BODYHEALTH_RETENTION_SECONDS": "60",
@@ -55,13 +54,10 @@ def test_restarted_clock_is_kept_and_learned_from(e2e_db_url: str, tmp_path: Pat
         "BODYHEALTH_WORKER_INTERVAL_SECONDS": "0.5",
         "BODYHEALTH_PRUNE_INTERVAL_SECONDS": "0.2",
     }
-    err = (tmp_path / "serve.err").open("w")
-    proc = subprocess.Popen(
-        serve_command(port, e2e_db_url), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=err
-    )
+    proc, url = start_service(e2e_db_url, err=tmp_path / "serve.err", env=env, cwd=tmp_path)
     rng = np.random.default_rng(12)
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
+        with httpx.Client(base_url=url, timeout=30) as c:
             wait_answering(proc, c, tmp_path / "serve.err", "/readyz")
             post_run(c, synth(rng, seconds=12), offset=1000.0)  # the old run, 1000.00 .. 1011.99 s
             post_run(c, synth(rng, seconds=12), offset=0.0)  # the robot restarted: 0.00 .. 11.99 s
@@ -86,4 +82,3 @@ def test_restarted_clock_is_kept_and_learned_from(e2e_db_url: str, tmp_path: Pat
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
-        err.close()

@@ -20,7 +20,7 @@ import pytest
 from service.store import open_store
 from simulators.recording_io import save_recording
 from tests.bodyschema.test_health import synth
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -32,7 +32,7 @@ KILLS = int(os.environ.get("BODYHEALTH_KILLS", "3"))
 def start(tmp: Path, db: str, rec_path: Path, log: Path, speed: float) -> subprocess.Popen:
     env = {**os.environ, "BODYHEALTH_WORKER_INTERVAL_SECONDS": "1", "BODYHEALTH_WINDOW_SECONDS": "5"}
     cmd = serve_command(
-        free_port(), db, "--source", f"replay:{rec_path}@{speed:g}?robot={ROBOT}", "--commit-log", str(log)
+        0, db, "--source", f"replay:{rec_path}@{speed:g}?robot={ROBOT}", "--commit-log", str(log)
     )
     return subprocess.Popen(
         cmd, cwd=tmp, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp / f"{log.stem}.err", "w")

@@ -5,7 +5,6 @@ and the bag's last stamp) as GET /api/v1/robots reports them."""
 from __future__ import annotations
 
 import os
-import subprocess
 import time
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pytest
 from emulators.rosbag import RosbagWriteOptions, write_rosbag
 from service.ingest.rosbag import read_rosbag
 from simulators.simulation import simulate
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import start_service
 
 pytestmark = [pytest.mark.e2e]
 
@@ -28,21 +27,15 @@ def test_serve_replays_a_rosbag(e2e_db_url: str, tmp_path: Path) -> None:
     write_rosbag(rec, bag, RosbagWriteOptions(format="mcap"))
     imported, _ = read_rosbag(bag)
     last_t = max(float(imported.t[-1]), float(imported.encoder_t[-1]))
-    port = free_port()
     env = {
         **{k: v for k, v in os.environ.items() if not k.startswith("BODYHEALTH_")},
         "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
     }
-    err = (tmp_path / "serve.err").open("w")
-    proc = subprocess.Popen(
-        serve_command(port, e2e_db_url, "--source", f"rosbag:{bag}@max"),
-        cwd=tmp_path,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=err,
+    proc, url = start_service(
+        e2e_db_url, "--source", f"rosbag:{bag}@max", err=tmp_path / "serve.err", env=env, cwd=tmp_path
     )
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
+        with httpx.Client(base_url=url, timeout=30) as c:
             deadline = time.monotonic() + 90
             robots: list[dict] = []
             while True:
@@ -63,4 +56,3 @@ def test_serve_replays_a_rosbag(e2e_db_url: str, tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(15)
-        err.close()

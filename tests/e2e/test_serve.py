@@ -14,7 +14,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,7 +23,7 @@ import httpx
 import pytest
 
 from simulators.robot import Robot
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import start_service
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -67,8 +66,6 @@ def raised(service: Service) -> set[tuple[str, str]]:
 
 class Service:
     def __init__(self, tmp: Path, db_url: str) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
         self.err_path = tmp / "serve.err"
         env = {
             **os.environ,
@@ -77,9 +74,8 @@ class Service:
             "BODYHEALTH_ALERT_HYSTERESIS_M": "2",
             "BODYHEALTH_BASELINE_REPEAT_K": "3",
         }
-        cmd = serve_command(self.port, db_url, "--demo", "--speed", "20")
-        self.proc = subprocess.Popen(
-            cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, text=True, stderr=self.err_path.open("w")
+        self.proc, self.url = start_service(
+            db_url, "--demo", "--speed", "20", err=self.err_path, env=env, cwd=tmp
         )
         self.client = httpx.Client(base_url=self.url, timeout=10)
 
@@ -125,8 +121,7 @@ def wait_for(cond, timeout: float, what: str, svc: Service, every: float = 0.3) 
 
 
 def test_demo_learns_baselines_and_alerts_on_each_damage(service: Service) -> None:
-    line = service.proc.stdout.readline()  # the announced dashboard URL
-    assert f"http://127.0.0.1:{service.port}/" in line
+    assert re.fullmatch(r"http://127\.0\.0\.1:\d+", service.url)  # announced once bound
     t0 = time.monotonic()
     wait_for(lambda: service.get("/readyz"), 90, "readiness", service)
     robots = wait_for(
@@ -204,27 +199,22 @@ def test_signal_drains_and_exits_zero(tmp_path: Path, e2e_db_url: str, sig: sign
 
     rec_path = tmp_path / "run.npz"
     save_recording(synth(np.random.default_rng(0), seconds=60.0), rec_path)
-    port = free_port()
     log = tmp_path / "commits.jsonl"
-    proc = subprocess.Popen(
-        serve_command(
-            port,
-            e2e_db_url,
-            "--source",
-            f"replay:{rec_path}@5?robot=arm",
-            "--commit-log",
-            str(log),
-        ),
+    proc, url = start_service(
+        e2e_db_url,
+        "--source",
+        f"replay:{rec_path}@5?robot=arm",
+        "--commit-log",
+        str(log),
+        err=tmp_path / "err.txt",
         cwd=tmp_path,
-        stdout=subprocess.DEVNULL,
-        stderr=(tmp_path / "err.txt").open("w"),
     )
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not (log.exists() and log.read_text().count("\n") >= 5):
             assert proc.poll() is None, (tmp_path / "err.txt").read_text()[-3000:]
             time.sleep(0.1)
-        r = httpx.get(f"http://127.0.0.1:{port}/livez", timeout=10)
+        r = httpx.get(f"{url}/livez", timeout=10)
         assert r.json() == {"status": "ok"}
         proc.send_signal(sig)
         assert proc.wait(60) == 0

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,7 +23,7 @@ from bodyschema.recording import Recording
 from service.store import open_store
 from simulators.recording_io import save_recording
 from tests.bodyschema.test_health import synth
-from tests.e2e.processes import free_port, serve_command
+from tests.e2e.processes import start_service
 from tests.service.test_storage_faults import PgCluster, wait_until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
@@ -37,7 +36,6 @@ class Serve:
     """``bodyhealth serve`` replaying ``rec_path`` at ``speed`` into ``db_url``, with a commit log."""
 
     def __init__(self, tmp: Path, db_url: str, rec_path: Path, speed: float) -> None:
-        self.port = free_port()
         self.log = tmp / "commits.jsonl"
         self.err_path = tmp / "serve.err"
         env = {
@@ -47,11 +45,10 @@ class Serve:
             "BODYHEALTH_PRUNE_INTERVAL_SECONDS": str(PRUNE),
         }
         spec = f"replay:{rec_path}@{speed:g}?robot={ROBOT}"
-        cmd = serve_command(self.port, db_url, "--source", spec, "--commit-log", str(self.log))
-        self.proc = subprocess.Popen(
-            cmd, cwd=tmp, env=env, stdout=subprocess.DEVNULL, stderr=self.err_path.open("w")
+        self.proc, url = start_service(
+            db_url, "--source", spec, "--commit-log", str(self.log), err=self.err_path, env=env, cwd=tmp
         )
-        self.client = httpx.Client(base_url=f"http://127.0.0.1:{self.port}", timeout=10)
+        self.client = httpx.Client(base_url=url, timeout=10)
 
     def ready(self) -> tuple[int, dict[str, Any]] | None:
         assert self.proc.poll() is None, f"service died:\n{self.err_tail()}"

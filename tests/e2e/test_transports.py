@@ -27,7 +27,7 @@ from service.store import open_store
 from service.worker import Worker
 from simulators import simulate
 from simulators.recording_io import load_recording, save_recording
-from tests.e2e.processes import emulator_command, free_port, serve_command
+from tests.e2e.processes import emulator_command, start_service
 from tests.service.multirate_wire import assert_whole_streams_but_the_unpaired_end
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
@@ -113,19 +113,15 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
         emulators.append(p)
         assert p.stdout is not None
         specs.append(dict(kv.split("=", 1) for kv in p.stdout.readline().split())["source"])
-    port = free_port()
     env = {
         **os.environ,
         "BODYHEALTH_WORKER_INTERVAL_SECONDS": "2",
         "BODYHEALTH_WINDOW_SECONDS": str(rec.duration + 1.0),
     }
-    cmd = serve_command(port, e2e_db_url, "--text-logs")
-    for spec in specs:
-        cmd += ["--source", spec]
-    err = (tmp_path / "serve.err").open("w")
-    serve = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+    sources = [arg for spec in specs for arg in ("--source", spec)]
+    serve, url = start_service(e2e_db_url, "--text-logs", *sources, err=tmp_path / "serve.err", env=env)
     try:
-        client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10)
+        client = httpx.Client(base_url=url, timeout=10)
         learned: dict[str, dict] = {}
         t0 = time.monotonic()
         while len(learned) < 2 and time.monotonic() - t0 < 120 and serve.poll() is None:
@@ -149,7 +145,6 @@ def test_serve_ingests_from_both_transports(recording_path: Path, tmp_path: Path
         for p in emulators:
             p.terminate()
             p.wait(10)
-        err.close()
 
 
 @pytest.mark.parametrize("kind", ["can", "serial"])
