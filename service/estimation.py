@@ -48,6 +48,16 @@ __all__ = ["EstimatorProcess"]
 T = TypeVar("T")
 
 
+def _start_child(parent: int) -> None:
+    """The child's setup: it ends with the service, and its fits run BLAS on one thread. They are tall
+    and thin least squares; on more threads they spin against the service and the training workers
+    for the same cores (:func:`bodyschema.threads.set_blas_threads`)."""
+    from bodyschema.threads import set_blas_threads
+
+    exit_with_parent(parent)
+    set_blas_threads(1)
+
+
 class EstimatorProcess:
     """An :data:`~service.worker.Estimator` that runs
     :func:`~bodyschema.estimate.estimate_topology` in a child process (module doc); ``imu_delay`` (s)
@@ -80,7 +90,7 @@ class EstimatorProcess:
         with self._lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=SPAWN, initializer=exit_with_parent, initargs=(os.getpid(),)
+                    max_workers=1, mp_context=SPAWN, initializer=_start_child, initargs=(os.getpid(),)
                 )
             return self._pool
 

@@ -63,6 +63,19 @@ def test_the_child_answers_as_the_thread_and_is_replaced_when_it_dies() -> None:
     assert not _alive(first)
 
 
+def test_the_childs_blas_runs_on_one_thread() -> None:
+    """numpy's and scipy's BLAS in the child, each limited to one thread (the parent's are not: on a
+    machine of two or more cores they run on every core)."""
+    import scipy.linalg  # noqa: F401  (scipy's BLAS, loaded here as in the child)
+    from threadpoolctl import threadpool_info
+
+    with EstimatorProcess() as est:
+        blas = [d for d in est.run(threadpool_info) if d["user_api"] == "blas"]
+    here = {d["filepath"] for d in threadpool_info() if d["user_api"] == "blas"}
+    assert {d["filepath"] for d in blas} >= here
+    assert blas and [d["num_threads"] for d in blas] == [1] * len(blas)
+
+
 def test_lower_priority_raises_the_nice_value_of_the_calling_thread_only() -> None:
     seen: list[int] = []
 
