@@ -1255,7 +1255,7 @@ def _kinds(cat: list[dict]) -> str:
 
 
 def _drift(b: _Bench) -> str:
-    from bench.drift import _change, _elsewhere, networks_text, pools_text
+    from bench.drift import _change, _elsewhere, comparisons_text, networks_text, pools_text
 
     d = b.json("drift.json")
     assert isinstance(d, dict)
@@ -1322,7 +1322,7 @@ def _drift(b: _Bench) -> str:
             f"The worker's real cycle on a healthy fleet ({', '.join(s['fleet'].values())}) for "
             f"{s['hours']:g} h of simulated time ({s['cycles']} cycles, geometry every "
             f"{s['kinematics_interval_cycles']} cycles, {pools_text(s)}, sensor {networks_text(s)}): "
-            f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
+            f"{comparisons_text(s)}, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised, {s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
         ]
     return "\n".join(lines)

@@ -320,7 +320,7 @@ def _service(args: argparse.Namespace) -> dict:
         cycles = round(args.hours * 3600.0 / interval)
         raised: list[dict] = []
         drift: list[dict] = []
-        judged = retrains = 0
+        judged = slides = retrains = 0
         baselines: dict[str, int] = {}
         for cycle in progress(range(cycles), desc="bench drift: service", unit="cycle"):
             for name, rec in farm.advance(interval).items():
@@ -329,6 +329,7 @@ def _service(args: argparse.Namespace) -> dict:
                 if res.baseline_set:
                     baselines[name] = cycle + 1
                 judged += res.drift_judged
+                slides += res.slides_judged
                 retrains += "network" in res.methods
                 if res.drift_judged and res.diff is not None:
                     drift += [
@@ -367,6 +368,7 @@ def _service(args: argparse.Namespace) -> dict:
         "baseline_cycle": baselines,
         "geometry_kept": kept,
         "geometry_comparisons": judged,
+        "slide_comparisons": slides,
         "drift_findings": len(drift),
         "drift_finding_details": drift,
         "alerts_raised": raised,
@@ -541,7 +543,7 @@ def _markdown(d: dict) -> str:
             f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
             f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, "
             f"{pools_text(s)}, {networks_text(s)}): "
-            f"{s['geometry_comparisons']} geometry comparisons, {s['drift_findings']} drift findings, "
+            f"{comparisons_text(s)}, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
             f"{s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
         ]
@@ -568,6 +570,15 @@ def pools_text(s: dict) -> str:
     at the defaults of then: 40 and 20)."""
     n_base, n_recent = s.get("pool_sizes", (40, 20))
     return f"slides judged on pools of {n_base} and {n_recent} estimates"
+
+
+def comparisons_text(s: dict) -> str:
+    """How many geometry comparisons the service part made, and how many of them judged lever arms (the
+    baseline's pool full; runs written before that was recorded say nothing of it)."""
+    text = f"{s['geometry_comparisons']} geometry comparisons"
+    if "slide_comparisons" in s:
+        text += f" ({s['slide_comparisons']} of them with the lever arms)"
+    return text
 
 
 def networks_text(s: dict) -> str:

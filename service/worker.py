@@ -135,6 +135,8 @@ class CycleResult:
     transitions: list[Transition] = field(default_factory=list)
     #: the cycle compared the robot's geometry with its baseline's (the drift findings are in ``diff``)
     drift_judged: bool = False
+    #: ... and its lever arms too: the baseline's pool was full (:meth:`Worker._drift`)
+    slides_judged: bool = False
 
 
 class Worker:
@@ -432,6 +434,7 @@ class Worker:
         if drift is None:
             hold = tuple(sorted({*hold, *KINEMATIC_KINDS}))
         else:
+            drift, res.slides_judged = drift
             res.drift_judged = True
             res.diff = Diff(findings=(*res.diff.findings, *drift), reasons=res.diff.reasons)
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
@@ -468,9 +471,10 @@ class Worker:
 
     def _drift(
         self, robot: str, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff, window_end: float
-    ) -> tuple[Finding, ...] | None:
-        """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5);
-        None when this cycle does not judge it (not its turn, the body differs from the baseline, or
+    ) -> tuple[tuple[Finding, ...], bool] | None:
+        """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5), and
+        whether its lever arms were judged (the baseline's pool is full); None when this cycle does not
+        judge it (not its turn, the body differs from the baseline, or
         no geometry is kept yet: then this one is kept, once an IMU's axis converged). A judged
         estimate is kept as the robot's newest geometry, the one the API serves beside the baseline's;
         its lever arms join the baseline's pool until that holds ``kinematics_pool_base`` estimates,
@@ -539,7 +543,7 @@ class Worker:
         self.store.save_kinematics(
             robot, base.id, latest, wall_time=self.clock(), window_end_t=window_end, latest=True
         )
-        return stored_drift(first, latest, base.topology, pools)
+        return stored_drift(first, latest, base.topology, pools), recent.n > 0
 
     @property
     def networks_on(self) -> bool:

@@ -69,9 +69,11 @@ def test_short_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # the product's schedule (the suite turns it off): the networks retrained every 12 cycles
     assert s["network_interval_cycles"] == 12 and s["network_retrains"] >= 3
     assert s["geometry_comparisons"] >= 3 and s["geometry_kept"] == {"ur5e-0": True}
+    assert s["slide_comparisons"] == 0  # 36 cycles: the pool of 40 is far from full
     text = md.read_text()
     assert "| ur5e | 12 / 12 | 0 (2) | imu_rotated 2 ° imu:imu11 | yes |" in text
     assert "0 alerts raised" in text and "networks every 12 cycles" in text
+    assert f"{s['geometry_comparisons']} geometry comparisons (0 of them with the lever arms)" in text
     assert "slides judged on pools of 40 and 20 estimates" in text
     assert (
         "Pooled slides (ur5e): the lever arms of the first 40 windows against the mean of the newest k, "

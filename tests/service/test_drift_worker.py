@@ -149,13 +149,20 @@ def test_lever_pools_fill_in_the_store_and_outlive_a_restart(tmp_path: Path) -> 
     store = open_store(f"sqlite:///{tmp_path / 'pool.db'}", settings=settings)
     history: list[list[tuple[str, str]]] = []
     alerts: list[tuple[str, str, int]] = []
+    judged: list[bool] = []  # per geometry comparison: were the lever arms judged?
+
+    class Seen(Worker):
+        def run_cycle(self):  # type: ignore[no-untyped-def]
+            out = super().run_cycle()
+            judged.extend(r.slides_judged for r in out.values() if r.drift_judged)
+            return out
 
     def cycles(worker: Worker, n: int) -> None:
         for _ in range(n):
             _feed(farm, store, interval)
             _cycle(worker, history, alerts)
 
-    worker = Worker(store, settings)
+    worker = Seen(store, settings)
     _feed(farm, store, settings.window_seconds - interval)
     while store.baseline(ROBOT) is None:
         assert len(history) < 3 * settings.baseline_repeat_k
@@ -169,6 +176,8 @@ def test_lever_pools_fill_in_the_store_and_outlive_a_restart(tmp_path: Path) -> 
             sizes.append(tuple(len(p) for p in _pools(store, base_id)))  # type: ignore[arg-type]
     # the geometry baseline's own lever arms, four more estimates', then the recent pool's three
     assert sizes == [(1, 0), (2, 0), (3, 0), (4, 0), (5, 0), (5, 1), (5, 2), (5, 3)]
+    # the first geometry is kept, not compared; the lever arms are judged once the baseline's pool is full
+    assert judged == [False] * 4 + [True] * 3
     base_pool, recent = _pools(store, base_id)
     worker = Worker(store, settings)  # a restart: the pools come from the store
     cycles(worker, 2 * every)
