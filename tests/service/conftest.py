@@ -16,7 +16,6 @@ import glob
 import os
 import pwd
 import shutil
-import socket
 import subprocess
 import tempfile
 import uuid
@@ -24,6 +23,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+
+from tests.ports import free_port
 
 ADMIN_ENV = "BODYHEALTH_TEST_POSTGRES_URL"
 DEFAULT_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
@@ -40,12 +41,6 @@ def _answers(conninfo: str) -> bool:
         return False
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _start_cluster() -> tuple[str, Callable[[], None]] | str:
     """Start a throwaway cluster; returns (admin URL, stop) or the reason it could not."""
     initdbs = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
@@ -55,7 +50,7 @@ def _start_cluster() -> tuple[str, Callable[[], None]] | str:
     # Not under pytest's tmp dir: that is private to the user running the tests, and as root the
     # cluster must run as the postgres user, who needs to reach its data folder.
     base = Path(tempfile.mkdtemp(prefix="bodyhealth-pg-"))
-    data, port = base / "pgdata", _free_port()
+    data, port = base / "pgdata", free_port()
     prefix: list[str] = []
     if os.geteuid() == 0:  # initdb refuses to run as root
         runuser = shutil.which("runuser")

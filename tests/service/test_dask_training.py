@@ -19,7 +19,6 @@ from __future__ import annotations
 import gc
 import os
 import signal
-import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -43,6 +42,7 @@ from service.store import Store, open_store
 from service.training import RemoteRetrains, TrainingOptions
 from service.worker import Worker
 from tests.bodyschema.test_health import synth
+from tests.ports import free_port
 from tests.service.test_worker import GOOD, Scripted, feed
 
 pytestmark = pytest.mark.slow
@@ -105,12 +105,6 @@ def dask_client(dask_cluster: LocalCluster) -> Iterator[Client]:
 
 def _settings(url: str, **kw: Any) -> Settings:
     return Settings(**{"database_url": url, "window_seconds": WINDOW, "worker_interval_seconds": 0.05, **kw})
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _network_rows(store: Store, robot: str = "arm") -> list[Any]:
@@ -220,7 +214,12 @@ def test_a_task_that_raises_is_counted_and_stores_nothing(tmp_path: Path, dask_c
         metrics = Metrics()
         # asks for more samples than the window holds: the task raises WindowGone on the worker
         remote = RemoteRetrains(cluster, store, WINDOW, metrics=metrics, min_samples=10**6)
-        w = Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics)
+        # a stopped clock: no frame comes after the first 8 s, and on the wall clock the worker calls the
+        # robot idle (and runs nothing for it) once the failure takes more than WINDOW s to come back,
+        # as it did on a loaded machine
+        w = Worker(
+            store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics, clock=lambda: 0.0
+        )
         w.request("arm", "network")
         _cycle_until(w, lambda: bool(remote.in_flight()), 30, "the retrain submitted")
         _cycle_until(w, lambda: not remote.in_flight(), 30, "the failed retrain collected")
@@ -234,7 +233,7 @@ def test_a_task_that_raises_is_counted_and_stores_nothing(tmp_path: Path, dask_c
 
 def test_unreachable_scheduler_degrades_then_retrains_resume(tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'down.db'}"
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     store = open_store(url)
     cluster = TrainingCluster(ClusterOptions(scheduler=address, connect_timeout=1.0, retry_seconds=0.2))
@@ -280,7 +279,7 @@ def test_a_scheduler_lost_under_the_service_is_reconnected(tmp_path: Path) -> No
     """A cluster closed while a retrain runs: the future is cancelled, the retrain is wanted again, and
     runs on the cluster that comes up at the same address."""
     url = f"sqlite:///{tmp_path / 'lost.db'}"
-    port = _free_port()
+    port = free_port()
     store = open_store(url)
     first = _cluster(n_workers=1, scheduler_port=port)
     cluster = TrainingCluster(

@@ -10,7 +10,6 @@ healthcheck; the image runs as an unprivileged user.
 from __future__ import annotations
 
 import re
-import socket
 import subprocess
 import sys
 import time
@@ -18,6 +17,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+
+from tests.ports import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
@@ -79,12 +80,6 @@ def test_distributed_training_layout() -> None:
     assert "8786" not in str([p for svc in SERVICES.values() for p in svc.get("ports", [])])
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.mark.slow
 def test_compose_dask_commands_start_a_cluster_whose_workers_preload_the_training_code() -> None:
     """The scheduler's and a worker's command lines, as compose runs them (the compose host names and
@@ -92,7 +87,7 @@ def test_compose_dask_commands_start_a_cluster_whose_workers_preload_the_trainin
     code imported before its first task (``--preload service.worker_preload``)."""
     from distributed import Client
 
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
 
     def local(command: list[str]) -> list[str]:

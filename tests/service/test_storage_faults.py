@@ -15,7 +15,6 @@ import glob
 import logging
 import os
 import shutil
-import socket
 import sqlite3
 import subprocess
 import tempfile
@@ -37,17 +36,12 @@ from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.ports import free_port
 
 __all__ = ["PgCluster", "TickSource", "wait_until"]
 
 PRUNE = 0.5  # prune interval of these tests, seconds
 N_IMU = 8
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_until(cond: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:
