@@ -46,10 +46,6 @@ def blas_threads(limit: int = 1) -> Iterator[None]:
         yield
 
 
-#: The limit :func:`set_blas_threads` holds for the rest of the process (kept so it is not undone).
-_PROCESS_LIMIT: list[object] = []
-
-
 def set_blas_threads(limit: int = 1) -> None:
     """BLAS limited to ``limit`` threads for the rest of this process: for a child that only fits.
 
@@ -62,4 +58,4 @@ def set_blas_threads(limit: int = 1) -> None:
     import scipy.linalg  # noqa: F401  (loads scipy's)
     from threadpoolctl import threadpool_limits
 
-    _PROCESS_LIMIT.append(threadpool_limits(limits=limit, user_api="blas"))
+    threadpool_limits(limits=limit, user_api="blas")  # not as a context: nothing restores it

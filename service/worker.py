@@ -434,9 +434,9 @@ class Worker:
         if drift is None:
             hold = tuple(sorted({*hold, *KINEMATIC_KINDS}))
         else:
-            drift, res.slides_judged = drift
+            found, res.slides_judged = drift
             res.drift_judged = True
-            res.diff = Diff(findings=(*res.diff.findings, *drift), reasons=res.diff.reasons)
+            res.diff = Diff(findings=(*res.diff.findings, *found), reasons=res.diff.reasons)
         res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
         now = self.clock()
         for tr in res.transitions:
