@@ -161,6 +161,7 @@ class KinematicsOptions:
     gyro_scale_error: float = 0.03
     gyro_cross_axis: float = 0.02
     acc_scale_error: float = 0.03
+    acc_bias: float = 0.08 * 9.80665
     acc_model_error_deg: float = 0.15
 
 
@@ -495,38 +496,64 @@ def _newey_west(g: np.ndarray, lags: int) -> np.ndarray:
     return S
 
 
-def _prior(e: np.ndarray, lags: int, sigma: float, cols: list[int], p: int) -> np.ndarray:
-    """The ridge of :func:`_ls` for zero-mean priors of std ``sigma`` on the coefficients ``cols``.
+def _prior(e: np.ndarray, lags: int, stds: np.ndarray) -> np.ndarray:
+    """The ridge of :func:`_ls` for zero-mean priors of std ``stds`` (p,) on the coefficients (``inf``:
+    none).
 
     Weighed against the data, whose residuals ``e`` (T, m) have the variance ``σe²`` and are
     correlated over about ``κ`` samples (Newey-West long-run variance over the plain one): the data
-    count as ``Σ e² / (κ σe²)``, a prior as ``β² / sigma²``, so its ridge is ``κ σe² / sigma²``.
+    count as ``Σ e² / (κ σe²)``, a prior as ``β² / std²``, so its ridge is ``κ σe² / std²``.
     """
     var = float(np.mean(e * e))
     long_run = float(np.mean([_newey_west(e[:, i : i + 1], lags)[0, 0] for i in range(e.shape[1])]))
     kappa = long_run / max(var * e.shape[0], 1e-300)
-    ridge = np.zeros(p)
-    ridge[cols] = kappa * var / sigma**2
-    return ridge
+    return kappa * var / np.asarray(stds, dtype=float) ** 2
 
 
-def _refine(residual: Callable[[np.ndarray], np.ndarray], n: int, n_linear: int, lags: int) -> _Fit:
+def _penalized(X: np.ndarray, Y: np.ndarray, ridge: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals (T, m) of :func:`_ls`'s fit and its priors' ``sqrt(ridge_k) β_k`` (k,) for the
+    coefficients that have one: together, all that a variable projection (:func:`_refine`) needs."""
+    _, scale, _, beta, e = _solve(X, Y, ridge)
+    return e, _prior_resid(ridge, beta / scale)
+
+
+def _prior_resid(ridge: np.ndarray | None, coef: np.ndarray) -> np.ndarray:
+    """``sqrt(ridge_k) β_k`` for the coefficients ``coef`` with a prior: the priors as residuals."""
+    if ridge is None:
+        return np.zeros(0)
+    has = ridge > 0
+    return np.sqrt(ridge[has]) * coef[has]
+
+
+def _refine(
+    residual: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: int, n_linear: int, lags: int
+) -> _Fit:
     """Nonlinear least squares over ``n`` small parameters (radians), from zero, and their covariance.
 
     ``residual(x)`` returns the (T, m) residuals left once the model's ``n_linear`` linear parameters
-    are fitted for ``x`` (variable projection). The covariance is the Newey-West sandwich of the
-    Jacobian at the solution, as in :func:`_ls`. ``coef`` is the solution, ``resid`` its residuals.
+    are fitted for ``x`` (variable projection), and the residuals of those parameters' priors
+    (:func:`_prior_resid`). The objective is the sum of both's squares: the priors' residuals belong
+    in it, as the linear fit itself weighs them. Without them a search could trade the data's
+    residual for a coefficient the prior rules out (under a vertical root axis the parent's bias took
+    9.5 m/s², its whole gravity, to turn the child's frame 70°). The covariance is the Newey-West
+    sandwich of the Jacobian at the solution, as in :func:`_ls`, with the priors in its bread and only
+    the data in its meat. ``coef`` is the solution, ``resid`` its residuals.
     """
     from scipy.optimize import least_squares
 
-    e0 = residual(np.zeros(n))
+    e0, _ = residual(np.zeros(n))
     T, m = e0.shape
     sol = least_squares(
-        lambda x: residual(x).ravel(), np.zeros(n), x_scale=0.01, diff_step=1e-4, ftol=1e-6, xtol=1e-4
+        lambda x: np.concatenate([r.ravel() for r in residual(x)]),
+        np.zeros(n),
+        x_scale=0.01,
+        diff_step=1e-4,
+        ftol=1e-6,
+        xtol=1e-4,
     )
-    e = sol.fun.reshape(T, m)
-    J = sol.jac.reshape(T, m, n)
-    Hi = np.linalg.pinv(np.einsum("tmi,tmj->ij", J, J), rcond=1e-10, hermitian=True)
+    e = sol.fun[: T * m].reshape(T, m)
+    J = sol.jac[: T * m].reshape(T, m, n)
+    Hi = np.linalg.pinv(sol.jac.T @ sol.jac, rcond=1e-10, hermitian=True)
     g = np.einsum("tmi,tm->ti", J, e)
     dof = max(T * m - n - n_linear, 1)
     return _Fit(coef=sol.x, cov=Hi @ _newey_west(g, lags) @ Hi * (T * m / dof), resid=e)
@@ -867,7 +894,7 @@ def _root_axis_acc(
     eye = np.eye(3)
     ridge: np.ndarray | None = None
 
-    def resid(theta: np.ndarray) -> np.ndarray:
+    def resid(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         v = _tilted(u, U, theta)
         vx = skew(v)
         Uv = _perp_basis(v)
@@ -878,9 +905,11 @@ def _root_axis_acc(
         X[:, :, 6:9] = o * eye
         X[:, :, 9:11] = qdd * (vx @ Uv)
         X[:, :, 11:13] = qd2 * (vx @ vx @ Uv)
-        return _resid(X, Y, ridge)
+        return _penalized(X, Y, ridge)
 
-    ridge = _prior(resid(np.zeros(2)), sig.lags, gain_std, [0, 1, 2], 13)
+    stds = np.full(13, np.inf)
+    stds[0:3] = gain_std
+    ridge = _prior(resid(np.zeros(2))[0], sig.lags, stds)
     return _refine(resid, 2, 13, sig.lags)
 
 
@@ -910,6 +939,7 @@ def _lever_root(sig: _Signals, j: int, c: int, u: np.ndarray, omega_c: np.ndarra
 #: d_t 12:15, d 15:18, r_t 18:20, r 20:22; the gains are δ_c and δ_p.
 _CHILD_COLS = 22
 _CHILD_GAINS = [0, 1, 2, 9, 10, 11]
+_CHILD_BIASES = [3, 4, 5, 6, 7, 8]
 
 
 def _lever_child(
@@ -1024,17 +1054,22 @@ def _lever_child(
         _, scale, _, beta, _ = _solve(X, Y - RF, ridge)
         return X, Y - RF - _felt_beyond(X, beta / scale)
 
-    def resid(R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, ridge: np.ndarray | None) -> np.ndarray:
-        """The residuals of :func:`design` with the gains' prior ``ridge`` in both fits, which share
-        one factorization: the second moves the first's residuals ``e`` by the product ``p`` less its
-        projection onto the design."""
+    def resid(
+        R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, ridge: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals of :func:`design` with the priors ``ridge`` in both fits, which share one
+        factorization: the second moves the first's residuals ``e`` by the product ``p`` less its
+        projection onto the design, and its coefficients by ``p``'s fit; and the priors' residuals
+        (:func:`_prior_resid`) of the second's coefficients."""
         X, RF = build(R, axis, kcu, (Fm, Gm, Km, ones))
         Xs, scale, Gi, beta, e = _solve(X, Y - RF, ridge)
         flat = Xs.reshape(-1, _CHILD_COLS)
         p = _felt_beyond(X, beta / scale).reshape(-1)
-        return e - (p - flat @ (Gi @ (flat.T @ p))).reshape(e.shape)
+        moved = Gi @ (flat.T @ p)
+        e2 = e - (p - flat @ moved).reshape(e.shape)
+        return e2, _prior_resid(ridge, (beta - moved) / scale)
 
-    gain_std = opts.acc_scale_error / math.sqrt(3.0)
+    stds = _child_prior_stds(opts)
 
     def gains_prior(R: np.ndarray) -> np.ndarray:
         """The gains' datasheet prior (:func:`_prior`) against the residuals of the fit without it at
@@ -1042,7 +1077,7 @@ def _lever_child(
         both accelerometers; the parent's gains against its bias when its force along its axis hardly
         changes)."""
         X, RF = build(R, u, KcU, (Fm, Gm, Km, ones))
-        return _prior(_resid(X, Y - RF), sig.lags, gain_std, _CHILD_GAINS, _CHILD_COLS)
+        return _prior(_resid(X, Y - RF), sig.lags, stds)
 
     def fit(R: np.ndarray, ridge: np.ndarray | None = None) -> float:
         """The linear fit's objective without the product (the turn's search only has to find the well
@@ -1076,6 +1111,21 @@ def _lever_child(
         axis_std_deg=axis_std,
         force=RFa + _felt_beyond(Xa, f.coef) + Xa @ f.coef,
     )
+
+
+def _child_prior_stds(opts: KinematicsOptions) -> np.ndarray:
+    """The child model's priors (:func:`_prior`): the datasheet's gains and biases of both accelerometers
+    (uniform within their half-widths), none on the rest.
+
+    The biases' prior matters where the data leave a bias free to take more than a bias: under a
+    vertical root axis the parent's specific force is a constant gravity in its own frame, and
+    ``R(q) b_p`` can trade it for any other constant, which frees ``R0`` to turn the image of the
+    parent's axis, which the gyro had fixed. The MPU-6050's zero-g offset is at most 80 mg; turning
+    gravity by θ takes ``2 g sin(θ/2)``, 0.17 m/s² a degree."""
+    stds = np.full(_CHILD_COLS, np.inf)
+    stds[_CHILD_GAINS] = opts.acc_scale_error / math.sqrt(3.0)
+    stds[_CHILD_BIASES] = opts.acc_bias / math.sqrt(3.0)
+    return stds
 
 
 def _felt_beyond(X: np.ndarray, coef: np.ndarray) -> np.ndarray:
@@ -1130,7 +1180,7 @@ def _lever_basis(sig: _Signals, kc: tuple[np.ndarray, np.ndarray], U: np.ndarray
 
 
 def _child_frame(
-    resid: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], np.ndarray],
+    resid: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]],
     R: np.ndarray,
     u: np.ndarray,
     kc: tuple[np.ndarray, np.ndarray],
@@ -1145,14 +1195,14 @@ def _child_frame(
     U = _perp_basis(u)
     KcU = _lever_basis(sig, kc, U)
 
-    def lean(x: np.ndarray) -> np.ndarray:
+    def lean(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return resid(_rotvec(x[:3]) @ R, _tilted(u, U, x[3:]), KcU, ridge)
 
     axis, std = _fuse(u, noise_var, _refine(lean, 5, _CHILD_COLS, sig.lags), slice(3, 5), opts)
     U = _perp_basis(axis)
     KcU = _lever_basis(sig, kc, U)
 
-    def turned(x: np.ndarray) -> np.ndarray:
+    def turned(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return resid(_rotvec(x) @ R, axis, KcU, ridge)
 
     return axis, std, _rotvec(_refine(turned, 3, _CHILD_COLS, 0).coef) @ R, U, KcU
