@@ -1016,12 +1016,11 @@ def _lever_child(
     kc = _kmats(sig, omega_c)
     KcU = _lever_basis(sig, kc, U)
     fp = r.acc[:, p]
-    gain_fp = fp if fp_model is None else fp_model
     Kp = np.concatenate(_kmats(sig, omega_p), axis=2)  # (T, 3, 6): d_t then d
     # the regressors at the aligned rate (the model's prediction below) and through the common band
     raw = (
         [m[:, None] * fp for m in mods],
-        [m[:, None] * gain_fp for m in mods],
+        [m[:, None] * (fp if fp_model is None else fp_model) for m in mods],
         [m[:, None, None] * Kp for m in mods],
     )
     Fm, Gm, Km = ([sig.band_limit(x) for x in xs] for xs in raw)
@@ -1095,7 +1094,14 @@ def _lever_child(
     R_gyro, axis, axis_std = R, u, math.nan
     ridge = gains_prior(R)
     if opts.accelerometer_frame:
-        axis, axis_std, R, U, KcU = _child_frame(resid, R_gyro, u, kc, sig, noise_var, ridge, opts)
+        # the gyro's prior on R0, weighed against the data as the gains' prior is
+        held = _gyro_frame_prior(
+            None if span_rank != 1 else R @ parent_axis,
+            ridge[_CHILD_GAINS[0]] * stds[_CHILD_GAINS[0]] ** 2,
+            noise_var,
+            opts,
+        )
+        axis, axis_std, R, U, KcU = _child_frame(resid, R_gyro, u, kc, sig, noise_var, ridge, held, opts)
     X, Yr = design(R, axis, KcU)
     f = _ls(X, Yr, sig.lags)
     cov_r = U @ f.cov[-2:, -2:] @ U.T
@@ -1179,6 +1185,25 @@ def _lever_basis(sig: _Signals, kc: tuple[np.ndarray, np.ndarray], U: np.ndarray
     return np.concatenate([sig.band_limit(kc[0] @ U), sig.band_limit(kc[1] @ U)], axis=2)
 
 
+def _gyro_frame_prior(
+    w: np.ndarray | None, data_var: float, noise_var: float, opts: KinematicsOptions
+) -> np.ndarray:
+    """The gyro's prior on a turn ``x`` (rotation vector, child frame) of the ``R0`` it read, as the rows
+    (k, 3) whose product with ``x`` are its residuals, weighed against the data as :func:`_prior` weighs
+    (``data_var``: the data's ``κ σe²``).
+
+    The gyro fixes ``R0`` on the directions the parent link turned about: all of it where that is two
+    axes or more (``w`` None), the image ``w`` of its one axis otherwise, which leaves the turn about
+    ``w`` free. Each gyro's sensitivity errors turn what it reads by at most the larger of its gain and
+    cross-axis variances per direction (:func:`_gyro_lean_cov`), and ``R0`` is read by two gyros, so
+    each fixed direction gets ``2 max(σs², σc²)`` plus the fit's noise. The accelerometers' search needs
+    it: under a vertical root axis the parent's specific force along that axis is gravity, a constant
+    its bias can trade, and the turn of ``w`` is then the biases' prior's alone (0.17 m/s² a degree)."""
+    var = 2.0 * max(opts.gyro_scale_error, opts.gyro_cross_axis) ** 2 / 3.0 + noise_var
+    rows = np.eye(3) if w is None else _perp_basis(w / np.linalg.norm(w)).T
+    return math.sqrt(data_var / var) * rows
+
+
 def _child_frame(
     resid: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]],
     R: np.ndarray,
@@ -1187,23 +1212,27 @@ def _child_frame(
     sig: _Signals,
     noise_var: float,
     ridge: np.ndarray,
+    held: np.ndarray,
     opts: KinematicsOptions,
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """A child link's accelerometer frame (:func:`_lever_child`): the axis, its std, ``R0``, the lever-arm
     plane and its regressors. ``resid(R0, axis, lever regressors, ridge)`` are the child model's
-    residuals, ``ridge`` the gains' prior (:func:`_prior`)."""
+    residuals and its priors', ``ridge`` the priors (:func:`_prior`), ``held @ x`` the residuals of the
+    gyro's prior on the turn ``x`` of ``R0`` (:func:`_gyro_frame_prior`)."""
     U = _perp_basis(u)
     KcU = _lever_basis(sig, kc, U)
 
     def lean(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return resid(_rotvec(x[:3]) @ R, _tilted(u, U, x[3:]), KcU, ridge)
+        e, pen = resid(_rotvec(x[:3]) @ R, _tilted(u, U, x[3:]), KcU, ridge)
+        return e, np.concatenate([pen, held @ x[:3]])
 
     axis, std = _fuse(u, noise_var, _refine(lean, 5, _CHILD_COLS, sig.lags), slice(3, 5), opts)
     U = _perp_basis(axis)
     KcU = _lever_basis(sig, kc, U)
 
     def turned(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return resid(_rotvec(x) @ R, axis, KcU, ridge)
+        e, pen = resid(_rotvec(x) @ R, axis, KcU, ridge)
+        return e, np.concatenate([pen, held @ x])
 
     return axis, std, _rotvec(_refine(turned, 3, _CHILD_COLS, 0).coef) @ R, U, KcU
 
