@@ -473,7 +473,7 @@ def _markdown(d: dict) -> str:
         + (
             "axes in the accelerometers' frame, `BODYHEALTH_KINEMATICS_ACCELEROMETER_FRAME=true`"
             if d.get("accelerometer_frame")
-            else "gyro readings, no accelerometer-frame refinement"
+            else "the axes the gyros read, `BODYHEALTH_KINEMATICS_ACCELEROMETER_FRAME=false`"
         )
         + ", on the first window's tree learned by `fast`). "
         "Nominal: healthy windows compared with the first (any finding is false). Damages: injected on "

@@ -185,15 +185,16 @@ def test_lever_pools_fill_in_the_store_and_outlive_a_restart(tmp_path: Path) -> 
     assert after_base == base_pool
     assert len(after_recent) == 3 and after_recent[0] == recent[2]
     assert alerts == [] and all(h == [] for h in history[-len(sizes) * every :])
-    # the geometry was kept about the axes the gyros read; a worker set to the accelerometers' frame
-    # keeps the next estimate in its place, with a pool of its own lever arms, rather than compare
-    # lever arms fitted about other axes
+    # the geometry was kept in the frame the settings set; a worker set to the other frame keeps the
+    # next estimate in its place, with a pool of its own lever arms, rather than compare lever arms
+    # fitted about other axes
+    frame = settings.kinematics_accelerometer_frame
     kept = store.kinematics_baseline(ROBOT, base_id)
-    assert kept is not None and kept.data[FRAME_KEY] is False
-    accelerometers = settings.model_copy(update={"kinematics_accelerometer_frame": True})
-    cycles(Worker(store, accelerometers), every)
+    assert kept is not None and kept.data[FRAME_KEY] is frame
+    other = settings.model_copy(update={"kinematics_accelerometer_frame": not frame})
+    cycles(Worker(store, other), every)
     again = store.kinematics_baseline(ROBOT, base_id)
-    assert again is not None and again.id == kept.id and again.data[FRAME_KEY] is True
+    assert again is not None and again.id == kept.id and again.data[FRAME_KEY] is (not frame)
     assert again.wall_time > kept.wall_time and [len(p) for p in _pools(store, base_id)] == [1, 0]
     assert alerts == []
     store.close()
