@@ -146,9 +146,11 @@ class KinematicsOptions:
     together (module docstring); False gives the axis the gyro reports. ``gyro_scale_error`` and
     ``gyro_cross_axis`` are the half-widths of the gyro's sensitivity errors (datasheet: MPU-6050 ±3 %
     and ±2 %), the prior on how far the gyro's reading of an axis can lean; ``acc_scale_error`` the
-    half-width of the accelerometer's gain errors (±3 %), a prior on the gains those fits leave free.
-    ``acc_model_error_deg`` is the RMS error of the accelerometers' lean beyond its noise, measured on
-    simulated trees: the model error of :func:`_fuse`.
+    half-width of the accelerometer's gain errors (±3 %), a prior on the gains those fits leave free;
+    ``acc_bias`` the half-width of its zero-g offset (m/s²; ±80 mg on the worst axis), a prior on the
+    biases of the child model (:func:`_child_prior_stds`). ``acc_model_error_deg`` is the RMS error of
+    the accelerometers' lean beyond its noise, measured on simulated trees: the model error of
+    :func:`_fuse`.
     """
 
     band_hz: float | None = None
