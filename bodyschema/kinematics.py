@@ -1082,12 +1082,11 @@ def _lever_child(
 
     def fit(R: np.ndarray, ridge: np.ndarray | None = None) -> float:
         """The linear fit's objective without the product (the turn's search only has to find the well
-        that the accelerometers' frame then refines): the residual sum of squares, plus the prior's
-        ``Σ ridge β²`` when the gains' prior ``ridge`` is given."""
+        that the accelerometers' frame then refines): the residual sum of squares, plus the priors'
+        ``Σ ridge β²`` when the priors ``ridge`` are given (:func:`_penalized`)."""
         X, RF = build(R, u, KcU, (Fm, Gm, Km, ones))
-        _, scale, _, beta, e = _solve(X, Y - RF, ridge)
-        coef = beta / scale
-        return float(np.sum(e * e)) + (0.0 if ridge is None else float(ridge @ coef**2))
+        e, pen = _penalized(X, Y - RF, ridge)
+        return float(np.sum(e * e) + np.sum(pen * pen))
 
     def judged(R: np.ndarray) -> float:
         return fit(R, gains_prior(R))

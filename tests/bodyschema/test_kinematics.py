@@ -264,7 +264,7 @@ def test_a_vertical_root_leaves_the_frames_below_to_the_gyro_and_the_datasheet()
     below = {k: kin.imus[k] for k, j in topo.imu_joint.items() if j in joints - {"waist_yaw", "waist_pitch"}}
     assert len(below) == 6 and all(k.converged for k in below.values()), below
     errors = {
-        k: float(np.linalg.norm(k_.lever_arm - case.truth[k].lever_arm))  # type: ignore[operator]
-        for k, k_ in below.items()
+        name: float(np.linalg.norm(imu.lever_arm - case.truth[name].lever_arm))  # type: ignore[operator]
+        for name, imu in below.items()
     }
     assert max(errors.values()) < 0.0075, errors
