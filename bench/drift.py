@@ -27,7 +27,8 @@ Two parts, both on the simulated farm with the realistic ``robot`` sensing prese
 Writes ``drift.md``, ``drift.json`` and ``drift.png``. The parts are independent (each its own farm,
 from ``--seed``): ``--parts`` runs some of them, and ``--from`` takes the others from the
 ``drift.json`` of earlier runs with the same arguments, so that the long service part can run in a
-process of its own beside the others. CPU seconds are each part's own process's.
+process of its own beside the others; ``--jobs`` splits the service part's fleet over processes
+(:func:`_service`). CPU seconds are each part's own processes'.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backlash-deg", type=float, default=1.0, help="dead band injected, deg")
     parser.add_argument("--fleet", default="ur5e,paper-1,quadruped", help="robots of the service part")
     parser.add_argument("--hours", type=float, default=1.0, help="simulated hours of the service part")
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="service part: processes the fleet's robots are split over"
+    )
     parser.add_argument("--pool-robot", default="ur5e", help="robot of the pooled-slides part ('' skips it)")
     parser.add_argument("--pool-slides-mm", default="5,10,20", help="slides of the pooled part, mm")
     parser.add_argument("--pool-after", type=int, default=30, help="windows judged after each slide")
@@ -299,18 +303,54 @@ def _floats(text: str) -> list[float]:
 
 
 def _service(args: argparse.Namespace) -> dict:
-    """The worker's real cycle on a healthy farm for ``args.hours`` of simulated time."""
+    """The worker's real cycle on a healthy farm for ``args.hours`` of simulated time.
+
+    The worker judges each robot on its own (its own baseline, windows, pools and stagger), and the
+    farm draws each robot's data from the farm's seed and the robot's name alone, so the fleet can be
+    split over ``args.jobs`` processes, one SQLite file each, and the counts added: every robot gets
+    the data and the judgements it gets in one process. CPU seconds are the processes' sum.
+    """
+    fleet = [x for x in args.fleet.split(",") if x.strip()]
+    robots = {f"{name}-{i}": name for i, name in enumerate(fleet)}
+    jobs = max(1, min(int(getattr(args, "jobs", 1) or 1), len(robots)))
+    if jobs == 1:
+        return _service_robots(args, robots)
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # spawn: a forked child would inherit torch's and BLAS's thread pools half set up
+    plain = argparse.Namespace(**{k: v for k, v in vars(args).items() if not callable(v)})
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        parts = list(pool.map(_service_robots, [plain] * len(robots), [{k: v} for k, v in robots.items()]))
+    out = dict(parts[0])
+    for key in ("cycles", "interval_s", "kinematics_interval_cycles", "network_interval_cycles"):
+        if any(p[key] != out[key] for p in parts):
+            raise RuntimeError(f"bench drift: the service processes disagree on {key}")
+    out["fleet"] = robots
+    for key in ("baseline_cycle", "geometry_kept"):
+        out[key] = {k: v for p in parts for k, v in p[key].items()}
+    for key in ("network_retrains", "geometry_comparisons", "slide_comparisons", "drift_findings"):
+        out[key] = sum(p[key] for p in parts)
+    for key in ("drift_finding_details", "alerts_raised"):
+        out[key] = sorted((x for p in parts for x in p[key]), key=lambda x: (x["cycle"], x["robot"]))
+    out["cpu_s"] = round(sum(p["cpu_s"] for p in parts), 1)
+    out["processes"] = jobs
+    return out
+
+
+def _service_robots(args: argparse.Namespace, robots: dict[str, str]) -> dict:
+    """:func:`_service` for ``robots`` (name: catalog robot) in this process."""
     from bodyschema.findings import KINEMATIC_KINDS
+    from bodyschema.threads import blas_threads, set_torch_threads
     from service.ingest.replay import recording_batch
     from service.settings import Settings
     from service.store import open_store
     from service.worker import Worker
     from simulators.farm import Farm
 
-    fleet = [x for x in args.fleet.split(",") if x.strip()]
-    robots = {f"{name}-{i}": name for i, name in enumerate(fleet)}
+    set_torch_threads()
     cpu0 = time.process_time()
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, blas_threads(1):
         url = f"sqlite:///{Path(tmp) / 'drift.db'}"
         settings = Settings(database_url=url, network_interval_cycles=_networks(args))
         store = open_store(url, settings=settings)
@@ -322,7 +362,8 @@ def _service(args: argparse.Namespace) -> dict:
         drift: list[dict] = []
         judged = slides = retrains = 0
         baselines: dict[str, int] = {}
-        for cycle in progress(range(cycles), desc="bench drift: service", unit="cycle"):
+        desc = "bench drift: service" + (f" {','.join(robots)}" if len(robots) == 1 else "")
+        for cycle in progress(range(cycles), desc=desc, unit="cycle"):
             for name, rec in farm.advance(interval).items():
                 store.write(recording_batch(name, rec))
             for name, res in worker.run_cycle().items():
@@ -545,7 +586,7 @@ def _markdown(d: dict) -> str:
             f"{pools_text(s)}, {networks_text(s)}): "
             f"{comparisons_text(s)}, {s['drift_findings']} drift findings, "
             f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
-            f"{s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
+            f"{s['cpu_s']:.0f} CPU s{_processes(s)}{_elsewhere(d, 'service')}.",
         ]
         for a in s["alerts_raised"]:
             lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
@@ -563,6 +604,11 @@ def _elsewhere(d: dict, part: str) -> str:
     """' (run on MACHINE, ...)' where ``part`` of ``d`` ran on another machine than the catalog part."""
     there = d.get("machines", {}).get(part, d["machine"])
     return "" if there == d["machine"] else f" (run on {there}, taken with `--from`)"
+
+
+def _processes(s: dict) -> str:
+    n = s.get("processes", 1)
+    return f" (the sum of {n} processes, the fleet's robots split over them)" if n > 1 else ""
 
 
 def pools_text(s: dict) -> str:

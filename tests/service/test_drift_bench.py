@@ -82,6 +82,20 @@ def test_short_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert (tmp_path / "drift.png").stat().st_size > 5000
 
 
+def test_the_service_part_splits_the_fleet_over_processes(tmp_path: Path) -> None:
+    # each robot in a process of its own: the same cycles for each, the counts added, every robot's
+    # baseline and geometry kept; a robot's data do not depend on the others (the farm's seeds)
+    args = ["--robots", "ur5e", "--parts", "service", "--fleet", "ur5e,ur5e", "--hours", "0.03"]
+    md = bench.run(_args(*args, "--networks", "12", "--jobs", "2", "--out", str(tmp_path)))
+    s = json.loads((tmp_path / "drift.json").read_text())["service"]
+    assert s["processes"] == 2 and s["fleet"] == {"ur5e-0": "ur5e", "ur5e-1": "ur5e"}
+    assert s["cycles"] == 22 and s["baseline_cycle"] == {"ur5e-0": 8, "ur5e-1": 8}
+    assert s["geometry_kept"] == {"ur5e-0": True, "ur5e-1": True}
+    assert s["network_retrains"] == 2 * 2 and s["geometry_comparisons"] >= 2
+    assert s["alerts_raised"] == [] and s["drift_findings"] == 0
+    assert "CPU s (the sum of 2 processes, the fleet's robots split over them)" in md.read_text()
+
+
 def test_parts_from_an_earlier_run_must_come_from_the_same_command(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
