@@ -1254,10 +1254,11 @@ def _kinds(cat: list[dict]) -> str:
     return ", ".join(f"{v} {k}" for k, v in sorted(n.items())) or "none"
 
 
-def _drift(b: _Bench) -> str:
-    from bench.drift import _change, _elsewhere, comparisons_text, networks_text, pools_text
+def _drift(b: _Bench, name: str = "drift") -> str:
+    """``bench drift``'s run in ``docs/bench/<name>.json``, in the frame it ran in."""
+    from bench.drift import _change, _elsewhere, service_text
 
-    d = b.json("drift.json")
+    d = b.json(f"{name}.json")
     assert isinstance(d, dict)
     cat = d["catalog"]
     windows = sum(r["nominal_windows"] for r in cat)
@@ -1289,7 +1290,9 @@ def _drift(b: _Bench) -> str:
             f"a {mm:g} mm slide of that IMU: found on {sum(g['found'] for g in runs)} of {len(runs)}"
         )
     lines = [
-        f"Measured with {b.provenance('drift')}: {len(cat)} catalog robots "
+        f"Measured with {b.provenance(name)}, "
+        + ("in the accelerometers' frame" if d.get("accelerometer_frame") else "about the gyros' axes")
+        + f": {len(cat)} catalog robots "
         f"({', '.join(r['robot'] for r in cat)}), `robot` sensing preset, MPU-6050 IMUs kept across the "
         f"run, {d['window_s']:g} s windows: {false} false findings in {windows} healthy windows compared "
         f"with each robot's first ({_kinds(cat)}); " + "; ".join(parts) + ". Two estimates are compared "
@@ -1315,16 +1318,8 @@ def _drift(b: _Bench) -> str:
             "findings in "
             f"{p['nominal_windows']} healthy windows judged{_elsewhere(d, 'pooled')}; found: {found}.",
         ]
-    s = d["service"]
-    if s is not None:
-        lines += [
-            "",
-            f"The worker's real cycle on a healthy fleet ({', '.join(s['fleet'].values())}) for "
-            f"{s['hours']:g} h of simulated time ({s['cycles']} cycles, geometry every "
-            f"{s['kinematics_interval_cycles']} cycles, {pools_text(s)}, sensor {networks_text(s)}): "
-            f"{comparisons_text(s)}, {s['drift_findings']} drift findings, "
-            f"{len(s['alerts_raised'])} alerts raised, {s['cpu_s']:.0f} CPU s{_elsewhere(d, 'service')}.",
-        ]
+    if d["service"] is not None:
+        lines += ["", service_text(d)]
     return "\n".join(lines)
 
 
@@ -1415,6 +1410,12 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),
     _f("docs/kinematics.md", "drift", "drift.json", _drift),
+    _f(
+        "docs/kinematics.md",
+        "drift-accelerometer-frame",
+        "drift-accelerometer-frame/drift.json",
+        lambda b: _drift(b, "drift-accelerometer-frame/drift"),
+    ),
     _f("docs/kinematics.md", "lever-budget", "lever-budget.json", _lever_budget),
     _f("docs/scale.md", "fleet", "fleet.json", _scale_doc),
 )

@@ -47,7 +47,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["Watch", "add_arguments", "networks_text", "pools_text", "run", "window_tree"]
+__all__ = ["Watch", "add_arguments", "run", "service_text", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -578,16 +578,7 @@ def _markdown(d: dict) -> str:
             )
     s = d["service"]
     if s is not None:
-        robots = ", ".join(f"{k} ({v})" for k, v in s["fleet"].items())
-        lines += [
-            "",
-            f"Service run: {robots} for {s['hours']:g} h of simulated time ({s['cycles']} worker cycles of "
-            f"{s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} cycles, "
-            f"{pools_text(s)}, {networks_text(s)}): "
-            f"{comparisons_text(s)}, {s['drift_findings']} drift findings, "
-            f"{len(s['alerts_raised'])} alerts raised (on a healthy fleet, any would be false), "
-            f"{s['cpu_s']:.0f} CPU s{_processes(s)}{_elsewhere(d, 'service')}.",
-        ]
+        lines += ["", service_text(d)]
         for a in s["alerts_raised"]:
             lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
         if s.get("drift_finding_details"):
@@ -606,19 +597,32 @@ def _elsewhere(d: dict, part: str) -> str:
     return "" if there == d["machine"] else f" (run on {there}, taken with `--from`)"
 
 
+def service_text(d: dict) -> str:
+    """The service part of the results ``d`` in one sentence: the bench's table and the docs say it."""
+    s = d["service"]
+    robots = ", ".join(f"{k} ({v})" for k, v in s["fleet"].items())
+    return (
+        f"The worker's real cycle on a healthy fleet, {robots}, for {s['hours']:g} h of simulated time "
+        f"({s['cycles']} cycles of {s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} "
+        f"cycles, {_pools_text(s)}, sensor {_networks_text(s)}): {_comparisons_text(s)}, "
+        f"{s['drift_findings']} drift findings, {len(s['alerts_raised'])} alerts raised (on a healthy "
+        f"fleet, any would be false), {s['cpu_s']:.0f} CPU s{_processes(s)}{_elsewhere(d, 'service')}."
+    )
+
+
 def _processes(s: dict) -> str:
     n = s.get("processes", 1)
     return f" (the sum of {n} processes, the fleet's robots split over them)" if n > 1 else ""
 
 
-def pools_text(s: dict) -> str:
+def _pools_text(s: dict) -> str:
     """The pool sizes the service part judged slides with (runs written before they were recorded ran
     at the defaults of then: 40 and 20)."""
     n_base, n_recent = s.get("pool_sizes", (40, 20))
     return f"slides judged on pools of {n_base} and {n_recent} estimates"
 
 
-def comparisons_text(s: dict) -> str:
+def _comparisons_text(s: dict) -> str:
     """How many geometry comparisons the service part made, and how many of them judged lever arms (the
     baseline's pool full; runs written before that was recorded say nothing of it)."""
     text = f"{s['geometry_comparisons']} geometry comparisons"
@@ -627,7 +631,7 @@ def comparisons_text(s: dict) -> str:
     return text
 
 
-def networks_text(s: dict) -> str:
+def _networks_text(s: dict) -> str:
     """How the service part ran the sensor networks (runs written before they were on: off)."""
     n = int(s.get("network_interval_cycles", 0))
     if n <= 0:

@@ -112,12 +112,12 @@ class Settings(BaseSettings):
         "them with the geometry learned on its baseline (drift alerts); 0 = never",
     )
     kinematics_accelerometer_frame: bool = Field(
-        False,
+        True,
         description="estimate the geometry's joint axes in each accelerometer's frame, gyros and "
         "accelerometers together, so that the gyros' sensitivity errors do not lean the axes the lever "
         "arms are fitted about (a UR5e wrist IMU's lever arm then scatters 1 mm between windows, not 4 "
-        "to 5), at several times the cost; off by default: on some robots its lever arms move between "
-        "healthy windows beyond their stated std (docs/kinematics.md)",
+        "to 5, and its 5 mm slides are found; docs/kinematics.md); false: the axes the gyros read, at "
+        "a third of the CPU",
     )
     kinematics_pool_base: int = Field(
         PoolOptions.n_base,
