@@ -130,6 +130,10 @@ UNOBSERVABLE: tuple[str, ...] = (
     "the IMU's position along its joint's axis (only the perpendicular lever arm is observable)",
     "for a root joint on a fixed base: the axis's direction about gravity (yaw) and its position",
     "an accelerometer's cross-axis misalignment: axes are in the accelerometer's frame, taken as square",
+    "where a parent link turned about one axis only (a root joint's link): the turn about that axis of a "
+    "child's rotation_from_parent and axis_in_parent, which gravity fixes only where the axis is not "
+    "vertical and the parent link's own accelerations otherwise; and the turn about it between two IMUs "
+    "on that link (same_link), which their gyros do not fix",
 )
 
 
