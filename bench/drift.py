@@ -312,7 +312,7 @@ def _service(args: argparse.Namespace) -> dict:
     """
     fleet = [x for x in args.fleet.split(",") if x.strip()]
     robots = {f"{name}-{i}": name for i, name in enumerate(fleet)}
-    jobs = max(1, min(int(getattr(args, "jobs", 1) or 1), len(robots)))
+    jobs = max(1, min(args.jobs, len(robots)))
     if jobs == 1:
         return _service_robots(args, robots)
     import multiprocessing

@@ -117,7 +117,7 @@ class Settings(BaseSettings):
         "accelerometers together, so that the gyros' sensitivity errors do not lean the axes the lever "
         "arms are fitted about (a UR5e wrist IMU's lever arm then scatters 1 mm between windows, not 4 "
         "to 5, and its 5 mm slides are found; docs/kinematics.md); false: the axes the gyros read, at "
-        "a third of the CPU",
+        "about half the CPU of a fleet's hour",
     )
     kinematics_pool_base: int = Field(
         PoolOptions.n_base,
