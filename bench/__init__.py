@@ -43,6 +43,7 @@ BENCHMARKS: tuple[str, ...] = (
     "fleet",
     "import_",
     "kinematics",
+    "rotations",
     "drift",
     "lever_budget",
     "docs",

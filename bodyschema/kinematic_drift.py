@@ -63,7 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bodyschema.findings import Finding
-from bodyschema.kinematics import ImuKinematics, Kinematics
+from bodyschema.kinematics import ImuKinematics, Kinematics, SameLink
 
 __all__ = ["DriftOptions", "kinematic_findings"]
 
@@ -223,12 +223,13 @@ def _same_link_turns(
     """``imu_rotated`` where the rotation between two IMUs on one link changed: a mount turned about
     its joint's axis, which leaves the axis each IMU sees where it was.
 
-    The rotation is read from the two gyros (:class:`~bodyschema.kinematics.SameLink`; the sensors'
-    sensitivity matrices are the same in both estimates) and is fixed only where the link turned about
-    two axes or more: under a root joint on a fixed base it turns about one, and the rotation about
-    that axis is anyone's. Pairs with an IMU already found turned, or on a bent joint, are left to
-    those findings. Which of the two turned the gyros cannot tell: the finding is raised on the
-    second IMU (the first is the link's reference IMU) and names both."""
+    The rotation is read from the two gyros (:class:`~bodyschema.kinematics.SameLink`) and judged on
+    its noise std (the sensors' sensitivity matrices are the same in both estimates). It is fixed only
+    where the link turned about two axes or more (``SameLink.rank``): under a root joint on a fixed
+    base it turns about one, and the rotation about that axis is anyone's. Pairs with an IMU already
+    found turned, or on a bent joint, are left to those findings. Which of the two turned the gyros
+    cannot tell: the finding is raised on the second IMU (the first is the link's reference IMU) and
+    names both."""
     then = {(s.a, s.b): s for s in baseline.same_link}
     out = []
     for s in current.same_link:
@@ -236,11 +237,11 @@ def _same_link_turns(
         a0, a1, b0 = baseline.imus.get(s.a), current.imus.get(s.a), baseline.imus.get(s.b)
         if old is None or a0 is None or a1 is None or b0 is None or {s.a, s.b} & rotated:
             continue
-        if a0.joint in bent or a0.joint != b0.joint or min(a0.parent_rank, a1.parent_rank) < 1:
+        if a0.joint in bent or a0.joint != b0.joint or min(old.rank, s.rank) < 2:
             continue
         c = (np.trace(old.rotation.T @ s.rotation) - 1.0) / 2.0
         turn = math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
-        limit = o.limit(old.std_deg, s.std_deg, o.floor_deg)
+        limit = o.limit(_noise(old), _noise(s), o.floor_deg)
         if turn > limit:
             out.append(
                 Finding(
@@ -256,6 +257,12 @@ def _same_link_turns(
                 )
             )
     return out
+
+
+def _noise(s: SameLink) -> float:
+    """A same-link rotation's noise std, what two estimates from the same gyros differ by (their
+    cross-axis errors repeat); ``std_deg`` where it has none (built by hand)."""
+    return s.noise_std_deg if not math.isnan(s.noise_std_deg) else s.std_deg
 
 
 def _backlash(jn: str, seen: list[_Seen], o: DriftOptions) -> Finding | None:

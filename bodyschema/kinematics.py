@@ -78,6 +78,22 @@ accelerometers' lean that does not shrink with more data, is added to their lean
 when the joint moved enough, the axis gain is plausible and both stds (the gyro's noise and the lever
 arm's) are within :class:`KinematicsOptions` bounds.
 
+**What one recording leaves open.** Three answers, not two: a quantity the data do not fix is reported
+with its std and named in ``undetermined``, with the motion that would fix it, not given as a number
+that looks like the others. Where the parent link turned about one axis only (a root joint on the fixed
+base), the child's ``R0`` turned about that axis's image fits exactly as well with ``d`` turned with
+it: the parent's link accelerations ``K_p`` commute with turns about its own axis, so ``Rot R0`` and
+``Rot d`` predict the same specific force. Only gravity across that axis tells the turn, ``g sin β``
+for an axis ``β`` from vertical, and the accelerometers' biases trade with it (0.17 m/s² a degree
+against their ±80 mg). The std of that turn comes from a fit over it alone, priors included
+(:func:`_turn_std`); above ``max_axis_std_deg`` the turn, ``rotation_from_parent``,
+``joint_origin_in_parent`` and the joint's ``axis_in_parent`` about that axis are undetermined. Such a
+std is a curvature, not a bound: wells half a turn apart fit alike, and the rotations it flags can be
+off by up to a half turn (``bodyhealth bench rotations`` compares the flagged and the passed ones with
+the simulator on every catalog robot). Likewise two gyros on a link
+that turned about one axis do not fix their rotation about it (:class:`SameLink`, ``rank``): the
+joint's axis in the second one's frame is then left out.
+
 Example
 -------
 >>> import numpy as np
@@ -131,9 +147,10 @@ UNOBSERVABLE: tuple[str, ...] = (
     "for a root joint on a fixed base: the axis's direction about gravity (yaw) and its position",
     "an accelerometer's cross-axis misalignment: axes are in the accelerometer's frame, taken as square",
     "where a parent link turned about one axis only (a root joint's link): the turn about that axis of a "
-    "child's rotation_from_parent and axis_in_parent, which gravity fixes only where the axis is not "
-    "vertical and the parent link's own accelerations otherwise; and the turn about it between two IMUs "
-    "on that link (same_link), which their gyros do not fix",
+    "child's rotation_from_parent, joint_origin_in_parent and axis_in_parent, which only gravity across "
+    "the axis fixes (the link's own accelerations turn with it); each answer's undetermined list names "
+    "it where its std exceeds max_axis_std_deg. And the turn about it between two IMUs on that link "
+    "(same_link, rank 1), which their gyros do not fix",
 )
 
 
@@ -191,6 +208,10 @@ class ImuKinematics:
     the gyro fixes ``R0`` on that axis only: ``gyro_axis_in_parent`` is then None, ``gyro_parent_axis``
     the parent's axis as this IMU's gyro sees it (sign arbitrary), and only the angle between it and
     ``gyro_axis`` is the gyro's.
+
+    ``turn_about_parent_std_deg`` is, under such a parent, the std of ``rotation_from_parent``'s turn
+    about that axis (NaN otherwise: the gyros fix it), and ``undetermined`` names what the recording
+    leaves open, with the motion that would fix it (module docstring).
     """
 
     imu: str
@@ -216,6 +237,8 @@ class ImuKinematics:
     backlash_deg: float = math.nan
     backlash_std_deg: float = math.nan
     parent_rank: int = 0
+    turn_about_parent_std_deg: float = math.nan
+    undetermined: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
@@ -240,6 +263,10 @@ class ImuKinematics:
             out["gyro_parent_axis"] = vec(self.gyro_parent_axis)
         if self.parent_rank:
             out["parent_rank"] = self.parent_rank
+        if math.isfinite(self.turn_about_parent_std_deg):
+            out["turn_about_parent_std_deg"] = _finite(self.turn_about_parent_std_deg)
+        if self.undetermined:
+            out["undetermined"] = list(self.undetermined)
         if self.axis_converged and not self.converged:
             out["axis_converged"] = True
         if math.isfinite(self.backlash_deg):
@@ -290,6 +317,8 @@ class ImuKinematics:
             parent_rank=int(d.get("parent_rank", 0)),
             backlash_deg=num("backlash_deg", math.nan),
             backlash_std_deg=num("backlash_std_deg", math.nan),
+            turn_about_parent_std_deg=num("turn_about_parent_std_deg", math.nan),
+            undetermined=tuple(d.get("undetermined", ())),
         )
 
 
@@ -299,7 +328,8 @@ class JointKinematics:
     under a root joint, whose base IMU cannot see it turn) and the range of ``q`` the data visited.
 
     ``ref_imu`` is the IMU whose frame stands for the link's: the parent IMU of the joints below and
-    the one the other IMUs on the link are related to (:class:`SameLink`).
+    the one the other IMUs on the link are related to (:class:`SameLink`). ``undetermined`` names what
+    of ``axis_in_parent`` the recording leaves open (the module docstring's three answers).
     """
 
     joint: str
@@ -309,9 +339,10 @@ class JointKinematics:
     axis_in_parent: dict[str, np.ndarray] = field(default_factory=dict)
     q_range: tuple[float, float] = (0.0, 0.0)
     converged: bool = False
+    undetermined: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             "parent": self.parent,
             "imus": list(self.imus),
             "reference_imu": self.ref_imu,
@@ -319,6 +350,9 @@ class JointKinematics:
             "axis_in_parent": {k: [round(float(x), 6) for x in v] for k, v in self.axis_in_parent.items()},
             "converged": self.converged,
         }
+        if self.undetermined:
+            out["undetermined"] = list(self.undetermined)
+        return out
 
     @classmethod
     def from_json(cls, joint: str, d: dict[str, Any]) -> JointKinematics:
@@ -332,31 +366,59 @@ class JointKinematics:
             axis_in_parent={k: np.asarray(v, dtype=float) for k, v in d.get("axis_in_parent", {}).items()},
             q_range=(float(lo), float(hi)),
             converged=bool(d.get("converged", False)),
+            undetermined=tuple(d.get("undetermined", ())),
         )
 
 
 @dataclass(frozen=True)
 class SameLink:
-    """Two IMUs on one link: ``rotation`` maps vectors of ``b``'s frame into ``a``'s frame."""
+    """Two IMUs on one link: ``rotation`` maps vectors of ``b``'s frame into ``a``'s frame.
+
+    ``std_deg`` is its RMS angular error: the fit's noise and the two gyros' cross-axis errors, which
+    turn each gyro's frame by the antisymmetric part of its sensitivity matrix (uniform within
+    ``gyro_cross_axis``: about ``gyro_cross_axis`` radians RMS for the two, 1.1° on an MPU-6050).
+    ``noise_std_deg`` is the noise alone, what drift compares: the same gyros repeat their errors
+    (NaN: ``std_deg`` stands for it). ``rank`` is how many independent axes the link turned about. The
+    gyros fix the rotation on those directions only: at rank 1 its turn about the link's one axis is
+    anyone's, so both stds are infinite (None in JSON) and ``undetermined`` says what would fix it.
+    """
 
     a: str
     b: str
     rotation: np.ndarray
     std_deg: float
+    rank: int = 3
+    undetermined: tuple[str, ...] = ()
+    noise_std_deg: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             "imus": [self.a, self.b],
             "rotation": [[round(float(x), 6) for x in row] for row in self.rotation],
             "std_deg": _finite(self.std_deg),
+            "noise_std_deg": _finite(self.noise_std_deg),
+            "rank": self.rank,
         }
+        if self.undetermined:
+            out["undetermined"] = list(self.undetermined)
+        return out
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> SameLink:
-        """Read back :meth:`to_json`."""
+        """Read back :meth:`to_json`. An estimate written before ``rank`` and ``noise_std_deg`` counts
+        as rank 3, and its ``std_deg``, which was the noise alone, as both stds."""
         a, b = d["imus"]
-        std = d.get("std_deg")
-        return cls(a, b, np.asarray(d["rotation"], dtype=float), math.inf if std is None else float(std))
+        std = math.inf if d.get("std_deg") is None else float(d["std_deg"])
+        noise = d.get("noise_std_deg", d.get("std_deg"))
+        return cls(
+            a,
+            b,
+            np.asarray(d["rotation"], dtype=float),
+            std,
+            rank=int(d.get("rank", 3)),
+            undetermined=tuple(d.get("undetermined", ())),
+            noise_std_deg=math.inf if noise is None else float(noise),
+        )
 
 
 @dataclass(frozen=True)
@@ -793,6 +855,7 @@ class _LeverFit:
     axis: np.ndarray | None = None  # child joint: the axis in the accelerometer's frame
     axis_std_deg: float = math.nan
     force: np.ndarray | None = None  # the model's specific force (T, 3) at the aligned rate, noise-free
+    turn_std_deg: float = math.nan  # under a one-axis parent: the std of R0's turn about that axis
 
 
 def _kmats(sig: _Signals, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1107,6 +1170,9 @@ def _lever_child(
             opts,
         )
         axis, axis_std, R, U, KcU = _child_frame(resid, R_gyro, u, kc, sig, noise_var, ridge, held, opts)
+    turn_std = (
+        math.nan if span_rank != 1 else _turn_std(resid, R, axis, KcU, ridge, R @ parent_axis, sig.lags)
+    )
     X, Yr = design(R, axis, KcU)
     f = _ls(X, Yr, sig.lags)
     cov_r = U @ f.cov[-2:, -2:] @ U.T
@@ -1121,6 +1187,7 @@ def _lever_child(
         axis=axis,
         axis_std_deg=axis_std,
         force=RFa + _felt_beyond(Xa, f.coef) + Xa @ f.coef,
+        turn_std_deg=turn_std,
     )
 
 
@@ -1185,6 +1252,24 @@ def _turn_about_parent(
     return turn(min(found)[1])
 
 
+def _turn_std(
+    resid: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]],
+    R: np.ndarray,
+    axis: np.ndarray,
+    kcu: np.ndarray,
+    ridge: np.ndarray,
+    w: np.ndarray,
+    lags: int,
+) -> float:
+    """The std (degrees) of the turn of ``R`` about ``w``, a one-axis parent's axis in the child's frame."""
+    w = w / np.linalg.norm(w)
+
+    def about(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return resid(rotation_about(w, x)[0] @ R, axis, kcu, ridge)
+
+    return math.degrees(math.sqrt(max(float(_refine(about, 1, _CHILD_COLS, lags).cov[0, 0]), 0.0)))
+
+
 def _lever_basis(sig: _Signals, kc: tuple[np.ndarray, np.ndarray], U: np.ndarray) -> np.ndarray:
     """The band-limited tangential and centripetal regressors (T, 3, 4) of a lever arm in the plane ``U``."""
     return np.concatenate([sig.band_limit(kc[0] @ U), sig.band_limit(kc[1] @ U)], axis=2)
@@ -1243,20 +1328,52 @@ def _child_frame(
 
 
 # ------------------------------------------------------------------------------------ same link
-def _same_link(sig: _Signals, a: int, b: int, names: tuple[str, ...]) -> SameLink | None:
-    """``gyro_a = M gyro_b + bias``; the rotation is ``M`` projected, its std from M's off-diagonals."""
+def _same_link(
+    sig: _Signals, a: int, b: int, names: tuple[str, ...], omega: np.ndarray, opts: KinematicsOptions
+) -> SameLink | None:
+    """``gyro_a = M gyro_b + bias``; the rotation is ``M`` projected, its noise std from M's
+    off-diagonals, its std with the gyros' cross-axis errors too (:class:`SameLink`). Measured on the
+    catalog robots (``bench rotations``), the rotations at rank 2 or more are off by about that.
+
+    The rank is that of the link's angular velocity ``omega`` as the encoders rebuild it (``a``'s frame;
+    no gyro noise in it, so a root joint's link has rank 1 however little it moved), directions below
+    1 % of the strongest's power left out, as :func:`_axis_fit` leaves out a measured parent's."""
     gb = sig.band_limit(sig.rec.gyro[:, b])
     ga = sig.band_limit(sig.rec.gyro[:, a])
-    if float(np.sqrt(np.mean((gb - gb.mean(axis=0)) ** 2))) < 1e-3:
+    moving = gb - gb.mean(axis=0)
+    if float(np.sqrt(np.mean(moving**2))) < 1e-3:
         return None
     X = np.c_[gb, np.ones(gb.shape[0])]
     coef, cov = _per_axis(X, ga, sig.lags)
     M = coef[:3].T
     v = _variances(cov)[:3].T
     off = float(np.sum(v) - np.sum(np.diag(v)))
+    link = sig.band_limit(omega)
+    rank, axis = _span_axes(_span(link - link.mean(axis=0), 1e-2))
+    noise = math.degrees(math.sqrt(off / 4.0))
+    open_: tuple[str, ...] = ()
+    std = math.hypot(noise, math.degrees(opts.gyro_cross_axis))
+    if rank < 2:
+        std = noise = math.inf
+        open_ = (
+            f"the turn about the link's one axis ({_vec_text(axis)} in {names[a]}'s frame): the link "
+            "turned about it only; a recording in which it turns about a second axis too (a joint above "
+            "it, or the base, moving) fixes it",
+        )
     return SameLink(
-        a=names[a], b=names[b], rotation=project_rotation(M), std_deg=math.degrees(math.sqrt(off / 4.0))
+        a=names[a],
+        b=names[b],
+        rotation=project_rotation(M),
+        std_deg=std,
+        rank=rank,
+        undetermined=open_,
+        noise_std_deg=noise,
     )
+
+
+def _vec_text(v: np.ndarray) -> str:
+    """A unit vector for a sentence: ``[0.00, 0.71, 0.71]``."""
+    return "[" + ", ".join(f"{x:.2f}" for x in v) + "]"
 
 
 # ------------------------------------------------------------------------------------------- main
@@ -1331,7 +1448,7 @@ def _fit_link(w: _Walk, jn: str, j: int) -> None:
     w.ref[jn] = next((k for k in fitted if w.imus[k].axis_converged), fitted[0])
     for b in kids:
         if b != w.ref[jn]:
-            sl = _same_link(w.sig, kidx[w.ref[jn]], kidx[b], w.sig.rec.imu_names)
+            sl = _same_link(w.sig, kidx[w.ref[jn]], kidx[b], w.sig.rec.imu_names, w.omega[w.ref[jn]], w.opts)
             if sl is not None:
                 w.same[b] = sl
 
@@ -1341,12 +1458,29 @@ def _joint_entry(w: _Walk, jn: str, j: int) -> JointKinematics:
     pj = w.topo.joint_parent.get(jn)
     parent = None if pj is None else w.ref.get(pj)
     in_parent: dict[str, np.ndarray] = {}
+    open_: list[str] = []
     axis_p = w.imus[w.ref[jn]].axis_in_parent if jn in w.ref else None
     if parent is not None and axis_p is not None:
         in_parent[parent] = axis_p
+        ref = w.imus[w.ref[jn]]
+        if ref.undetermined:
+            open_.append(
+                f"the axis in {parent}'s frame, turned about {parent}'s link axis: std "
+                f"{ref.turn_about_parent_std_deg:.2f} deg, from {ref.imu}'s rotation_from_parent "
+                "(see its own)"
+            )
+        left_out = []
         for b in w.on_joint.get(pj, []):
             if b in w.same and w.same[b].a == parent:
-                in_parent[b] = w.same[b].rotation.T @ axis_p
+                if w.same[b].rank >= 2:
+                    in_parent[b] = w.same[b].rotation.T @ axis_p
+                else:
+                    left_out.append(b)
+        if left_out:
+            open_.append(
+                f"the axis in the frames of {', '.join(left_out)}: left out, their rotations from {parent} "
+                "are open about the one axis their link turned about (see same_link)"
+            )
     q = w.sig.rec.q[:, j]  # type: ignore[index]
     kids = w.on_joint.get(jn, [])
     return JointKinematics(
@@ -1357,6 +1491,7 @@ def _joint_entry(w: _Walk, jn: str, j: int) -> JointKinematics:
         axis_in_parent=in_parent,
         q_range=(float(np.min(q)), float(np.max(q))),
         converged=any(w.imus[k].converged for k in kids),
+        undetermined=tuple(open_),
     )
 
 
@@ -1452,6 +1587,10 @@ def _one_imu(
             axis, axis_std = lever.axis, lever.axis_std_deg  # type: ignore[assignment]
             om = np.einsum("ij,tj->ti", R0, omega[best_p])  # type: ignore[arg-type]
             om = np.einsum("tij,tj->ti", rotation_about(axis, -q), om) + axis * qd[:, None]
+    open_: tuple[str, ...] = ()
+    if lever.turn_std_deg > opts.max_axis_std_deg:  # a child of a one-axis parent (NaN otherwise)
+        up = al.acc[:, kidx[best_p]].mean(axis=0)  # type: ignore[index]
+        open_ = (_open_turn(up, p_axis, best_p, lever.turn_std_deg, opts),)  # type: ignore[arg-type]
     lo, hi = opts.gain_range
     why = []
     if fit.std_deg > opts.max_axis_std_deg:
@@ -1486,9 +1625,25 @@ def _one_imu(
             parent_rank=gyro.parent_rank,
             backlash_deg=gyro.fit.backlash_deg,
             backlash_std_deg=gyro.fit.backlash_std_deg,
+            turn_about_parent_std_deg=lever.turn_std_deg,
+            undetermined=open_,
         ),
         om,
         lever.force,  # type: ignore[return-value]
+    )
+
+
+def _open_turn(up: np.ndarray, axis: np.ndarray, parent: str, std: float, opts: KinematicsOptions) -> str:
+    """What a child's turn about its one-axis parent's axis leaves open (module docstring), and the
+    motion that fixes it; ``up`` is the parent's mean specific force and ``axis`` its axis, both in
+    the parent's frame."""
+    tilt = math.degrees(math.acos(min(abs(float(up @ axis)) / max(float(np.linalg.norm(up)), 1e-12), 1.0)))
+    return (
+        f"the turn about {parent}'s link axis ({_vec_text(axis)} in {parent}'s frame, {tilt:.0f} deg from "
+        f"vertical) of rotation_from_parent and joint_origin_in_parent: std {std:.2f} deg > "
+        f"{opts.max_axis_std_deg:g}; the joint's position about that axis trades with it and only gravity "
+        "across the axis tells it; a recording with that axis further from vertical fixes it, or the joint's "
+        "position from a drawing"
     )
 
 

@@ -9,7 +9,8 @@ the two IMUs at ``q = 0``.
 
 What the data cannot fix is set by convention and says so in an XML comment next to it: the base frame
 (z up from gravity, yaw and the root joints' positions unobservable from a fixed base), positions
-along each joint axis, and masses (the URDF needs them; the data say nothing about them). Joint limits
+along each joint axis, turns a recording left undetermined (under a link that turned about one axis
+only), and masses (the URDF needs them; the data say nothing about them). Joint limits
 are the range of ``q`` the recording visited.
 
 Example
@@ -119,6 +120,11 @@ def to_urdf(kin: Kinematics, name: str = "robot") -> str:
             xyz = me.joint_origin_in_parent + lever_p
             R = me.rotation_from_parent.T if me.rotation_from_parent is not None else np.eye(3)
             notes.append("origin along the parent's axis by convention (at the foot of its IMU's lever arm)")
+            if me.undetermined:
+                notes.append(
+                    f"origin turned about the parent link's one axis by an undetermined angle (std "
+                    f"{me.turn_about_parent_std_deg:.1f} deg): any turn fits the data alike"
+                )
         lo, hi = jk.q_range
         if not hi - lo > 1e-6:  # a joint that never moved: a valid (non-empty) range around where it stood
             lo, hi = lo - 1e-3, hi + 1e-3
@@ -148,6 +154,8 @@ def to_urdf(kin: Kinematics, name: str = "robot") -> str:
             R = same[imu].rotation
             xyz = R @ ik.lever_arm if ik.lever_arm is not None else np.zeros(3)
             note = "rotation from the gyros; position along the axis unobservable: the axis foot's"
+            if same[imu].rank < 2:
+                note += "; the turn about the link's one axis undetermined (the link turned about it only)"
         else:
             xyz, R = np.zeros(3), np.eye(3)
             note = "pose not observed: identity placeholder"

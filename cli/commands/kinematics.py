@@ -85,6 +85,11 @@ def format_kinematics(kin: Kinematics) -> str:
         ax = " ".join(f"{x:+.3f}" for x in k.axis)
         la = " ".join(f"{x * 1e3:+.1f}" for x in k.lever_arm)
         state = "converged" if k.converged else f"not converged ({k.reason})"
+        if k.undetermined:
+            state += (
+                f"; rotation from {k.parent_imu} undetermined about its link's axis "
+                f"(±{k.turn_about_parent_std_deg:.1f}°, see the JSON)"
+            )
         lines.append(
             f"{name}  {k.joint}  axis [{ax}] ±{k.axis_std_deg:.2f}°  lever arm [{la}] mm "
             f"±{k.lever_arm_std_m * 1e3:.1f}  {state}"
