@@ -20,6 +20,7 @@ __all__ = [
     "REPO_ROOT",
     "RESULTS_DIR",
     "detection_table",
+    "fmt",
     "machine_note",
     "map_jobs",
     "write_results",
@@ -89,6 +90,15 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: 
             bar.update(1)
     bar.close()
     return out
+
+
+def fmt(x: float | None, spec: str = ".2f") -> str:
+    """A table cell: ``x`` formatted by ``spec``, or a dash where there is none.
+
+    >>> fmt(1.234), fmt(None), fmt(0.5, ".0%")
+    ('1.23', '—', '50%')
+    """
+    return "—" if x is None else format(x, spec)
 
 
 def write_results(

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import REPO_ROOT
+from bench import REPO_ROOT, fmt
 
 __all__ = [
     "FIGURES",
@@ -1369,11 +1369,10 @@ def _rotations(b: _Bench) -> str:
             if not r["undetermined"]
             else f"{r['undetermined_min_deg']:.1f}–{r['undetermined_max_deg']:.1f}"
         )
-        worst = "—" if r["determined_max_deg"] is None else f"{r['determined_max_deg']:.2f}"
-        same = "—" if r["same_link_fixed_max_deg"] is None else f"{r['same_link_fixed_max_deg']:.2f}"
         lines.append(
-            f"| {r['robot']} | {r['determined']} | {worst} | {r['undetermined']} | {span} | "
-            f"{r['same_link_fixed']} | {same} | {r['same_link_rank1']} |"
+            f"| {r['robot']} | {r['determined']} | {fmt(r['determined_max_deg'])} | {r['undetermined']} "
+            f"| {span} | {r['same_link_fixed']} | {fmt(r['same_link_fixed_max_deg'])} "
+            f"| {r['same_link_rank1']} |"
         )
     lines += ["", "![rotations](bench/rotations.png)"]
     return "\n".join(lines)

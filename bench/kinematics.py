@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note, write_results
+from bench import RESULTS_DIR, fmt, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
@@ -187,10 +187,6 @@ def run(args: argparse.Namespace) -> Path:
     return write_results(out, "kinematics", data, _markdown(data), lambda path: _plot(summary, path))
 
 
-def _fmt(x: float | None, f: str) -> str:
-    return "—" if x is None else format(x, f)
-
-
 def _markdown(d: dict) -> str:
     s = d["settings"]
     lines = [
@@ -215,12 +211,12 @@ def _markdown(d: dict) -> str:
     for r in d["summary"]:
         lines.append(
             f"| {r['seconds']} | {r['robots']} | {r['converged']} / {r['imus_on_links']} | "
-            f"{r['trees_exact']} | {_fmt(r['axis_median_deg'], '.2f')} | {_fmt(r['axis_max_deg'], '.2f')} | "
-            f"{_fmt(r['axis_within_2std'], '.0%')} | "
-            f"{_fmt(r['gyro_axis_median_deg'], '.2f')} | {_fmt(r['gyro_axis_max_deg'], '.2f')} | "
-            f"{_fmt(r['gyro_floor_median_deg'], '.2f')} | "
-            f"{_fmt(r['lever_median_mm'], '.1f')} | {_fmt(r['lever_max_mm'], '.1f')} | "
-            f"{_fmt(r['cpu_s_median'], '.2f')} |"
+            f"{r['trees_exact']} | {fmt(r['axis_median_deg'], '.2f')} | {fmt(r['axis_max_deg'], '.2f')} | "
+            f"{fmt(r['axis_within_2std'], '.0%')} | "
+            f"{fmt(r['gyro_axis_median_deg'], '.2f')} | {fmt(r['gyro_axis_max_deg'], '.2f')} | "
+            f"{fmt(r['gyro_floor_median_deg'], '.2f')} | "
+            f"{fmt(r['lever_median_mm'], '.1f')} | {fmt(r['lever_max_mm'], '.1f')} | "
+            f"{fmt(r['cpu_s_median'], '.2f')} |"
         )
     t = d["targets"]
     lines += [
@@ -235,7 +231,7 @@ def _markdown(d: dict) -> str:
     ]
     for p in d["published"]:
         lines.append(
-            f"| {p['source']} | {p['what']} | {_fmt(p['axis_deg'], '.1f')} | {_fmt(p['lever_mm'], '.1f')} |"
+            f"| {p['source']} | {p['what']} | {fmt(p['axis_deg'], '.1f')} | {fmt(p['lever_mm'], '.1f')} |"
         )
     lines += ["", "![kinematics](kinematics.png)", ""]
     return "\n".join(lines)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note, map_jobs, write_results
+from bench import RESULTS_DIR, fmt, machine_note, map_jobs, write_results
 from sim2real.figures import save_figure
 
 __all__ = ["add_arguments", "run", "summary"]
@@ -153,10 +153,6 @@ def run(args: argparse.Namespace) -> Path:
     return write_results(args.out, "rotations", data, _markdown(data), lambda p: _plot(rows, p))
 
 
-def _fmt(x: float | None, f: str = ".2f") -> str:
-    return "—" if x is None else format(x, f)
-
-
 def _markdown(d: dict) -> str:
     s = d["settings"]
     lines = [
@@ -180,12 +176,12 @@ def _markdown(d: dict) -> str:
         span = (
             "—"
             if not r["undetermined"]
-            else f"{_fmt(r['undetermined_min_deg'], '.1f')}–{_fmt(r['undetermined_max_deg'], '.1f')}"
+            else f"{fmt(r['undetermined_min_deg'], '.1f')}–{fmt(r['undetermined_max_deg'], '.1f')}"
         )
         lines.append(
-            f"| {r['robot']} | {r['determined']} | {_fmt(r['determined_max_deg'])} | {r['undetermined']} | "
-            f"{span} | {_fmt(r['undetermined_turn_std_min_deg'])} | {r['same_link_fixed']} | "
-            f"{_fmt(r['same_link_fixed_max_deg'])} | {_fmt(r['same_link_fixed_within_2std'], '.0%')} | "
+            f"| {r['robot']} | {r['determined']} | {fmt(r['determined_max_deg'])} | {r['undetermined']} | "
+            f"{span} | {fmt(r['undetermined_turn_std_min_deg'])} | {r['same_link_fixed']} | "
+            f"{fmt(r['same_link_fixed_max_deg'])} | {fmt(r['same_link_fixed_within_2std'], '.0%')} | "
             f"{r['same_link_rank1']} | {r['cpu_s']:.0f} |"
         )
     lines += ["", "![rotations](rotations.png)", ""]
