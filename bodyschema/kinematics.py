@@ -161,7 +161,8 @@ class KinematicsOptions:
     ``band_hz`` is the common band (None: :func:`bodyschema.timing.choose_band`, 10 Hz at most).
     ``min_qd_rms`` (rad/s, in band) is the joint motion below which nothing is claimed. An answer is
     converged when ``gyro_axis_std_deg`` ≤ ``max_axis_std_deg``, ``lever_arm_std_m`` ≤ ``max_lever_std_m`` and
-    the gyro's gain along the axis lies within ``gain_range``.
+    the gyro's gain along the axis lies within ``gain_range``. A rotation whose turn about a one-axis
+    parent's axis has a std above ``max_axis_std_deg`` is reported undetermined (module docstring).
 
     ``accelerometer_frame`` gives axes in the accelerometer's frame, from gyro and accelerometers
     together (module docstring); False gives the axis the gyro reports. ``gyro_scale_error`` and
