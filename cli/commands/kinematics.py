@@ -11,11 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from bodyschema.kinematics import Kinematics
-from sim2real.figures import save_figure
+if TYPE_CHECKING:
+    from bodyschema.kinematics import Kinematics
 
 __all__ = ["format_kinematics", "plot_kinematics", "register", "run"]
 
@@ -69,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
 def format_kinematics(kin: Kinematics) -> str:
     """One line per IMU: joint, axis, lever arm and their stds, or why nothing is claimed.
 
+    >>> import numpy as np
     >>> from bodyschema.kinematics import ImuKinematics, Kinematics
     >>> from bodyschema.topology import Topology
     >>> imu = ImuKinematics("imu1", "j1", axis=np.array([0.0, 0, 1]), lever_arm=np.array([0.1, 0, 0]),
@@ -103,6 +103,9 @@ def plot_kinematics(kin: Kinematics, path: Path, title: str = "") -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
+
+    from sim2real.figures import save_figure
 
     fitted = [(n, k) for n, k in kin.imus.items() if k.axis is not None]
     fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.35 * len(fitted) + 2), 5.5), sharex=True)

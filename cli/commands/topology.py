@@ -10,11 +10,12 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bodyschema.estimate import METHODS
-from bodyschema.topology import Topology
-from sim2real.figures import save_figure
+from cli.commands.diff import METHODS  # bodyschema.estimate.METHODS, without importing the estimators
+
+if TYPE_CHECKING:
+    from bodyschema.topology import Topology
 
 __all__ = ["format_tree", "plot_trees", "register", "run"]
 
@@ -51,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bodyschema.estimate import estimate_topology
+    from bodyschema.topology import Topology
     from simulators.recording_io import load_recording
 
     rec = load_recording(args.recording)
@@ -86,6 +88,7 @@ def _imus_by_joint(topo: Topology) -> dict[str | None, list[str]]:
 def format_tree(topo: Topology) -> str:
     """The tree as indented text: one line per joint with its confidence and the IMUs on its link.
 
+    >>> from bodyschema.topology import Topology
     >>> t = Topology({"j1": None, "j2": "j1"}, {"a": "j1", "b": "j2", "c": None},
     ...              confidence={"joint:j1": 1.0, "joint:j2": 0.5}, method="fast", seconds=0.1)
     >>> print(format_tree(t))
@@ -165,6 +168,8 @@ def plot_trees(topo: Topology, path: Path, truth: Topology | None = None, title:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from sim2real.figures import save_figure
 
     panels = [("learned", topo)] + ([("truth", truth)] if truth is not None else [])
     fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 5.5), squeeze=False)
