@@ -87,6 +87,8 @@ class Robot(Base):
     simulated: Mapped[bool] = mapped_column(Boolean, default=False)
     catalog: Mapped[str | None] = mapped_column(String(200))
     excitation: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    #: What the worker waits on for this robot, and its retrains' place in the training queue.
+    waiting: Mapped[dict[str, Any] | None] = mapped_column(nullable=True)
 
 
 class Joint(Base):
@@ -223,6 +225,10 @@ class Alert(Base):
     resolved_at: Mapped[float | None]
     updated_at: Mapped[float]
     finding: Mapped[dict[str, Any]]
+    #: Whether the sensor networks confirmed it (None: not theirs to judge, or not judged yet; False:
+    #: the fast screen's finding stands unconfirmed), and why it is in its state.
+    confirmed: Mapped[bool | None] = mapped_column(Boolean, nullable=True)
+    note: Mapped[str | None] = mapped_column(String(500), nullable=True)
 
 
 class Heartbeat(Base):
