@@ -31,10 +31,23 @@ import numpy as np
 
 from bodyschema.topology import Topology
 
-__all__ = ["GRAVITY", "Recording", "RecordingError", "check_stamps", "find_gaps"]
+__all__ = [
+    "GRAVITY",
+    "MIN_SAMPLES",
+    "Recording",
+    "RecordingError",
+    "check_complete",
+    "check_finite",
+    "check_stamps",
+    "find_gaps",
+]
 
 #: Standard world gravity (z up), m/s².
 GRAVITY = np.array([0.0, 0.0, -9.81])
+
+#: Fewest samples per stream a recording file may hold: ``qdd``, the second difference of ``q`` that the
+#: estimators read, needs three encoder samples, and a rate (one median step) needs two IMU steps.
+MIN_SAMPLES = 3
 
 
 class RecordingError(ValueError):
@@ -50,10 +63,11 @@ def check_stamps(t: np.ndarray, name: str = "t") -> None:
     repair=True)`` drops exact duplicates, logged; nothing repairs stamps that go backwards.
     """
     t = np.asarray(t)
-    if t.ndim != 1 or t.shape[0] < 1:
+    if t.ndim == 1 and t.shape[0] == 0:
+        raise RecordingError(f"{name} is empty (0 samples): a recording needs at least one")
+    if t.ndim != 1:
         raise RecordingError(f"{name} must have shape (T,), got {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise RecordingError(f"{name} contains NaN or Inf")
+    check_finite(t, name)
     if t.shape[0] > 1:
         d = np.diff(t)
         back = np.flatnonzero(d < 0)
@@ -70,6 +84,54 @@ def check_stamps(t: np.ndarray, name: str = "t") -> None:
                 f"{name} has duplicate stamps at index {i + 1} ({t[i]:.6g} s, {dup.size} in all); "
                 "load with repair=True to drop them"
             )
+
+
+def check_finite(v: np.ndarray, name: str, t: np.ndarray | None = None, labels: tuple[str, ...] = ()) -> None:
+    """Raise :class:`RecordingError` naming the first sample (index, stamp, channel) that is NaN or Inf.
+
+    One line that says where to look in the source log: the first bad index along time, its stamp when
+    ``t`` is given, the channel (``labels`` name the second axis: joints, IMUs) and how many in all.
+    """
+    v = np.asarray(v)
+    bad = ~np.isfinite(v)
+    if not bad.any():
+        return
+    i = int(np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))[0]) if v.ndim else 0
+    where = f"at index {i}"
+    if t is not None and i < np.shape(t)[0] and np.isfinite(t[i]):
+        where += f" (t = {float(t[i]):.6g} s)"
+    if v.ndim >= 2:
+        ch = int(np.flatnonzero(bad[i].reshape(bad.shape[1], -1).any(axis=1))[0])
+        where += f", {labels[ch]!r}" if ch < len(labels) else f", channel {ch}"
+    raise RecordingError(f"{name} contains NaN or Inf {where}; {int(bad.sum())} value(s) in all")
+
+
+def check_complete(rec: Recording, min_samples: int = MIN_SAMPLES) -> None:
+    """Refuse what a recording *file* must not hold, beyond what :class:`Recording` checks itself.
+
+    ``Recording`` accepts NaN in ``acc``/``gyro`` (a store window keeps an IMU silent for part of it as
+    NaN) and a single sample (a streamed chunk); a file handed to the estimators may hold neither: every
+    stream finite, at least ``min_samples`` samples per stream (:data:`MIN_SAMPLES`). The first bad
+    index is named.
+    """
+    for name, stamps in (("t", rec.t), ("t_q", rec.t_q)):
+        if stamps is not None and stamps.shape[0] < min_samples:
+            raise RecordingError(
+                f"{name} has {stamps.shape[0]} sample(s): a recording needs at least {min_samples} per "
+                "stream (qdd, the second difference of q, needs three)"
+            )
+    te = rec.encoder_t
+    for name in ("q", "qd", "qdd"):
+        v = getattr(rec, name)
+        if v is not None:
+            check_finite(v, name, te, rec.joint_names)
+    for name in ("acc", "gyro"):
+        check_finite(getattr(rec, name), name, rec.t, rec.imu_names)
+    for name in ("ref_quat", "ref_pos"):
+        v = getattr(rec, name)
+        if v is not None:
+            check_finite(v, name, rec.t)
+    check_finite(rec.gravity, "gravity")
 
 
 def find_gaps(t: np.ndarray, factor: float = 3.0) -> list[tuple[float, float]]:
@@ -208,8 +270,7 @@ class Recording:
             if v.shape != (Tq, N):
                 stamps = "t_q" if self.t_q is not None else "t"
                 raise RecordingError(f"{name} must have shape {(Tq, N)} (on {stamps}), got {v.shape}")
-            if not np.all(np.isfinite(v)):
-                raise RecordingError(f"{name} contains NaN or Inf")
+            check_finite(v, name, self.encoder_t, self.joint_names)
         for name in ("acc", "gyro"):
             v = getattr(self, name)
             if v.shape != (T, K, 3):

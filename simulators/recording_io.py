@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 import zipfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodyschema.recording import Recording, RecordingError, find_gaps
+from bodyschema.recording import MIN_SAMPLES, Recording, RecordingError, check_complete, find_gaps
 
 __all__ = ["Blocks", "drop_duplicate_stamps", "load_recording", "save_recording"]
 
@@ -77,8 +78,17 @@ def save_recording(
         if k in data:
             raise RecordingError(f"extra key {k!r} collides with a standard field")
         data[k] = np.asarray(v)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    _write_npz(Path(path), data)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # Written beside the target and renamed only once complete: a failure (or a crash) leaves no
+    # half-written file, and an existing recording at ``path`` stays as it was.
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    os.close(fd)
+    try:
+        _write_npz(Path(tmp), data)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
 
 
 def _write_npz(path: Path, data: Mapping[str, np.ndarray | tuple[tuple[int, ...], Blocks]]) -> None:
@@ -138,18 +148,37 @@ def drop_duplicate_stamps(
     return n
 
 
+def _read_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """Every array of the ``.npz`` at ``path``; a file that is not a zip of ``.npy`` arrays is refused
+    by what it is, before numpy reads it (numpy would call a text file "pickled data")."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError as err:
+        raise RecordingError(f"{path}: not a readable .npz recording ({err})") from err
+    if head.startswith(b"\x93NUMPY"):
+        raise RecordingError(f"{path}: not an .npz recording: a single .npy array (save with np.savez)")
+    if not head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        what = "an empty file" if not head else f"it starts with {head!r}"
+        raise RecordingError(f"{path}: not an .npz recording: not a readable zip archive ({what})")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        reason = "an array holds Python objects (pickles are not read)" if "pickle" in str(err) else err
+        raise RecordingError(f"{path}: not an .npz recording: {reason}") from err
+
+
 def load_recording(path: str | os.PathLike[str], *, repair: bool = False) -> Recording:
     """Read a ``.npz`` recording (docs/design.md §2, docs/recording-format.md); raise
     :class:`RecordingError` saying why if not one.
 
     ``repair`` drops samples with a repeated stamp (logged) instead of refusing the file. Gaps in
-    either stream (intervals over 3 median periods) are logged as warnings, never filled.
+    either stream (intervals over 3 median periods) are logged as warnings, never filled. A file with
+    NaN or Inf in a stream, or fewer than :data:`~bodyschema.recording.MIN_SAMPLES` samples in one, is
+    refused naming the stream and the first bad index (:func:`~bodyschema.recording.check_complete`).
     """
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise RecordingError(f"{path}: not a readable .npz recording ({err})") from err
+    data = _read_npz(path)
     missing = [k for k in ("t", "imu_names", "acc", "gyro") if k not in data]
     if missing:
         raise RecordingError(f"{path}: missing keys {missing}")
@@ -167,7 +196,11 @@ def load_recording(path: str | os.PathLike[str], *, repair: bool = False) -> Rec
             kw[k] = tuple(str(x) for x in data.pop(k).reshape(-1))
     kw.setdefault("joint_names", ())
     kw.setdefault("q", None)
-    rec = Recording(extra=data, **kw)  # type: ignore[arg-type]
+    try:
+        rec = Recording(extra=data, **kw)  # type: ignore[arg-type]
+        check_complete(rec, MIN_SAMPLES)
+    except RecordingError as err:
+        raise RecordingError(f"{path}: {err}") from err
     for name, stamps in (("t", rec.t), ("t_q", rec.t_q)):
         gaps = [] if stamps is None else find_gaps(stamps)
         if gaps:

@@ -51,7 +51,7 @@ def test_bad_file_is_a_clear_error(tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a recording")
     assert main(["topology", str(bad)]) == 1
-    assert "not a readable .npz recording" in capsys.readouterr().err
+    assert "not an .npz recording: not a readable zip archive" in capsys.readouterr().err
     np.savez(tmp_path / "empty.npz", t=np.arange(3.0))
     assert main(["topology", str(tmp_path / "empty.npz")]) == 1
     assert "missing keys" in capsys.readouterr().err
