@@ -34,7 +34,7 @@ from service.metrics import Metrics
 from service.retrain_task import shareable_url
 from service.settings import Settings
 from service.store import Store
-from service.training import RemoteRetrains, TrainingOptions
+from service.training import RemoteRetrains, RetrainLimits, TrainingOptions
 from service.worker import Estimator, Worker
 
 __all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage"]
@@ -147,7 +147,10 @@ class Daemon:
         if s.imu_filter_delay is not None and "imu_delay" not in dict(options.estimator_options):
             extra = (("imu_delay", s.imu_filter_delay),)
             options = replace(options, estimator_options=options.estimator_options + extra)
-        return RemoteRetrains(self.cluster, self.store, s.window_seconds, options=options, metrics=metrics)
+        limits = RetrainLimits.from_settings(s)
+        return RemoteRetrains(
+            self.cluster, self.store, s.window_seconds, options=options, metrics=metrics, limits=limits
+        )
 
     def stop(self) -> None:
         """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent)."""

@@ -116,6 +116,11 @@ class Metrics:
             "retrains submitted to the cluster, not yet collected",
             registry=self.registry,
         )
+        self.retrains_waiting = Gauge(
+            "bodyhealth_retrains_waiting",
+            "retrains wanted, waiting for room in the training cluster's queue (max_retrains_queued)",
+            registry=self.registry,
+        )
         self.cycle_seconds = Histogram(
             "bodyhealth_worker_cycle_seconds",
             "seconds one worker cycle over all robots took",

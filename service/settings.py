@@ -133,11 +133,55 @@ class Settings(BaseSettings):
     )
     baseline_repeat_k: int = Field(3, ge=1, description="equal topologies that make a baseline")
     alert_hysteresis_m: int = Field(2, ge=1, description="cycles before a finding alerts")
+    confirm_timeout_seconds: float = Field(
+        0.0,
+        ge=0,
+        description="wall time a pending structural alert waits for the sensor networks' confirmation "
+        "before the fast screen's finding stands as an unconfirmed alert; 0 = derived: 3 x the "
+        "robot's expected network retrain time as the training queue reports it, at least 2 worker "
+        "intervals and at most confirm_timeout_max_seconds",
+    )
+    confirm_timeout_max_seconds: float = Field(
+        180.0,
+        gt=0,
+        description="upper bound of the derived confirm_timeout_seconds: with the fast screen's ~60 s "
+        "to see a change (a 30 s window, hysteresis), damage is an alert within 5 minutes even when "
+        "training gets no CPU",
+    )
+    baseline_unconfirmed_cycles: int = Field(
+        24,
+        ge=0,
+        description="cycles the fast screen's body must hold, with no network answer from a window "
+        "that ended after it first held, before it is adopted as a baseline marked fast-unconfirmed "
+        "(24 at the default 5 s interval: 2 minutes); 0 = wait for the networks",
+    )
+    worker_min_rest_seconds: float = Field(
+        1.0,
+        ge=0,
+        description="least wall time between the end of a worker cycle and the start of the next: a "
+        "cycle that overran its interval skips the ticks it missed instead of running back to back",
+    )
     retrain_min_interval_seconds: float = Field(
         30.0,
         ge=0,
         description="wall time between two accepted retrain requests of one robot (more are 429); "
         "0 = no limit",
+    )
+    max_retrains_queued: int | None = Field(
+        None,
+        ge=1,
+        description="most retrains submitted to the training cluster at once (queued there or running); "
+        "more wait in the service, oldest want first and round-robin over robots, and a retrain request "
+        "that would add one is 429. Unset: twice the cluster's worker threads (one training and one "
+        "ready behind it per thread, so no thread idles between two worker cycles)",
+    )
+    retrain_max_wall_seconds: float = Field(
+        900.0,
+        gt=0,
+        description="the longest one sensor-network retrain is expected to take on the cluster, wall time "
+        "(measured: 107 CPU s on a busy 2-core machine; the idle scheduling class stretches the wall "
+        "time). A submitted retrain's window is kept from retention for (max_retrains_queued + 1) times "
+        "this, so a lost task cannot keep frames forever",
     )
 
     # --------------------------------------------------------------- training
@@ -226,6 +270,22 @@ class Settings(BaseSettings):
         description="Host header values the API answers (comma-separated or a JSON list; '*' = any); "
         "unset: localhost, 127.0.0.1, ::1, testserver and the bind host",
     )
+    read_token_required: bool | None = Field(
+        None,
+        description="reads of robot data (every GET under /api/v1) need a bearer token (the read or the "
+        "write token); unset: on whenever a token is configured",
+    )
+    allowed_origins: Annotated[list[str] | None, NoDecode] = Field(
+        None,
+        description="origins (scheme://host[:port]) besides the service's own that may send mutating "
+        "requests, e.g. the public address of a TLS proxy in front (comma-separated or a JSON list)",
+    )
+    max_joints_per_robot: int = Field(
+        256, ge=1, description="most joints one robot may have, in one batch and registered in all"
+    )
+    max_imus_per_robot: int = Field(
+        256, ge=1, description="most IMUs one robot may have, in one batch and registered in all"
+    )
     max_time_jump_seconds: float = Field(
         1e6,
         gt=0,
@@ -249,7 +309,7 @@ class Settings(BaseSettings):
             return v.strip() or None
         return v
 
-    @field_validator("allowed_hosts", mode="before")
+    @field_validator("allowed_hosts", "allowed_origins", mode="before")
     @classmethod
     def _split_hosts(cls, v: object) -> object:
         if isinstance(v, str):
@@ -330,7 +390,18 @@ class Settings(BaseSettings):
                 "api_read_token needs api_token (or api_token_file): without one, mutating routes "
                 "would be open while reads are closed"
             )
+        if self.read_token_required and token is None:
+            raise ValueError("read_token_required needs api_token (or api_token_file)")
+        if self.read_token_required is False and self.api_read_token is not None:
+            raise ValueError("api_read_token is set but read_token_required is false: unset one of them")
         return self
+
+    def reads_need_token(self) -> bool:
+        """Whether GET routes of ``/api/v1`` need a bearer token: ``read_token_required``, by default
+        on whenever a token is configured."""
+        if self.read_token_required is not None:
+            return self.read_token_required
+        return self.write_token() is not None
 
     @model_validator(mode="after")
     def _window_fits_retention(self) -> Settings:

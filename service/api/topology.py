@@ -4,7 +4,10 @@ A retrain runs an estimator (the sensor networks: seconds of CPU each) from the 
 as a task on the Dask cluster when the service has one (:mod:`service.training`), never on the
 request's thread — so each robot accepts at most one retrain request per
 ``retrain_min_interval_seconds``; more are 429 with ``Retry-After`` (:class:`RetrainLimiter`, one per
-app on ``app.state.retrain_limiter``).
+app on ``app.state.retrain_limiter``). A cluster retrain is also 429 while the training queue is full
+(``max_retrains_queued``, :meth:`service.training.RemoteRetrains.admit`), with ``Retry-After`` the
+expected seconds until a retrain in it finishes; a request for one already waiting or in flight is
+answered by that one.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 
@@ -25,7 +28,7 @@ from service.api.schemas import TopologyOut, TopologyPair
 from service.control import MonitorControl
 from service.store import RobotInfo, Store
 
-__all__ = ["RetrainLimiter", "router"]
+__all__ = ["RetrainLimiter", "RetrainQueue", "router"]
 
 _LIMITER_LOCK = threading.Lock()
 
@@ -46,6 +49,15 @@ class RetrainLimiter:
         self._last: dict[str, float] = {}
         self._lock = threading.Lock()
 
+    def wait(self, robot: str) -> float:
+        """Seconds until ``robot`` may ask again (0: now), counting nothing."""
+        with self._lock:
+            last = self._last.get(robot)
+            elapsed = None if last is None else self.clock() - last
+            if self.interval > 0 and elapsed is not None and elapsed < self.interval:
+                return self.interval - elapsed
+            return 0.0
+
     def admit(self, robot: str) -> float:
         """Seconds until ``robot`` may ask again: 0 means this request is accepted (and counted)."""
         with self._lock:
@@ -55,6 +67,25 @@ class RetrainLimiter:
                 return self.interval - (now - last)
             self._last[robot] = now
             return 0.0
+
+
+@runtime_checkable
+class RetrainQueue(Protocol):
+    """The worker's cluster retrains (:class:`service.training.RemoteRetrains`), as the route sees them."""
+
+    def admit(self, robot: str, method: str) -> float:
+        """0 when the retrain is wanted now, else the seconds until the queue has room for it."""
+        ...
+
+    def capacity(self) -> int:
+        """Retrains in flight at most."""
+        ...
+
+
+def _queue_of(worker: MonitorControl) -> RetrainQueue | None:
+    """The worker's retrain queue; None when its retrains run in its own thread."""
+    remote = getattr(worker, "remote", None)
+    return remote if isinstance(remote, RetrainQueue) else None
 
 
 def get_retrain_limiter(request: Request) -> RetrainLimiter:
@@ -114,19 +145,33 @@ async def history(
     return await read_cache(request).respond(("history", robot, limit), render)
 
 
-@router.post(
-    "/topology/retrain",
-    status_code=202,
-    summary="learn with a method in the next worker cycle",
-    responses=responses(
+def _retrain_responses() -> dict[int | str, dict[str, Any]]:
+    out = responses(
         409,
         413,
         415,
         429,
         s409="no worker runs in this process",
-        s429="this robot's last retrain request was accepted less than retrain_min_interval_seconds ago; "
+        s429="this robot's last retrain request was accepted less than retrain_min_interval_seconds ago, "
+        "or the training cluster's queue is full (max_retrains_queued retrains waiting or in flight); "
         "Retry-After: seconds until the next is accepted",
-    ),
+    )
+    out[429]["headers"] = {
+        "Retry-After": {
+            "description": "whole seconds until a request is accepted: the rest of the robot's interval, "
+            "or for a full queue the expected wall time until a retrain in it finishes (from the recent "
+            "retrains' wall times on the cluster's threads)",
+            "schema": {"type": "integer", "minimum": 1},
+        }
+    }
+    return out
+
+
+@router.post(
+    "/topology/retrain",
+    status_code=202,
+    summary="learn with a method in the next worker cycle",
+    responses=_retrain_responses(),
 )
 def retrain(
     info: RobotInfo = Depends(get_robot),
@@ -136,16 +181,31 @@ def retrain(
 ) -> dict[str, str]:
     if worker is None:
         raise HTTPException(status_code=409, detail="no worker runs in this process")
-    wait = limiter.admit(info.name)
-    if wait > 0:
+    # the robot's interval is only looked at here, and counted once the queue took the request, so
+    # a request the full queue refused does not hold the robot's next one back
+    if (wait := limiter.wait(info.name)) > 0:
+        raise _too_soon(info.name, limiter, wait)
+    queue = _queue_of(worker) if method != "fast" else None
+    if queue is not None and (full := queue.admit(info.name, method)) > 0:
+        retry = max(1, math.ceil(full))
         raise HTTPException(
             status_code=429,
-            detail=f"retrain of {info.name!r} was requested less than {limiter.interval:g} s ago; "
-            f"retry in {math.ceil(wait)} s",
-            headers={"Retry-After": str(math.ceil(wait))},
+            detail=f"the training queue is full ({queue.capacity()} retrains); retry in {retry} s",
+            headers={"Retry-After": str(retry)},
         )
+    if (wait := limiter.admit(info.name)) > 0:  # another request of the robot came in meanwhile
+        raise _too_soon(info.name, limiter, wait)
     worker.request(info.name, method)
     return {"robot": info.name, "method": method, "status": "queued"}
+
+
+def _too_soon(robot: str, limiter: RetrainLimiter, wait: float) -> HTTPException:
+    retry = max(1, math.ceil(wait))
+    return HTTPException(
+        status_code=429,
+        detail=f"retrain of {robot!r} was requested less than {limiter.interval:g} s ago; retry in {retry} s",
+        headers={"Retry-After": str(retry)},
+    )
 
 
 @router.post(

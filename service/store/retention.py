@@ -6,20 +6,35 @@ of device time is dropped by :meth:`RetentionMixin.prune`, which the ingest writ
 run on clocks of their own, and drops whole chunks, so it is one indexed DELETE per robot rather than a
 rewrite of blobs. Registrations, baselines and alerts are never pruned; repeated topologies are thinned as
 they are stored (:mod:`service.store.topologies`).
+
+A window a queued retrain will read is pinned (:attr:`RetentionMixin.window_pins`,
+:mod:`service.store.pins`): the chunks overlapping it stay, however old, until the pin is released or
+lapses.
 """
 
 from __future__ import annotations
 
-from sqlalchemy import delete, func, select
+from sqlalchemy import and_, delete, func, not_, or_, select
 
 from service.db.models import Chunk, Robot
+from service.store.pins import WindowPin, WindowPins
 from service.store.schema import StoreBase
 
 __all__ = ["RetentionMixin"]
 
 
+def _overlaps(pins: list[WindowPin]) -> object:
+    """SQL: a chunk overlaps one of ``pins`` (same robot's ``pins``, as :meth:`read_between` reads)."""
+    return or_(*(and_(Chunk.epoch == p.epoch, Chunk.t_start <= p.end, Chunk.t_end > p.start) for p in pins))
+
+
 class RetentionMixin(StoreBase):
     """Dropping frames that fell out of the retention window."""
+
+    @property
+    def window_pins(self) -> WindowPins:
+        """The windows :meth:`prune` keeps (module doc); one registry per store object."""
+        return self.__dict__.setdefault("_window_pins", WindowPins())  # setdefault: atomic
 
     def prune(self, now_t: float | None = None) -> int:
         """Drop chunks that ended more than ``retention_seconds`` before ``now_t`` (device time; default
@@ -28,11 +43,17 @@ class RetentionMixin(StoreBase):
         Chunks of an earlier device clock epoch (:mod:`service.store.frames`) are older than anything of
         the current one, by an unknown amount: the previous epoch goes once the current one spans the
         retention (its frames are then at least that old), every epoch before it at once. A robot that
-        restarts thus keeps at most two retentions of frames. Returns the samples dropped."""
+        restarts thus keeps at most two retentions of frames. Chunks overlapping a pinned window
+        (:attr:`window_pins`) stay whatever their age or epoch. Returns the samples dropped."""
         dropped = 0
+        pinned: dict[str, list[WindowPin]] = {}
+        for p in self.window_pins.active():
+            pinned.setdefault(p.robot, []).append(p)
         with self._write_lock, self._session() as s, s.begin():
-            robots = s.execute(select(Robot.id, Robot.last_frame_t, Robot.epoch, Robot.epoch_start_t)).all()
-            for rid, last, epoch, epoch_start in robots:
+            robots = s.execute(
+                select(Robot.id, Robot.name, Robot.last_frame_t, Robot.epoch, Robot.epoch_start_t)
+            ).all()
+            for rid, name, last, epoch, epoch_start in robots:
                 ref = now_t if now_t is not None else last
                 if ref is None:
                     continue
@@ -41,6 +62,8 @@ class RetentionMixin(StoreBase):
                 keep_from = epoch if epoch_start is not None and epoch_start < cutoff else epoch - 1
                 aged = (Chunk.epoch == epoch) & (Chunk.t_end < cutoff)
                 cond = (Chunk.robot_id == rid) & (aged | (Chunk.epoch < keep_from))
+                if name in pinned:
+                    cond = cond & not_(_overlaps(pinned[name]))
                 n = s.scalar(select(func.coalesce(func.sum(Chunk.n), 0)).where(cond)) or 0
                 if n:
                     s.execute(delete(Chunk).where(cond))
