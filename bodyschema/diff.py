@@ -23,8 +23,10 @@ estimate below it), so one broken joint gives one finding.
 7. ``insufficient_excitation`` — a joint the current estimate could not decide (not a damage); parts
    that depend on it are not judged.
 
-Identical inputs give no finding. A current estimate that is not unique gives only the findings
-signal health starts (1-4): where it puts a part is no evidence on its own. Everything here is pure.
+Identical inputs give no finding. A current estimate (or a baseline) that is not unique gives only the
+findings signal health starts (1-4): where it puts a part is no evidence on its own; the answer is then
+``changed`` null unless one of those is a damage, and the reasons name the parts the trees that fit
+disagree on and the joints to move to decide (:func:`undetermined_reasons`). Everything here is pure.
 
 Example
 -------
@@ -48,10 +50,13 @@ from bodyschema.topology import Topology
 
 __all__ = [
     "STRUCTURAL_KINDS",
+    "UNDETERMINED_HERE",
     "DiffThresholds",
     "deciding_joints",
     "diff_bodies",
     "is_ambiguous",
+    "open_parts",
+    "undetermined_here",
     "undetermined_reasons",
     "unplaced_reasons",
 ]
@@ -63,6 +68,62 @@ STRUCTURAL_KINDS: tuple[str, ...] = ("imu_moved", "imu_detached", "joint_reparen
 def is_ambiguous(topo: Topology) -> bool:
     """True when several trees fit the data (not unique, or alternatives given)."""
     return not topo.unique or bool(topo.candidates)
+
+
+#: How a part the data did not place is described, wherever it would otherwise be named as placed.
+UNDETERMINED_HERE = "the tree is undetermined here"
+
+
+def open_parts(topo: Topology) -> dict[str, str]:
+    """Every part ``topo`` names but the data did not place, ``imu:NAME`` / ``joint:NAME`` -> what the
+    trees that fit allow for it.
+
+    A part is open when the trees that fit put it in different places, and an IMU the estimate puts on
+    the base is open while some joint is undetermined: a joint the window did not move leaves its
+    child link turning with its parent, so an IMU that did not turn may ride that link.
+
+    >>> a = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2", "i3": None}, undetermined=("j2",))
+    >>> open_parts(a)
+    {'imu:i3': 'IMU i3: on the base, or on the link of j2 (not moved enough to place)'}
+    """
+    trees = [topo, *topo.candidates]
+    out: dict[str, str] = {}
+    for j in topo.joint_parent:
+        options = {t.joint_parent.get(j) for t in trees}
+        if len(options) > 1 or (not topo.unique and not topo.candidates):
+            out[f"joint:{j}"] = f"joint {j}: parent {' or '.join(sorted(o or 'base' for o in options))}"
+    unmoved = [j for j in topo.undetermined if j in topo.joint_parent]
+    for imu in topo.imu_joint:
+        options = {t.imu_joint.get(imu) for t in trees}
+        if len(options) > 1 or (not topo.unique and not topo.candidates):
+            out[f"imu:{imu}"] = f"IMU {imu}: on {' or '.join(sorted(o or 'base' for o in options))}"
+        elif options == {None} and unmoved:
+            out[f"imu:{imu}"] = (
+                f"IMU {imu}: on the base, or on the link of {', '.join(unmoved)} (not moved enough to place)"
+            )
+    return out
+
+
+def undetermined_here(topo: Topology, parts: list[str]) -> str:
+    """The reason to give for ``parts`` (keys of :func:`open_parts`) instead of placing them: ``""``
+    when the data placed all of them.
+
+    >>> a = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+    >>> b = Topology({"j1": None, "j2": None}, {"i1": "j1", "i2": "j2"})
+    >>> amb = Topology(a.joint_parent, a.imu_joint, unique=False, candidates=(b,))
+    >>> print(undetermined_here(amb, ["imu:i2", "joint:j2"]))  # doctest: +NORMALIZE_WHITESPACE
+    the tree is undetermined here (joint j2: parent base or j1; 2 trees fit the data);
+    to decide, move j1, j2 each on its own
+    """
+    open_ = open_parts(topo)
+    named = [open_[p] for p in parts if p in open_]
+    if not named:
+        return ""
+    count = 1 + len(topo.candidates)
+    fit = f"{count} trees fit the data" if topo.candidates else "the data leave it open"
+    move = deciding_joints(topo)
+    tail = f"; to decide, move {', '.join(move)} each on its own" if move else ""
+    return f"{UNDETERMINED_HERE} ({'; '.join(named)}; {fit}){tail}"
 
 
 def undetermined_reasons(topo: Topology) -> tuple[str, ...]:
@@ -191,8 +252,9 @@ class _Claims:
         self.joints: set[str] = set()
         self.order = _order(baseline)
         # An estimate that is not unique (several trees fit the data) says nothing reliable about where
-        # a part hangs: only the signal-level findings are made from it.
-        self.structural = not is_ambiguous(current)
+        # a part hangs: only the signal-level findings are made from it. A baseline that is not unique
+        # gives nothing to compare a placement with either.
+        self.structural = not is_ambiguous(current) and not is_ambiguous(baseline)
 
     def conf(self, key: str) -> float:
         """The current estimate's confidence in part ``key`` (``imu:NAME``, ``joint:NAME``), 1 if unstated."""
@@ -252,9 +314,11 @@ def diff_bodies(
     if health is not None:
         _loose_imus(st, health, undecided)
     _reparented_joints(st, undecided)
-    return Diff(
-        findings=tuple(st.findings), reasons=undetermined_reasons(current) + unplaced_reasons(current)
-    )
+    reasons = undetermined_reasons(current) + unplaced_reasons(current)
+    if is_ambiguous(baseline):
+        # the baseline itself was not decided: no placement can be said unchanged against it
+        reasons += tuple(f"baseline: {r}" for r in undetermined_reasons(baseline))
+    return Diff(findings=tuple(st.findings), reasons=reasons)
 
 
 def _dead_imus(st: _Claims, health: SignalHealth | None) -> None:

@@ -32,6 +32,7 @@ Example
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -40,6 +41,7 @@ from bodyschema.completion import complete
 from bodyschema.conditions import check_p_minus
 from bodyschema.convert import tree_to_topology
 from bodyschema.depmatrix import DependencyMatrix
+from bodyschema.fast import FastOptions, fast_fit, fast_options, fit_path
 from bodyschema.outtree import OutTree
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
@@ -73,18 +75,20 @@ def estimate_topology(
 ) -> Topology:
     """Learn the joint tree and IMU placement of ``rec`` with ``method`` (see :data:`METHODS`).
 
-    Keyword arguments go to the method's estimator (e.g. ``epochs=``, ``seed=`` for the networks,
-    ``fit_ratio=`` for ``fast``). ``timer`` is the caller's clock (the service passes
+    Keyword arguments go to the method's estimator (e.g. ``epochs=``, ``seed=`` for the networks;
+    ``options=`` a :class:`~bodyschema.fast.FastOptions` and any of its fields, ``fit_ratio=``, for
+    ``fast``). ``timer`` is the caller's clock (the service passes
     ``time.process_time``: CPU time, all threads); ``seconds`` in the result is what it measured around
     the estimate, 0 without one. This package reads no clock itself, and nothing in the estimate
     depends on it.
 
-    A multi-rate recording (encoders on their own stamps ``t_q``, docs/recording-format.md) goes
-    through :func:`bodyschema.fast.fast_fit_recording` first: it estimates the IMU's lag behind the
-    encoders, reported in ``timing``; the network methods train on the streams aligned by it
-    (:func:`bodyschema.timing.aligned_recording`). ``imu_delay`` (s) is the stated group delay of the
-    IMU's on-chip filter: ``timing["skew_ms"]`` is the lag less it, for every method (a recording
-    that states its filter, ``extra["sensing"]``, gives it itself).
+    A recording on the fast estimator's timed path (positions without velocities the robot measured,
+    on the encoders' own stamps ``t_q`` or on one clock: :func:`bodyschema.fast.fit_path`,
+    docs/recording-format.md) goes through :func:`bodyschema.fast.fast_fit` first: it estimates the
+    IMU's lag behind the encoders, reported in ``timing``; the network methods train on the streams
+    aligned by it (:func:`bodyschema.timing.aligned_recording`). ``imu_delay`` (s) is the stated
+    group delay of the IMU's on-chip filter: ``timing["skew_ms"]`` is the lag less it, for every
+    method (a recording that states its filter, ``extra["sensing"]``, gives it itself).
 
     The sensor-network methods take ``warm_start=`` (:class:`bodyschema.networks.NetworkWeights`);
     :func:`fit_topology` also returns the weights trained.
@@ -116,15 +120,15 @@ def fit_topology(
     training: dict[str, float] = {}
     weights = None
     timed = None
-    if rec.is_multirate:
-        # encoders on their own clock: the fast estimator finds the IMU's lag behind them (and answers
-        # directly); the networks then train on the streams aligned by that lag
-        from bodyschema.fast import fast_fit_recording
-
-        timed_kw = dict(kw) if method == "fast" else {}
+    fast_opts = _fast_options(kw) if method == "fast" else None
+    if fit_path(rec) == "timed":
+        # positions without velocities the robot measured, on one clock or two: the fast estimator's
+        # timed path finds the IMU's lag behind the encoders (and answers directly); the networks then
+        # train on the streams aligned by that lag
+        opts = fast_opts or FastOptions()
         if imu_delay is not None:
-            timed_kw["imu_delay"] = imu_delay
-        timed = fast_fit_recording(rec, **timed_kw)
+            opts = replace(opts, imu_delay=imu_delay)
+        timed = fast_fit(rec, opts)
         timing = {
             "lag_ms": float(timed.lag_ms or 0.0),
             "skew_ms": float(timed.skew_ms or 0.0),
@@ -133,18 +137,16 @@ def fit_topology(
             "at_s": float(timed.lag_time or 0.0),
         }
         if method != "fast":
-            from bodyschema.timing import aligned_recording
+            from bodyschema.timing import aligned_recording, timed_view
 
             rec = aligned_recording(
-                rec, 1e-3 * timing["lag_ms"], 1e-6 * timing.get("drift_ppm", 0.0), timing["at_s"]
+                timed_view(rec), 1e-3 * timing["lag_ms"], 1e-6 * timing.get("drift_ppm", 0.0), timing["at_s"]
             )
     rec = rec.derived()
     assert rec.qd is not None and rec.q is not None
     excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
     if method == "fast":
-        from bodyschema.fast import fast_fit
-
-        fit = timed if timed is not None else fast_fit(rec.q, rec.qd, rec.gyro, **kw)
+        fit = timed if timed is not None else fast_fit(rec, fast_opts)
         if timed is not None:
             excitation = fit.excitation  # in the comparison band: what the tests could see
         dep, evidence = fit.dependency, None
@@ -189,9 +191,13 @@ def fit_topology(
 
 
 def _with(topo: Topology, **changes: Any) -> Topology:
-    from dataclasses import replace
-
     return replace(topo, **changes)
+
+
+def _fast_options(kw: dict[str, Any]) -> FastOptions:
+    """The fast method's settings from ``estimate_topology``'s keywords: ``options=`` (a
+    :class:`~bodyschema.fast.FastOptions`) and any of its fields by name."""
+    return fast_options(kw.pop("options", None), **kw)
 
 
 def topology_from_dependency(

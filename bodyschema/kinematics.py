@@ -126,8 +126,9 @@ from typing import Any
 
 import numpy as np
 
+from bodyschema.diff import undetermined_here
 from bodyschema.recording import Recording
-from bodyschema.timing import DLPF_GYRO, choose_band, edge_margin, lowpass, median_rate
+from bodyschema.timing import DLPF_GYRO, choose_band, edge_margin, lowpass, median_rate, timed_view
 from bodyschema.topology import Topology
 
 __all__ = [
@@ -1432,7 +1433,10 @@ def _fit_link(w: _Walk, jn: str, j: int) -> None:
     parent = None if pj is None else w.ref.get(pj)
     kids, kidx = w.on_joint.get(jn, []), w.kidx
     for imu in kids:
-        if w.qd_rms[j] < w.opts.min_qd_rms:
+        why_open = undetermined_here(w.topo, [f"imu:{imu}", f"joint:{jn}"])
+        if why_open:
+            w.imus[imu] = ImuKinematics(imu=imu, joint=jn, reason=why_open)
+        elif w.qd_rms[j] < w.opts.min_qd_rms:
             why = f"joint {jn} hardly moved ({w.qd_rms[j]:.3g} rad/s RMS)"
             w.imus[imu] = ImuKinematics(imu=imu, joint=jn, reason=why)
         elif pj is not None and parent is None:
@@ -1506,6 +1510,7 @@ def estimate_kinematics(
     timing gets it from a fast fit of ``rec``).
     """
     opts = options or KinematicsOptions()
+    rec = timed_view(rec)  # positions only, on one clock: the timed path, as the fast estimator reads it
     topo = _with_timing(rec, topology)
     sig = _signals(rec, topo, opts)
     al = sig.rec
@@ -1516,7 +1521,8 @@ def estimate_kinematics(
     qd_rms = np.sqrt(np.mean(sig.band_limit(al.qd) ** 2, axis=0))  # type: ignore[arg-type]
     w = _Walk(sig=sig, opts=opts, topo=topo, on_joint=on_joint, qd_rms=qd_rms)
     for imu in on_joint.get(None, []):
-        w.imus[imu] = ImuKinematics(imu=imu, joint=None, reason="on the base: no joint moves it")
+        why = undetermined_here(topo, [f"imu:{imu}"]) or "on the base: no joint moves it"
+        w.imus[imu] = ImuKinematics(imu=imu, joint=None, reason=why)
     jidx = {n: i for i, n in enumerate(al.joint_names)}
     joints: dict[str, JointKinematics] = {}
     for jn in _order(topo):

@@ -67,6 +67,7 @@ __all__ = [
     "position_noise",
     "resample",
     "robust_lag",
+    "timed_view",
 ]
 
 #: MPU-6050 DLPF_CFG 0..6 -> (bandwidth Hz, delay s), register map RM-MPU-6000A rev 4.2, CONFIG
@@ -370,6 +371,22 @@ def measured_lag(topo: Topology) -> float | None:
     return 1e-3 * float(topo.timing["lag_ms"]) if "lag_ms" in topo.timing else None
 
 
+def timed_view(rec: Recording) -> Recording:
+    """``rec`` as the timed path reads it: a single-clock recording with positions but no velocities
+    measured by the robot has its encoders sampled at the IMU stamps (``t_q = t``); anything else is
+    returned as it is.
+
+    Such a file is what a logger writes when one process stamps every stream: the velocities must be
+    derived, and only the timed path's band and error model allow for a derived velocity's error
+    (:func:`bodyschema.fast.fit_path`). The skew between the streams is still estimated.
+    """
+    from dataclasses import replace
+
+    if rec.t_q is None and rec.qd is None and rec.q is not None:
+        return replace(rec, t_q=rec.t.copy(), qdd=None)
+    return rec
+
+
 def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: float = 0.0) -> Recording:
     """A single-clock copy of a multi-rate ``rec`` with the encoder stream moved onto the IMU's time.
 
@@ -378,7 +395,7 @@ def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: 
     derivatives come from the encoder positions band-limited to what that grid can hold
     (:func:`lowpass`, the same differentiator as the fast estimator's) and are evaluated ``lag + drift
     (t - lag_time)`` seconds before each grid instant, the IMU's lag behind the encoders as estimated by
-    :func:`bodyschema.fast.fast_fit_timed`. Grid points in long IMU gaps and within
+    :func:`bodyschema.fast.fast_fit`. Grid points in long IMU gaps and within
     :func:`edge_margin` of the ends are dropped. A single-clock ``rec`` is returned as it is.
     """
     from dataclasses import replace

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bodyschema.estimate import estimate_topology
-from bodyschema.fast import FastEstimator, FastOptions, fast_fit, noise_level
+from bodyschema.fast import PATH_SETTINGS, FastEstimator, FastOptions, fast_fit, fit_path, noise_level
 from simulators.kinematic_tree import random_robot_recording
 
 
@@ -32,7 +32,8 @@ def test_random_trees_are_recovered_exactly(rng):
     for _ in range(3):
         n = int(rng.integers(5, 26))
         rec = random_robot_recording(rng, n_joints=n, seconds=20.0)
-        fit = fast_fit(rec.q, rec.qd, rec.gyro)
+        fit = fast_fit(rec)
+        assert fit.path == "synced"
         np.testing.assert_array_equal(fit.dependency, rec.truth_dependency)
         topo = estimate_topology(rec)
         assert topo.joint_parent == rec.truth_parent_map
@@ -109,7 +110,7 @@ def test_all_joints_still_is_all_undetermined(rng):
 
 def test_estimator_class_learns_the_tree_and_passes_its_settings_on(rng):
     rec = random_robot_recording(rng, n_joints=5, seconds=10.0)
-    est = FastEstimator().fit(rec.q, rec.qd, rec.gyro)
+    est = FastEstimator().fit(rec)
     np.testing.assert_array_equal(est.dependency_, rec.truth_dependency)
     assert est.undetermined_.size == 0 and est.result_.dependency is est.dependency_
     # IMUs share a group exactly when they ride the same link; base IMUs are group -1
@@ -120,40 +121,43 @@ def test_estimator_class_learns_the_tree_and_passes_its_settings_on(rng):
     # in gyro-noise units) leaves every joint undetermined; a fit ratio no model meets attaches nothing
     top = float(np.sqrt(np.mean(rec.qd**2, axis=0)).max())
     for kw in ({"min_excitation": 2 * top}, {"min_excitation_snr": 1e9}):
-        assert FastEstimator(**kw).fit(rec.q, rec.qd, rec.gyro).undetermined_.tolist() == list(range(5)), kw
-    strict = FastEstimator(fit_ratio=1e-6).fit(rec.q, rec.qd, rec.gyro)
+        assert FastEstimator(**kw).fit(rec).undetermined_.tolist() == list(range(5)), kw
+    strict = FastEstimator(fit_ratio=1e-6).fit(rec)
     assert not strict.dependency_.any()
 
 
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda q, qd, g: (q, qd, g[:, :, :2]), "shapes"),
-        (lambda q, qd, g: (q, qd[:, :-1], g), "shapes"),
-        (lambda q, qd, g: (q[:20], qd[:20], g[:20]), "at least"),
-        (lambda q, qd, g: (q, qd, np.where(np.arange(len(g))[:, None, None] == 5, np.nan, g)), "finite"),
+        (lambda r: r.select(slice(0, 20)), "at least"),
+        (lambda r: replace(r, q=None, qd=None, qdd=None), "positions q"),
     ],
 )
 def test_bad_input_is_refused_clearly(rng, mutate, message):
     rec = random_robot_recording(rng, n_joints=3, seconds=2.0)
-    q, qd, g = mutate(rec.q, rec.qd, rec.gyro)
     with pytest.raises(ValueError, match=message):
-        fast_fit(q, qd, g)
+        fast_fit(mutate(rec))
 
 
 def test_options_and_keywords_are_one_setting(rng):
-    """Every entry point takes one FastOptions; a keyword replaces its field, and the forms agree."""
+    """One FastOptions for the function, the class and estimate_topology; a setting the recording's path
+    does not use is one rule everywhere: not applied, and named in ``unused`` when stated."""
     rec = random_robot_recording(rng, n_joints=4, seconds=10.0)
     opts = FastOptions(fit_ratio=10.0, rel_tol=1e-3)
-    by_options = fast_fit(rec.q, rec.qd, rec.gyro, options=opts)
-    by_keywords = fast_fit(rec.q, rec.qd, rec.gyro, fit_ratio=10.0, rel_tol=1e-3)
-    overridden = fast_fit(rec.q, rec.qd, rec.gyro, options=replace(opts, fit_ratio=25.0), fit_ratio=10.0)
-    estimator = FastEstimator(opts).fit(rec.q, rec.qd, rec.gyro)
-    for fit in (by_keywords, overridden, estimator.result_):
+    by_options = fast_fit(rec, opts)
+    estimator = FastEstimator(opts).fit(rec)
+    by_keywords = FastEstimator(replace(opts, fit_ratio=25.0), fit_ratio=10.0).fit(rec)
+    for fit in (estimator.result_, by_keywords.result_):
         assert fit.edges == by_options.edges
         np.testing.assert_array_equal(fit.imu_confidence, by_options.imu_confidence)
+    topo = estimate_topology(rec, fit_ratio=10.0, rel_tol=1e-3)
+    assert topo.confidence == estimate_topology(rec, options=opts).confidence
     assert FastEstimator(fit_ratio=3.0).fit_ratio == 3.0 and FastEstimator().options == FastOptions()
-    with pytest.raises(TypeError, match="need the stamps"):
-        fast_fit(rec.q, rec.qd, rec.gyro, band=5.0)
+    # measured velocities: the synced path, where the band is no setting; positions only: the timed one
+    banded = fast_fit(rec, FastOptions(band=5.0, rel_tol=1e-3))
+    assert (banded.path, banded.unused, banded.edges) == ("synced", ("band",), fast_fit(rec, opts).edges)
+    positions = replace(rec, qd=None, qdd=None)
+    assert fit_path(positions) == "timed" and fast_fit(positions, opts).unused == ("rel_tol",)
+    assert PATH_SETTINGS["synced"] | PATH_SETTINGS["timed"] == set(FastOptions.__dataclass_fields__)
     with pytest.raises(TypeError, match="FastOptions"):
         FastEstimator(fit_raito=3.0)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from bodyschema.estimate import estimate_topology
-from bodyschema.fast import fast_fit, fast_fit_recording, fast_fit_timed
+from bodyschema.fast import FastOptions, fast_fit
+from bodyschema.fast_timed import timed_fit
 from bodyschema.recording import Recording
 from simulators.kinematic_tree import random_robot_recording
 from simulators.sensing import SensingOptions, apply_sensing
@@ -47,7 +48,7 @@ def _true_lag_ms(skew: float, at: float) -> float:
 @pytest.mark.parametrize("n_joints, bits, skew", [(8, 12, 4e-3), (12, 16, 10e-3)])
 def test_random_trees_are_exact_where_the_synced_estimator_is_wrong(seed, n_joints, bits, skew):
     rec = _user_case(seed, n_joints, bits, skew)
-    fit = fast_fit_recording(rec)
+    fit = fast_fit(rec)
     assert np.array_equal(fit.dependency, rec.truth_dependency)
     assert fit.undetermined.size == 0
     assert abs(fit.lag_ms - _true_lag_ms(skew, fit.lag_time)) < 0.3
@@ -55,14 +56,14 @@ def test_random_trees_are_exact_where_the_synced_estimator_is_wrong(seed, n_join
     assert abs(fit.drift_ppm - 30.0) < 10.0
     assert fit.band_hz == pytest.approx(10.0, rel=1e-3)
     # the same data on one clock through the synced estimator: what a user got before
-    synced = rec.synced().derived()
-    old = fast_fit(synced.q, synced.qd, synced.gyro)
-    assert not np.array_equal(old.dependency, rec.truth_dependency)
+    synced = rec.synced().derived()  # velocities derived and then passed off as measured
+    old = fast_fit(synced)
+    assert old.path == "synced" and not np.array_equal(old.dependency, rec.truth_dependency)
 
 
 def test_catalog_robot_with_the_robot_preset_is_exact_and_its_skew_is_found(seed):
     rec = simulate("ur5e", seconds=30.0, seed=seed, sensing="robot")
-    fit = fast_fit_recording(rec)  # reads the DLPF setting from extra["sensing"]
+    fit = fast_fit(rec)  # reads the DLPF setting from extra["sensing"]
     assert np.array_equal(fit.dependency, rec.truth_dependency)
     truth_skew_ms = 1e3 * (8e-3 + fit.lag_time * DRIFT)
     # within 1 ms (half a physics step of MuJoCo's sensor timing remains, about 0.4 ms)
@@ -83,7 +84,7 @@ def test_estimate_topology_takes_the_stamps_and_answers_the_true_tree(seed):
 
 def test_joint_held_still_is_undetermined_and_nothing_false_is_said(seed):
     rec = _user_case(seed, 6, 14, 6e-3, seconds=30.0, still=(2,))
-    fit = fast_fit_recording(rec)
+    fit = fast_fit(rec)
     still_name = None
     for name, q in zip(rec.joint_names, rec.q.T, strict=True):
         if np.ptp(q) < 1e-9:
@@ -101,7 +102,7 @@ def test_a_long_gap_in_the_imu_stream_is_left_out_not_filled(seed):
     m = (rec.t < 12.0) | (rec.t > 14.0)  # two seconds of IMU frames lost
     gapped = rec.select(np.flatnonzero(m))  # the encoder stream keeps its samples across the gap
     assert np.count_nonzero((gapped.t_q > 12.0) & (gapped.t_q < 14.0)) >= 190
-    fit = fast_fit_recording(gapped)
+    fit = fast_fit(gapped)
     assert np.array_equal(fit.dependency, rec.truth_dependency)
     assert abs(fit.lag_ms - _true_lag_ms(6e-3, fit.lag_time)) < 0.3
 
@@ -109,11 +110,9 @@ def test_a_long_gap_in_the_imu_stream_is_left_out_not_filled(seed):
 def test_bad_timed_input_is_refused_clearly(seed):
     rec = _user_case(seed, 3, 14, 6e-3, seconds=8.0)
     with pytest.raises(ValueError, match="one row per encoder stamp"):
-        fast_fit_timed(rec.q[:-1], rec.gyro, rec.t, rec.t_q)
+        timed_fit(rec.q[:-1], rec.gyro, rec.t, rec.t_q, FastOptions())
     with pytest.raises(ValueError, match="overlap for"):
-        fast_fit_timed(rec.q, rec.gyro, rec.t, rec.t_q + 7.8)
-    with pytest.raises(TypeError, match="need the stamps"):
-        fast_fit(rec.q, rec.q, rec.gyro[: len(rec.q)], imu_delay=0.0)
+        timed_fit(rec.q, rec.gyro, rec.t, rec.t_q + 7.8, FastOptions())
 
 
 def _damaged_paper3_window() -> Recording:
