@@ -47,6 +47,7 @@ BENCHMARKS: tuple[str, ...] = (
     "rotations",
     "drift",
     "lever_budget",
+    "alerts",
     "docs",
 )
 
