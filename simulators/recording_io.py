@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
+import secrets
 import zipfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -82,13 +82,12 @@ def save_recording(
     path.parent.mkdir(parents=True, exist_ok=True)
     # Written beside the target and renamed only once complete: a failure (or a crash) leaves no
     # half-written file, and an existing recording at ``path`` stays as it was.
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
-    os.close(fd)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.part")
     try:
-        _write_npz(Path(tmp), data)
+        _write_npz(tmp, data)
         os.replace(tmp, path)
     finally:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
 
 
 def _write_npz(path: Path, data: Mapping[str, np.ndarray | tuple[tuple[int, ...], Blocks]]) -> None:
