@@ -52,19 +52,19 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+import math
 import threading
 import time
 import zlib
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
+from bodyschema.diff import diff_bodies, is_ambiguous
 from bodyschema.fast import FastOptions
-from bodyschema.findings import KINEMATIC_KINDS, Diff, Finding
+from bodyschema.findings import Diff, Finding
 from bodyschema.health import (
     BaselineFingerprints,
     SignalHealth,
@@ -76,11 +76,13 @@ from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording, RecordingError
 from bodyschema.timing import lag_hinted, lag_search_centre, measured_lag
 from bodyschema.topology import Topology
-from service.alerts import AlertTracker, Transition
+from service.alert_path import Waits, queue_entries, with_finish
+from service.alerts import AlertTracker
 from service.metrics import Metrics
 from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
 from service.training import RemoteRetrains
+from service.worker_alerts import AlertPath, CycleResult
 
 __all__ = [
     "FRAME_KEY",
@@ -90,6 +92,7 @@ __all__ = [
     "Estimator",
     "Worker",
     "default_estimator",
+    "next_wait",
 ]
 
 log = logging.getLogger(__name__)
@@ -113,6 +116,17 @@ def _inline(fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Any:
     return fn(*args, **kwargs)
 
 
+def next_wait(elapsed: float, interval: float, rest: float) -> float:
+    """Seconds from the end of a cycle that took ``elapsed`` to the start of the next: the next tick of
+    ``interval`` after it at least ``rest`` away (ticks an overrunning cycle missed are skipped).
+
+    >>> next_wait(2.0, 5.0, 1.0), next_wait(7.0, 5.0, 1.0), next_wait(9.5, 5.0, 1.0)
+    (3.0, 3.0, 5.5)
+    """
+    ticks = max(1, math.ceil((elapsed + rest) / interval))
+    return ticks * interval - elapsed
+
+
 def default_estimator(rec: Recording, method: str, imu_delay: float | None = None) -> Topology:
     """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
     IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew."""
@@ -121,25 +135,7 @@ def default_estimator(rec: Recording, method: str, imu_delay: float | None = Non
     return estimate_topology(rec, method=method, timer=time.process_time, imu_delay=imu_delay)
 
 
-@dataclass
-class CycleResult:
-    """What one cycle did for one robot (returned by :meth:`Worker.run_cycle`, also logged)."""
-
-    robot: str
-    skipped: str = ""
-    topology: Topology | None = None
-    methods: list[str] = field(default_factory=list)
-    health: SignalHealth | None = None
-    diff: Diff | None = None
-    baseline_set: bool = False
-    transitions: list[Transition] = field(default_factory=list)
-    #: the cycle compared the robot's geometry with its baseline's (the drift findings are in ``diff``)
-    drift_judged: bool = False
-    #: ... and its lever arms too: the baseline's pool was full (:meth:`Worker._drift`)
-    slides_judged: bool = False
-
-
-class Worker:
+class Worker(AlertPath):
     """Learns, compares and alerts for every robot in ``store`` (see the module doc).
 
     ``estimator`` is injected so tests and benchmarks can swap the method; ``clock`` is the wall clock
@@ -201,6 +197,22 @@ class Worker:
         self._epochs: dict[str, int] = {}
         #: Per robot: the encoder-to-IMU lag (s) of its last fast topology (see :meth:`_lag_hint`).
         self._lags: dict[str, float] = {}
+        #: Per robot: the id of the baseline its last cycle compared with (None: none yet); a new id
+        #: (an operator approved one) makes the worker forget what it tracked against the old one.
+        self._baseline_ids: dict[str, int | None] = {}
+        #: Robots whose alerts were read back after a restart and are judged again on their first
+        #: full window (:meth:`_restore`).
+        self._rejudge: set[str] = set()
+        #: Per robot: the current baseline streak's length in cycles, the window end of its first
+        #: cycle, and the wall time it started waiting for the networks (see :meth:`_maybe_baseline`).
+        self._streak_n: dict[str, int] = {}
+        self._streak_start: dict[str, float] = {}
+        self._streak_wall: dict[str, float] = {}
+        #: Per robot: what it waits on, as last written to the store (:meth:`_write_waits`).
+        self._waits_written: dict[str, dict[str, Any]] = {}
+        #: ``time.monotonic()`` when the running cycle began (None between cycles) and the last ended.
+        self._cycle_began: float | None = None
+        self._cycle_ended: float | None = None
         self._lock = threading.Lock()
         self._cycle_lock = threading.Lock()
         self._stop = threading.Event()
@@ -235,19 +247,43 @@ class Worker:
             self._requests.setdefault(robot, set()).add(method)
         self._wake.set()
 
+    def progress(self) -> dict[str, float | None]:
+        """How the worker keeps up: seconds the running cycle has taken so far (None between cycles),
+        seconds since the last cycle ended, and the interval; ``/readyz`` reports it as lag, never as
+        death (a busy machine slows cycles down, it does not stop them)."""
+        now = time.monotonic()
+        began, ended = self._cycle_began, self._cycle_ended
+        return {
+            "cycle_running_s": None if began is None else round(now - began, 3),
+            "since_last_cycle_s": None if ended is None else round(now - ended, 3),
+            "interval_s": self.settings.worker_interval_seconds,
+        }
+
     def training_fault(self) -> str | None:
         """Why retrains cannot run now (the cluster named), None when they can or run in this process."""
         return None if self.remote is None else self.remote.fault
 
     def _loop(self) -> None:
+        """Cycles every interval; one that overran skips the ticks it missed, and at least
+        ``worker_min_rest_seconds`` separate two cycles, so requests and the API get the interpreter
+        between them. Wake-ups during a cycle (requests) coalesce into one cycle after the rest."""
         interval = self.settings.worker_interval_seconds
+        rest = self.settings.worker_min_rest_seconds
         while not self._stop.is_set():
             started = time.monotonic()
             try:
                 self.run_cycle()
             except Exception:  # never let one bad cycle end monitoring
                 log.exception("worker cycle failed")
-            self._wake.wait(max(0.0, interval - (time.monotonic() - started)))
+            elapsed = time.monotonic() - started
+            woken = self._wake.is_set()
+            self._wake.clear()
+            wait = rest if woken else next_wait(elapsed, interval, rest)
+            if elapsed > interval:
+                log.info("worker cycle overran its interval", extra={"seconds": round(elapsed, 3)})
+            if self._stop.wait(rest):
+                break
+            self._wake.wait(max(0.0, wait - rest))
             self._wake.clear()
 
     # ---------------------------------------------------------------------------- baselines
@@ -255,25 +291,44 @@ class Worker:
         """Make ``topo`` (default: the newest fast topology) the robot's baseline, by operator decision.
 
         Open alerts of the robot are resolved: they were differences to the old baseline. The store does
-        both in one transaction (:meth:`~service.store.Store.approve_baseline`); the worker forgets what
-        it tracked against the old baseline, under the cycle lock so no cycle sees half of it.
-        Raises :class:`~service.store.UnknownRobot`, or ``LookupError`` when nothing was learned yet.
+        both in one transaction of its own (:meth:`~service.store.Store.approve_baseline`), without the
+        cycle lock, so the request never waits for a cycle; the worker sees the new baseline's id in
+        its next cycle and forgets what it tracked against the old one (:meth:`_baseline_seen`; a
+        cycle running now drops what it found against the old one). Raises
+        :class:`~service.store.UnknownRobot`, or ``LookupError`` when nothing was learned yet.
         """
-        with self._cycle_lock:
-            base = self.store.approve_baseline(robot, topo, source="operator", wall_time=self.clock())
-            self.tracker.forget(robot)
-            self.fingerprints_.pop(robot, None)
-            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
+        base = self.store.approve_baseline(robot, topo, source="operator", wall_time=self.clock())
+        self.tracker.forget(robot)
+        self.fingerprints_.pop(robot, None)
+        self._wake.set()
         log.info("baseline approved", extra={"robot": robot, "source": "operator"})
         return base
 
     def _restore(self) -> None:
-        """Pick up open alerts after a restart so they are neither raised twice nor left dangling."""
+        """Pick up open alerts after a restart so they are neither raised twice nor left dangling: each
+        is judged again on its robot's first full window (confirmed, or resolved then)."""
         try:
-            for a in self.store.alerts(active=True):
-                self.tracker.restore(a.robot, [Finding.from_json(a.finding)])
+            for a in [*self.store.alerts(state="pending"), *self.store.alerts(active=True)]:
+                pending = a.state == "pending"
+                f = [Finding.from_json(a.finding)]
+                self.tracker.restore(a.robot, f, pending=pending, since=a.raised_at, confirmed=a.confirmed)
+                self._rejudge.add(a.robot)
         except Exception:
             log.exception("could not restore open alerts")
+
+    def _baseline_seen(self, robot: str, base: TopologyRecord | None) -> None:
+        """Forget what was tracked for ``robot`` against a baseline that is no longer current (an
+        operator approved another since the last cycle): its alerts were resolved with it."""
+        bid = None if base is None else base.id
+        if robot in self._baseline_ids and self._baseline_ids[robot] != bid:
+            self.tracker.forget(robot)
+            self.fingerprints_.pop(robot, None)
+            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
+            self._first_seen = {k: v for k, v in self._first_seen.items() if k[0] != robot}
+            self._findings.pop(robot, None)
+            self._rejudge.discard(robot)
+            log.info("new baseline seen: tracking starts over", extra={"robot": robot, "baseline_id": bid})
+        self._baseline_ids[robot] = bid
 
     # -------------------------------------------------------------------------------- cycle
     def run_cycle(self) -> dict[str, CycleResult]:
@@ -281,7 +336,9 @@ class Worker:
         t0 = time.perf_counter()
         out: dict[str, CycleResult] = {}
         with self._cycle_lock:
+            self._cycle_began = time.monotonic()
             self.cycles += 1
+            self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
             self._collect_retrains()
             robots = self.store.robots()
             self.metrics.robots.set(len(robots))
@@ -307,6 +364,7 @@ class Worker:
                 self.metrics.alerts_active.labels(robot=info.name).set(n)
             self._submit_retrains()
             self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
+            self._cycle_began, self._cycle_ended = None, time.monotonic()
         seconds = time.perf_counter() - t0
         self.metrics.cycles.inc()
         self.metrics.cycle_seconds.observe(seconds)
@@ -338,11 +396,17 @@ class Worker:
     def _epoch_seen(self, robot: str, epoch: int) -> None:
         """Forget the device times remembered for ``robot`` when its clock went back (a new epoch,
         :mod:`service.store.frames`): an onset stamped on the old clock would lie in the new clock's
-        future and hold the IMU's finding forever. Alerts stay; the windows of the new epoch confirm or
-        resolve them."""
+        future and hold the IMU's finding forever. The fingerprints go too: a restarted robot's
+        encoders may count from other offsets, and no finding may come from comparing windows across
+        the restart; they are learned again from the first window that matches the baseline. Alerts
+        stay; the first full window of the new epoch confirms or resolves them."""
         if self._epochs.get(robot, epoch) != epoch:
             self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
+            self._first_seen = {k: v for k, v in self._first_seen.items() if k[0] != robot}
             self._lags[robot] = 0.0
+            self.fingerprints_.pop(robot, None)
+            self.tracker.rejudge(robot)
+            self._rejudge.add(robot)
             log.info(
                 "device clock went back: analysing the new epoch", extra={"robot": robot, "epoch": epoch}
             )
@@ -381,6 +445,7 @@ class Worker:
             res.skipped = "not enough data in the window"
             return res
         base = self.store.baseline(robot)
+        self._baseline_seen(robot, base)
         layout = base.topology if base is not None else None
         window_end = float(rec.t[-1])
         fast: Topology | None = None
@@ -415,43 +480,25 @@ class Worker:
         res.topology = fast
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)
+        waits = Waits(queue=with_finish(queue_entries(self.remote, robot), self.clock()))
+        full = rec.duration >= 0.8 * self.settings.window_seconds
         if base is None:
-            full = rec.duration >= 0.8 * self.settings.window_seconds
             res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
+            if not res.baseline_set and robot in self._streak_wall:
+                n, need = self._streak_n.get(robot, 0), self.settings.baseline_unconfirmed_cycles
+                later = f", adopted unconfirmed after {need} cycles" if need else ""
+                what = (
+                    f"baseline: the sensor networks' answer (the fast screen's body held {n} cycles{later})"
+                )
+                waits.add(what, self._streak_wall[robot])
+            self._write_waits(robot, waits)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
         self._on_change(robot, res.diff)
         if robot not in self.fingerprints_ and not res.diff.findings:
             self.fingerprints_[robot] = self.compute(baseline_fingerprints, rec, base.topology, current=fast)
-        hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
-        if not hold:
-            res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)
-            hold = held
-        if self.networks_on:
-            res.diff, unconfirmed = self._confirmed(robot, res.diff, base.topology, window_end)
-            hold = tuple(sorted({*hold, *unconfirmed}))
-        drift = self._drift(robot, rec, fast, base, res.diff, window_end)
-        if drift is None:
-            hold = tuple(sorted({*hold, *KINEMATIC_KINDS}))
-        else:
-            found, res.slides_judged = drift
-            res.drift_judged = True
-            res.diff = Diff(findings=(*res.diff.findings, *found), reasons=res.diff.reasons)
-        res.transitions = self.tracker.update(robot, res.diff.findings, hold=hold)
-        now = self.clock()
-        for tr in res.transitions:
-            rec_ = self.store.upsert_alert(robot, tr.kind, tr.part, tr.finding.to_json(), tr.state, now)
-            log.warning(
-                "alert %s",
-                tr.state,
-                extra={
-                    "robot": robot,
-                    "kind": tr.kind,
-                    "part": tr.part,
-                    "alert_id": rec_.id,
-                    "finding": tr.finding.to_json(),
-                },
-            )
+        self._judge_alerts(robot, res, (rec, learn), base, waits, full and not is_ambiguous(fast))
+        self._write_waits(robot, waits)
         return res
 
     def _lag_hint(self, robot: str) -> float:
@@ -573,49 +620,6 @@ class Worker:
             with self._lock:
                 self._requests.setdefault(robot, set()).add("network")
 
-    def _confirmed(
-        self, robot: str, diff: Diff, baseline: Topology, window_end: float
-    ) -> tuple[Diff, tuple[str, ...]]:
-        """The diff with its structural findings confirmed by the sensor networks (module doc, 5).
-
-        A structural finding of the fast screen on a part is kept when the newest network topology,
-        from a window that ended at or after the end of the first window that showed the finding,
-        also differs from the baseline structurally on that part (the kind the screen gives is
-        kept: its post-onset judgement, :meth:`_after_onset`, tells a move from a detachment, which
-        a network window straddling the change cannot); dropped when that topology shows the part
-        as in the baseline; and held (its kind returned) while there is no such topology yet, with
-        a retrain asked for.
-        """
-        structural = [f for f in diff.findings if f.kind in STRUCTURAL_KINDS]
-        seen = {(f.kind, f.part) for f in structural}
-        for key in [k for k in self._first_seen if k[0] == robot and (k[1], k[2]) not in seen]:
-            del self._first_seen[key]
-        if not structural:
-            return diff, ()
-        net = self.store.latest_topology(robot, method="network")
-        net_parts: set[str] | None = None
-        if net is not None and not is_ambiguous(net.topology):
-            net_diff = diff_bodies(baseline, net.topology)
-            net_parts = {f.part for f in net_diff.findings if f.kind in STRUCTURAL_KINDS}
-        keep: list[Finding] = []
-        held: set[str] = set()
-        for f in diff.findings:
-            if f.kind not in STRUCTURAL_KINDS:
-                keep.append(f)
-                continue
-            since = self._first_seen.setdefault((robot, f.kind, f.part), window_end)
-            if net is None or net_parts is None or net.window_end_t is None or net.window_end_t < since:
-                held.add(f.kind)
-                self._ask_network(robot, net, since, f"to confirm {f.kind} {f.part}")
-            elif f.part in net_parts:
-                keep.append(f)
-            else:
-                log.info(
-                    "finding dropped: the sensor networks see no change there",
-                    extra={"robot": robot, "kind": f.kind, "part": f.part, "network_topology": net.id},
-                )
-        return Diff(findings=tuple(keep), reasons=diff.reasons), tuple(sorted(held))
-
     def _on_change(self, robot: str, diff: Diff) -> None:
         """Ask for a network retrain of ``robot`` when the fast screen's diff holds a finding the
         previous cycle's did not (``Settings.network_on_change``): the fast method is the screen, the
@@ -701,9 +705,11 @@ class Worker:
         return self.estimator(after, "fast")
 
     def _break_streak(self, robot: str) -> None:
-        """End ``robot``'s baseline streak: its topologies, and when it first waited for the networks."""
+        """End ``robot``'s baseline streak: its topologies, length, start, and when it first waited for
+        the networks."""
         self._recent.get(robot, deque()).clear()
-        self._streak_since.pop(robot, None)
+        for kept in (self._streak_since, self._streak_n, self._streak_start, self._streak_wall):
+            kept.pop(robot, None)
 
     def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:
         """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""
@@ -721,26 +727,40 @@ class Worker:
         if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):
             self._break_streak(robot)
         recent.append(topo)
+        self._streak_start.setdefault(robot, window_end)
+        self._streak_n[robot] = self._streak_n.get(robot, 0) + 1
         if len(recent) < k:
             return False
-        net = None
+        net, source = None, "auto"
         if self.networks_on:
             net = self.store.latest_topology(robot, method="network")
             if net is None or is_ambiguous(net.topology) or not net.topology.same_structure(topo):
                 # the networks are the authority: the streak waits (it stays complete) for a network
                 # topology of the same body; asked for once per streak, then the schedule's retrains
                 since = self._streak_since.setdefault(robot, window_end)
+                self._streak_wall.setdefault(robot, self.clock())
                 self._ask_network(robot, net, since, "a baseline needs the sensor networks' agreement")
-                return False
-            topo = net.topology
+                if not self._networks_late(robot, net):
+                    return False
+                # ... unless they are late: the fast body that held this long is adopted, marked so
+                net, source = None, "fast-unconfirmed"
+            else:
+                topo = net.topology
         base_id = self.store.set_baseline(
-            robot, topo, "auto", wall_time=self.clock(), window_end_t=window_end
+            robot, topo, source, wall_time=self.clock(), window_end_t=window_end
         )
         if net is not None:  # the weights that learned this baseline are its weights
             self.store.adopt_network_weights(
                 robot, "network", window_end_t=net.window_end_t, baseline_id=base_id
             )
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
+        n = self._streak_n.get(robot, k)
         self._break_streak(robot)
-        log.info("baseline learned", extra={"robot": robot, "source": "auto", "repeats": k})
+        log.log(
+            logging.INFO if source == "auto" else logging.WARNING,
+            "baseline learned"
+            if source == "auto"
+            else "baseline adopted unconfirmed: the sensor networks are late",
+            extra={"robot": robot, "source": source, "repeats": n},
+        )
         return True

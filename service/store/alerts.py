@@ -4,7 +4,10 @@ An alert is raised on a part (``imu:<name>`` or ``joint:<name>``) by the worker'
 (:class:`service.alerts.AlertTracker`) and lives ``pending`` → ``active`` → ``resolved``; an operator may
 acknowledge it at any point. At most one alert per ``(robot, kind, part)`` is open at a time, so the
 worker can report the same finding cycle after cycle and the store updates it in place instead of
-piling up rows. :func:`resolve_open_alerts` works inside a caller's transaction, so approving a new
+piling up rows. With the sensor networks on, an alert also says whether they confirmed it
+(``confirmed``: True they did, False the fast screen's finding stands without them, None not theirs to
+judge or not judged yet) and ``note`` says why it is in its state (waiting for confirmation since when,
+withdrawn and why). :func:`resolve_open_alerts` works inside a caller's transaction, so approving a new
 baseline can close the differences to the old one atomically (:mod:`service.store.topologies`).
 """
 
@@ -47,19 +50,21 @@ class AlertRecord:
     resolved_at: float | None
     updated_at: float
     finding: dict[str, Any]
+    confirmed: bool | None = None
+    note: str = ""
 
     @property
     def is_open(self) -> bool:
         return self.state != "resolved"
 
 
-def resolve_open_alerts(s: Session, rid: int, wall_time: float) -> int:
+def resolve_open_alerts(s: Session, rid: int, wall_time: float, note: str = "") -> int:
     """Resolve every open (pending or active) alert of robot ``rid`` at ``wall_time``, in the caller's
-    transaction; returns how many were open."""
+    transaction, saying why in ``note``; returns how many were open."""
     res = s.execute(
         update(Alert)
         .where(Alert.robot_id == rid, Alert.state != "resolved")
-        .values(state="resolved", updated_at=wall_time, resolved_at=wall_time)
+        .values(state="resolved", updated_at=wall_time, resolved_at=wall_time, note=note[:500] or None)
         .execution_options(synchronize_session=False)
     )
     return int(res.rowcount or 0)
@@ -69,13 +74,23 @@ class AlertsMixin(StoreBase):
     """Raising, updating, listing and acknowledging alerts."""
 
     def upsert_alert(
-        self, robot: str, kind: str, part: str, finding_json: dict[str, Any], state: str, wall_time: float
+        self,
+        robot: str,
+        kind: str,
+        part: str,
+        finding_json: dict[str, Any],
+        state: str,
+        wall_time: float,
+        *,
+        confirmed: bool | None = None,
+        note: str = "",
     ) -> AlertRecord:
         """Create or update the open alert of ``(robot, kind, part)``.
 
         An open (pending/active) alert is updated in place; ``state="resolved"`` closes it. When none is
         open a new one is raised, except that resolving with nothing open returns the last alert of that
-        part unchanged (or records a resolved one if there never was any).
+        part unchanged (or records a resolved one if there never was any). ``confirmed`` and ``note``
+        are written as given (module doc).
         """
         _check_state(state)
         imu, joint = _split_part(part)
@@ -103,12 +118,17 @@ class AlertsMixin(StoreBase):
                     updated_at=wall_time,
                     finding=dict(finding_json),
                     resolved_at=wall_time if state == "resolved" else None,
+                    confirmed=confirmed,
+                    note=note[:500] or None,
                 )
                 s.add(row)
             else:
                 row.state = state
                 row.finding = dict(finding_json)
                 row.updated_at = wall_time
+                if confirmed is not None or state != "resolved":  # a resolved alert keeps its word
+                    row.confirmed = confirmed
+                row.note = note[:500] or None
                 if state == "resolved":
                     row.resolved_at = wall_time
             s.flush()
@@ -138,10 +158,13 @@ class AlertsMixin(StoreBase):
                 q = q.limit(int(limit))
             return [_alert_record(a, name) for a, name in s.execute(q).all()]
 
-    _ALERT_FIELDS = frozenset({"state", "acked", "finding", "raised_at", "resolved_at", "updated_at"})
+    _ALERT_FIELDS = frozenset(
+        {"state", "acked", "finding", "raised_at", "resolved_at", "updated_at", "confirmed", "note"}
+    )
 
     def update_alert(self, id: int, **fields: Any) -> AlertRecord:
-        """Change fields of an alert (state, acked, finding, raised_at, resolved_at, updated_at).
+        """Change fields of an alert (state, acked, finding, raised_at, resolved_at, updated_at,
+        confirmed, note).
         ``updated_at`` defaults to now; resolving sets ``resolved_at`` unless given."""
         bad = set(fields) - self._ALERT_FIELDS
         if bad:
@@ -195,4 +218,6 @@ def _alert_record(a: Alert, robot: str) -> AlertRecord:
         resolved_at=a.resolved_at,
         updated_at=a.updated_at,
         finding=dict(a.finding or {}),
+        confirmed=a.confirmed,
+        note=a.note or "",
     )

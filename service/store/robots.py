@@ -3,8 +3,9 @@
 Nobody declares a robot: the ingest writes frames and the store learns the robot and its parts from
 them, keeping parts in first-seen order (the order windows come back in). Every other concern looks a
 robot up by name here (:func:`robot_id`), so an unknown name fails the same way everywhere
-(:class:`UnknownRobot`). Simulation flags and excitation estimates are written here too: they describe
-the robot, not one window of it.
+(:class:`UnknownRobot`). Simulation flags, excitation estimates and what the worker waits on for the
+robot (:meth:`RobotsMixin.set_waiting`) are written here too: they describe the robot, not one window
+of it.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ class RobotInfo:
     """What the store knows about one robot. ``silent_imus`` have not been heard for
     ``imu_silent_seconds`` of device time before ``last_frame_t``; ``first_seen`` is wall time.
     ``epoch`` counts the times the robot's device clock went back (restarts); ``epoch_start_t`` is
-    the device time the current epoch began (None while it is the first)."""
+    the device time the current epoch began (None while it is the first). ``waiting`` is what the
+    worker last said it waits on for the robot (:meth:`RobotsMixin.set_waiting`), ``{}`` before."""
 
     name: str
     joints: list[str]
@@ -54,6 +56,7 @@ class RobotInfo:
     excitation: dict[str, float] = field(default_factory=dict)
     epoch: int = 0
     epoch_start_t: float | None = None
+    waiting: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -93,6 +96,7 @@ _ROBOT_COLUMNS = (
     Robot.excitation,
     Robot.epoch,
     Robot.epoch_start_t,
+    Robot.waiting,
 )
 
 
@@ -164,6 +168,7 @@ class RobotsMixin(StoreBase):
             excitation={str(k): float(v) for k, v in (r.excitation or {}).items()},
             epoch=int(r.epoch or 0),
             epoch_start_t=r.epoch_start_t,
+            waiting=dict(r.waiting or {}),
         )
 
     def mark_simulated(self, name: str, catalog: str) -> None:
@@ -189,6 +194,20 @@ class RobotsMixin(StoreBase):
         with self._session() as s, s.begin():
             rid = robot_id(s, name)
             s.execute(update(Robot).where(Robot.id == rid).values(excitation=clean))
+
+    def set_waiting(self, name: str, waiting: dict[str, Any]) -> None:
+        """Record what the worker waits on for robot ``name`` (JSON: its waits, since when, and its
+        retrains in the training queue), replacing what it said before. A row of its own per robot, in
+        one short transaction that no worker lock guards: the status routes read it."""
+        with self._session() as s, s.begin():
+            rid = robot_id(s, name)
+            s.execute(update(Robot).where(Robot.id == rid).values(waiting=dict(waiting)))
+
+    def waiting(self) -> dict[str, dict[str, Any]]:
+        """Every robot's :meth:`set_waiting` record, by name (robots without one left out); one query."""
+        with self._session() as s:
+            rows = s.execute(select(Robot.name, Robot.waiting).where(Robot.waiting.is_not(None))).all()
+            return {name: dict(w) for name, w in rows if w}
 
     # --------------------------------------------------------------------------- registering
     def _register_robot(self, s: Session, name: str) -> RegisteredRobot:

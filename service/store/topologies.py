@@ -5,13 +5,17 @@ ended (the history the API and the dashboard show). Per robot and method the new
 ``topology_history_keep`` stay; older ones stay only where the body changed (a row whose structure
 differs from the one before it), so a robot whose body never changes keeps a bounded history.
 
-A baseline is a topology promoted by the worker ("auto": the same body several cycles in a row) or by
-an operator; the newest baseline row of a robot is the current one and older rows are its history, so a
-baseline is never overwritten, and baselines are never thinned.
+A baseline is a topology promoted by the worker ("auto": the same body several cycles in a row, and
+the sensor networks' answer when they run; "fast-unconfirmed": the fast screen's body held for
+``baseline_unconfirmed_cycles`` cycles while the networks were late) or by an operator; the newest
+baseline row of a robot is the current one and older rows are its history, so a baseline is never
+overwritten, and baselines are never thinned.
 
 Approving a baseline (:meth:`TopologiesMixin.approve_baseline`) also ends the robot's open alerts: they
 were differences to the old baseline. Both happen in one transaction, so no reader ever sees the new
-baseline next to alerts against the old one, and a failure leaves both as they were.
+baseline next to alerts against the old one, and a failure leaves both as they were. It takes no lock
+of the worker's: the worker sees the new baseline's id in its next cycle and forgets what it tracked
+against the old one.
 """
 
 from __future__ import annotations
@@ -37,13 +41,14 @@ _PARSED_MAX = 8192
 #: Ids per ``IN`` list (SQLite allows 32,766 bound parameters, older builds 999).
 _IN_BATCH = 900
 
-#: Who made a baseline: the worker (the same body learned repeatedly) or an operator.
-BASELINE_SOURCES: tuple[str, ...] = ("auto", "operator")
+#: Who made a baseline: the worker (the same body learned repeatedly; "fast-unconfirmed" when the sensor
+#: networks had not answered) or an operator.
+BASELINE_SOURCES: tuple[str, ...] = ("auto", "operator", "fast-unconfirmed")
 
 
 @dataclass(frozen=True)
 class TopologyRecord:
-    """A stored topology. ``source`` is set for baselines ("auto" | "operator")."""
+    """A stored topology. ``source`` is set for baselines (one of :data:`BASELINE_SOURCES`)."""
 
     id: int
     robot: str
@@ -221,7 +226,7 @@ class TopologiesMixin(StoreBase):
                     raise LookupError(f"no topology learned for {robot!r} yet")
                 topo = Topology.from_json(newest[0].topology)
             bid = _insert_baseline(s, rid, topo, source, now, None)
-            resolve_open_alerts(s, rid, now)
+            resolve_open_alerts(s, rid, now, f"a new baseline was approved ({source})")
             row = s.get(Baseline, bid)
             assert row is not None
             return _baseline_record(row, robot)

@@ -103,7 +103,9 @@ def test_baseline_after_k_identical_cycles_then_alert_after_m(
     est.next = MOVED
     r = w.run_cycle()["arm"]
     assert [f.kind for f in r.diff.findings] == ["imu_moved"] and r.transitions == []
-    assert store.alerts("arm") == []
+    # seen once: a pending alert at once, raised after M cycles
+    assert [(t.state, t.part) for t in r.pending] == [("pending", "imu:c1")]
+    assert [(a.state, a.part) for a in store.alerts("arm")] == [("pending", "imu:c1")]
     r = w.run_cycle()["arm"]
     assert [(t.state, t.part) for t in r.transitions] == [("active", "imu:c1")]
     (a,) = store.alerts("arm", active=True)
@@ -279,8 +281,9 @@ def test_a_broken_streak_asks_the_networks_again_for_the_next_one(
 def test_with_networks_on_a_structural_finding_needs_the_networks_to_alert(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
-    """The fast method is the screen: its structural finding is held until a network topology from
-    a window that ended after it was first seen shows a change there too; one that does not drops it."""
+    """The fast method is the screen: its structural finding is a pending alert until a network
+    topology from a window that ended after it was first seen shows a change there too; one that does
+    not withdraws it (resolved, with the reason)."""
     rec = synth(rng, seconds=24)
     feed(sqlite_store, rec.select(rec.t < 12.0))
     est = ByMethod(GOOD)
@@ -291,16 +294,20 @@ def test_with_networks_on_a_structural_finding_needs_the_networks_to_alert(
     assert sqlite_store.baseline("arm") is not None
     feed(sqlite_store, rec.select(rec.t >= 12.0))  # newer frames: the old network window is too early
     est.next = MOVED  # the screen sees c1 on j2; the networks still see the baseline body
-    first = w.run_cycle()["arm"]  # held: no network topology since the finding; one asked for
-    assert first.transitions == [] and [f.kind for f in first.diff.findings] == []
-    assert w.tracker.pending("arm") == []
+    first = w.run_cycle()["arm"]  # pending: no network topology since the finding; one asked for
+    assert first.transitions == [] and [f.kind for f in first.diff.findings] == ["imu_moved"]
+    assert [(t.state, t.part) for t in first.pending] == [("pending", "imu:c1")]
+    assert w.tracker.pending("arm") == [("arm", "imu_moved", "imu:c1")]
     assert [m for m, _ in est.calls[-1:]] == ["fast"]
-    second = w.run_cycle()["arm"]  # the retrain runs in this cycle and shows no change: dropped
+    second = w.run_cycle()["arm"]  # the retrain runs in this cycle and shows no change: withdrawn
     assert [m for m, _ in est.calls[-2:]] == ["fast", "network"]
-    assert second.transitions == [] and second.diff.findings == ()
+    assert [t.state for t in second.transitions] == ["resolved"] and second.diff.findings == ()
+    assert second.transitions[0].note.startswith("withdrawn: the sensor networks' topology")
     for _ in range(2):
         assert w.run_cycle()["arm"].transitions == []
-    assert sqlite_store.alerts("arm") == [] and w.tracker.pending("arm") == []
+    (gone,) = sqlite_store.alerts("arm")
+    assert gone.state == "resolved" and "no change of imu:c1" in gone.note
+    assert w.tracker.pending("arm") == []
     est.by_method["network"] = MOVED  # the networks now see it too
     w.request("arm", "network")
     transitions = []
