@@ -58,8 +58,14 @@ class MapError(RecordingError):
 
 
 def close_matches(word: str, choices: list[str] | tuple[str, ...], n: int = 5) -> str:
-    """``"; close matches: a, b"`` (difflib), or ``""`` when nothing is close."""
-    near = difflib.get_close_matches(word, list(choices), n=n, cutoff=0.5)
+    """``"; close matches: a, b"`` (difflib, ignoring case), or ``""`` when nothing is close.
+
+    The cutoff 0.4 keeps a name that shares its stem with the word (``imuOmega`` -> ``imuAcc``).
+    """
+    lower: dict[str, str] = {}
+    for c in choices:
+        lower.setdefault(c.lower(), c)
+    near = [lower[c] for c in difflib.get_close_matches(word.lower(), list(lower), n=n, cutoff=0.4)]
     return f"; close matches: {', '.join(near)}" if near else ""
 
 
