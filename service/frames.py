@@ -24,13 +24,19 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
+    "ACC_LIMIT",
+    "GYRO_LIMIT",
     "NAME_PATTERN",
     "NAME_RULE",
+    "QD_LIMIT",
+    "Q_LIMIT",
+    "T_LIMIT",
     "FrameBatch",
     "FrameError",
     "check_batch_stamps",
     "check_name",
     "check_names",
+    "check_values",
 ]
 
 #: What a robot, joint or IMU name may be: they end up in URLs, metric labels, log fields and file
@@ -40,10 +46,66 @@ NAME_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
 _NAME = re.compile(NAME_PATTERN)
 NAME_RULE = "1-64 characters of A-Z a-z 0-9 _ . -"
 
+# The value bounds every batch is held to (docs/security.md, "Input bounds"). They refuse what no sensor
+# or clock produces, so that an absurd number (1e308) cannot reach an estimator that squares it, never
+# what a real device does: each is a common full scale times a margin of 4 for scale errors, offsets
+# and sensors with wider ranges.
+#: |t| and |t_q|, s: 100 Julian years either side of the Unix epoch. Unix-time stamps (1.8e9 s in
+#: 2027) and uptime clocks both fit; float64 resolves 0.5 us there, far below any sample period.
+T_LIMIT = 100 * 365.25 * 86400.0
+#: |acc| per axis, m/s²: 4 x 16 g, the widest range of the MPU-6050 class of IMU (9.80665 m/s² per g).
+ACC_LIMIT = 4 * 16 * 9.80665
+#: |gyro| per axis, rad/s: 4 x 2000 deg/s, the widest range of that class.
+GYRO_LIMIT = 4 * 2000 * 3.141592653589793 / 180.0
+#: |q|, rad (or m on a prismatic joint): a continuous joint (a wheel) turning at 10 rad/s for a day
+#: stays below it, and float64 resolves 1e-10 rad there, far below a 24-bit encoder's count.
+Q_LIMIT = 1e6
+#: |qd|, rad/s (or m/s): about 95,000 rpm, beyond any joint and any motor shaft.
+QD_LIMIT = 1e4
+#: Each stream's bound and unit, as :meth:`FrameBatch.validate` checks them.
+_LIMITS: dict[str, tuple[float, str]] = {
+    "t": (T_LIMIT, "s"),
+    "t_q": (T_LIMIT, "s"),
+    "q": (Q_LIMIT, "rad"),
+    "qd": (QD_LIMIT, "rad/s"),
+    "acc": (ACC_LIMIT, "m/s²"),
+    "gyro": (GYRO_LIMIT, "rad/s"),
+}
+
 
 class FrameError(ValueError):
-    """A frame batch that breaks the contract (shapes, NaN/Inf, time going backwards, names outside
-    :data:`NAME_PATTERN`)."""
+    """A frame batch that breaks the contract (shapes, NaN/Inf, values out of bounds, time going
+    backwards, names outside :data:`NAME_PATTERN`)."""
+
+
+def _index(flat: int, shape: tuple[int, ...]) -> str:
+    return ", ".join(str(int(i)) for i in np.unravel_index(flat, shape))
+
+
+def check_values(name: str, v: np.ndarray) -> None:
+    """Raise :class:`FrameError` naming the stream and the first sample that is NaN, infinite or
+    beyond the stream's bound (:data:`T_LIMIT`, :data:`ACC_LIMIT`, ...).
+
+    >>> check_values("acc", np.array([[[0.0, 0.0, 9.8]], [[0.0, np.nan, 9.8]]]))
+    Traceback (most recent call last):
+    ...
+    service.frames.FrameError: acc contains NaN or Inf: first at [1, 0, 1]
+    >>> check_values("gyro", np.array([[[0.0, 200.0, 0.0]]]))
+    Traceback (most recent call last):
+    ...
+    service.frames.FrameError: gyro[0, 0, 1] = 200 rad/s is beyond the bound of ±139.6 rad/s
+    """
+    finite = np.isfinite(v)
+    if not finite.all():
+        raise FrameError(f"{name} contains NaN or Inf: first at [{_index(int(np.argmin(finite)), v.shape)}]")
+    limit, unit = _LIMITS[name]
+    over = np.abs(v) > limit
+    if over.any():
+        k = int(np.argmax(over))
+        raise FrameError(
+            f"{name}[{_index(k, v.shape)}] = {v.flat[k]:.6g} {unit} is beyond the bound of "
+            f"±{limit:.4g} {unit}"
+        )
 
 
 def check_batch_stamps(t: np.ndarray, name: str = "t") -> None:
@@ -168,8 +230,8 @@ class FrameBatch:
                 raise FrameError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
         for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
             v = getattr(self, name)
-            if v is not None and not np.all(np.isfinite(v)):
-                raise FrameError(f"{name} contains NaN or Inf")
+            if v is not None:
+                check_values(name, v)
         check_batch_stamps(self.t, "t")
         if self.t_q is not None:
             check_batch_stamps(self.t_q, "t_q")

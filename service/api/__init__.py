@@ -8,9 +8,12 @@ alerts are 404, malformed bodies 422, bodies over ``max_request_bytes`` 413, dam
 409, frames the pipeline could not store in time 503, and a database that fails under a route 503
 with ``Retry-After``.
 
-Security (:mod:`service.api.security`, docs/security.md): ``Host`` headers outside ``allowed_hosts`` are
-400, mutating requests with a non-JSON body 415, and with tokens configured every ``/api/v1`` route
-checks the bearer token (401). ``/livez``, ``/readyz`` and ``/metrics`` stay open; no CORS.
+Security (:mod:`service.api.security`, docs/security.md): two ``Host`` headers, or one outside
+``allowed_hosts``, are 400; a mutating request from another site, or without a JSON content type or
+``X-Requested-With: bodyhealth``, is 403 and one with a non-JSON body 415; a JSON body nested deeper
+than ``MAX_JSON_DEPTH`` is 422; with a token configured every ``/api/v1`` route checks the bearer
+token (401; reads too unless ``read_token_required`` is off). ``/livez``, ``/readyz`` and
+``/metrics`` stay open; no CORS.
 
 Example
 -------
@@ -38,7 +41,16 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from service.api import alerts, diagnostics, health, kinematics, robots, simulate, status, topology
 from service.api.cache import ClearOnWrite, ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
-from service.api.security import JsonOnly, authorize
+from service.api.security import (
+    MAX_JSON_DEPTH,
+    SingleHost,
+    WriteGuard,
+    authorize,
+    document_security,
+    json_depth,
+    mutating_routes,
+    parse_origins,
+)
 from service.control import DamageControl, MonitorControl
 from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
@@ -63,10 +75,12 @@ API_ROUTERS = (
 
 
 class BodySizeLimit:
-    """Pure ASGI middleware: answer 413 to a request body over ``max_bytes``.
+    """Pure ASGI middleware: answer 413 to a request body over ``max_bytes``, and 422 to a JSON body
+    nested deeper than :data:`~service.api.security.MAX_JSON_DEPTH`.
 
     Checks ``Content-Length`` first and then counts the streamed body, so a chunked upload without a
-    length cannot get past it either; nothing of an oversized request reaches a route.
+    length cannot get past it either; nothing of an oversized request reaches a route. The depth is
+    counted before the parser sees the body, which would otherwise fail on its own recursion limit.
     """
 
     def __init__(self, app: ASGIApp, max_bytes: int) -> None:
@@ -100,6 +114,9 @@ class BodySizeLimit:
                 await self._reject(send)
                 return
             more = bool(msg.get("more_body"))
+        if body and _json_typed(headers) and json_depth(bytes(body)) > MAX_JSON_DEPTH:
+            await _too_deep(scope, receive, send)
+            return
         done = False
 
         async def replay() -> Message:
@@ -126,26 +143,16 @@ class BodySizeLimit:
         await send({"type": "http.response.body", "body": detail})
 
 
-def _declare_security_as_configured(app: FastAPI) -> None:
-    """The OpenAPI document names the bearer scheme on the ``/api/v1`` operations only when a token is
-    configured: without one :func:`~service.api.security.authorize` lets every request through, and a
-    document that required ``Authorization`` would tell clients (and generated ones) otherwise."""
-    if app.state.api_token is not None or app.state.api_read_token is not None:
-        return
-    build = app.openapi
+def _json_typed(headers: dict[bytes, bytes]) -> bool:
+    """A body the app would parse as JSON: typed so, or untyped."""
+    ctype = headers.get(b"content-type")
+    return ctype is None or ctype.split(b";", 1)[0].strip().lower() == b"application/json"
 
-    def openapi() -> dict[str, Any]:
-        if app.openapi_schema is None:
-            spec = build()
-            for path, item in spec.get("paths", {}).items():
-                if path.startswith("/api/v1"):
-                    for op in item.values():
-                        if isinstance(op, dict):
-                            op.pop("security", None)
-            app.openapi_schema = spec
-        return app.openapi_schema
 
-    app.openapi = openapi  # type: ignore[method-assign]
+async def _too_deep(scope: Scope, receive: Receive, send: Send) -> None:
+    msg = f"JSON nested deeper than {MAX_JSON_DEPTH} levels"
+    detail = [{"loc": ["body"], "msg": msg, "type": "json_invalid"}]
+    await JSONResponse({"detail": detail}, status_code=422)(scope, receive, send)
 
 
 def create_app(
@@ -175,13 +182,16 @@ def create_app(
     app.state.damage = damage
     app.state.api_token = settings.write_token()
     app.state.api_read_token = settings.read_token()
+    app.state.reads_need_token = settings.reads_need_token()
     app.state.read_cache = ReadCache(store, settings.api_cache_seconds)
     for k, v in (extra_state or {}).items():
         setattr(app.state, k, v)
 
     for router in API_ROUTERS:
         app.include_router(router, dependencies=[Security(authorize)])
-    _declare_security_as_configured(app)
+    document_security(
+        app, write_token=app.state.api_token is not None, reads_need_token=app.state.reads_need_token
+    )
     app.include_router(health.router)  # probes and metrics stay open: they change nothing
 
     @app.exception_handler(UnknownRobot)
@@ -204,10 +214,13 @@ def create_app(
         def dashboard() -> FileResponse:
             return FileResponse(DASHBOARD_DIR / "index.html")
 
-    # The last added runs first: Host, then the body's type (headers only), then its size; a write
-    # that succeeds empties the read cache before its answer goes out.
+    # The last added runs first: one Host, a trusted one, then where a write comes from and its body's
+    # type (headers only), then the body's size and depth; a write that succeeds empties the read
+    # cache before its answer goes out.
     app.add_middleware(ClearOnWrite, cache=app.state.read_cache)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_request_bytes)
-    app.add_middleware(JsonOnly)
+    origins = parse_origins(settings.allowed_origins or ())  # a bad one stops the app here
+    app.add_middleware(WriteGuard, routes=lambda: mutating_routes(app), allowed=origins)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.trusted_hosts(), www_redirect=False)
+    app.add_middleware(SingleHost)
     return app

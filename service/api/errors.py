@@ -109,13 +109,20 @@ async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
 
 async def unparsable_body(request: Request, exc: Exception) -> Response:
     """A JSON body FastAPI could not even decode (not UTF-8, nested past the parser's depth) is a 422
-    like every other malformed body, not FastAPI's undeclared 400; other HTTP errors pass unchanged."""
+    like every other malformed body, not FastAPI's undeclared 400, and says which of the two it was;
+    other HTTP errors pass unchanged. (The app refuses bodies nested deeper than its own bound before
+    they are parsed: :class:`service.api.BodySizeLimit`.)"""
     if (
         isinstance(exc, StarletteHTTPException)
         and exc.status_code == 400
         and isinstance(exc.__cause__, ValueError | RecursionError)
     ):
-        detail = [{"loc": ["body"], "msg": "body is not valid UTF-8 JSON", "type": "json_invalid"}]
+        msg = (
+            "JSON nested too deeply to parse"
+            if isinstance(exc.__cause__, RecursionError)
+            else "body is not valid UTF-8"
+        )
+        detail = [{"loc": ["body"], "msg": msg, "type": "json_invalid"}]
         return JSONResponse({"detail": detail}, status_code=422)
     assert isinstance(exc, StarletteHTTPException)
     return await http_exception_handler(request, exc)

@@ -15,7 +15,7 @@ from bodyschema.findings import DAMAGE_KINDS, KINEMATIC_KINDS
 from bodyschema.lever_pool import POOL_KEY
 from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
-from service.frames import NAME_PATTERN, NAME_RULE
+from service.frames import ACC_LIMIT, GYRO_LIMIT, NAME_PATTERN, NAME_RULE, Q_LIMIT, T_LIMIT
 from service.status import MAX_ALTERNATIVES, RobotStatus
 from service.store import AlertRecord, RobotInfo, StoredKinematics, TopologyRecord
 
@@ -47,6 +47,18 @@ PartName = Annotated[str, Field(pattern=NAME_PATTERN, description=NAME_RULE)]
 
 #: One IMU axis triple (x, y, z) in a frames body.
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+#: A device time stamp, s (service.frames.T_LIMIT; the REST API also refuses negative stamps).
+Stamp = Annotated[float, Field(ge=0, le=T_LIMIT)]
+#: A joint position, rad or m (service.frames.Q_LIMIT).
+Position = Annotated[float, Field(ge=-Q_LIMIT, le=Q_LIMIT)]
+#: One accelerometer triple, m/s² (service.frames.ACC_LIMIT per axis).
+Acc3 = Annotated[
+    list[Annotated[float, Field(ge=-ACC_LIMIT, le=ACC_LIMIT)]], Field(min_length=3, max_length=3)
+]
+#: One gyro triple, rad/s (service.frames.GYRO_LIMIT per axis).
+Gyro3 = Annotated[
+    list[Annotated[float, Field(ge=-GYRO_LIMIT, le=GYRO_LIMIT)]], Field(min_length=3, max_length=3)
+]
 
 #: The parameters each damage kind takes, as the farm's simulator applies them (simulators/damage.py);
 #: a parameter another kind takes is refused here, with the kind's own list, before the farm sees it.
@@ -166,6 +178,12 @@ class AlertOut(BaseModel):
     resolved_at: float | None
     updated_at: float
     finding: dict[str, Any]
+    confirmed: bool | None = Field(
+        None,
+        description="true: the sensor networks confirmed it; false: they did not answer in time and "
+        "the fast screen's finding stands; null: not theirs to judge, or not judged yet",
+    )
+    note: str = Field("", description="why the alert is in its state (waiting, unconfirmed, withdrawn)")
 
     @classmethod
     def of(cls, a: AlertRecord) -> AlertOut:
@@ -288,6 +306,19 @@ class StatusOut(BaseModel):
     network: RetrainOut | None = Field(
         None, description="the newest sensor-network retrain (the schedule's, or one asked for)"
     )
+    waiting: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description="what the worker waits on for this robot: {what, since, until} (wall times, s)",
+    )
+    training_queue: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description="this robot's retrains in the training queue: {method, state, position, since, "
+        "expected_seconds, expected_finish, cpu_seconds, window_end}",
+    )
+    baseline_source: str | None = Field(None, description="auto, operator or fast-unconfirmed")
+    baseline_networks: str = Field(
+        "", description="of a fast-unconfirmed baseline: agree, contradicted or unconfirmed"
+    )
 
     @classmethod
     def of(cls, st: RobotStatus) -> StatusOut:
@@ -313,6 +344,10 @@ class StatusOut(BaseModel):
             timing=TimingOut.of(st.timing),
             training=TrainingOut.of(st.training),
             network=RetrainOut.of(st.network, st.topology) if st.network is not None else None,
+            waiting=list(st.waiting),
+            training_queue=list(st.queue),
+            baseline_source=st.baseline.source if st.baseline is not None else None,
+            baseline_networks=st.baseline_networks,
         )
 
 
@@ -390,13 +425,21 @@ class DamageIn(BaseModel):
     """A damage to apply to a simulated robot. Part arguments are optional: the simulator picks
     a part when they are left out."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra=_damage_variants)
+    # strict: a number field takes numbers only (true is not 1.0, "1" is not 1.0)
+    model_config = ConfigDict(
+        extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra=_damage_variants
+    )
 
     kind: DamageKind = Field(description=f"one of {', '.join((*DAMAGE_KINDS, *KINEMATIC_KINDS))}")
     imu: PartName | None = None
     joint: PartName | None = None
     to: PartName | None = Field(None, description="imu_moved: the joint the IMU moves to")
-    value: float | None = Field(None, description="encoder_fault offset, rad (with mode 'offset')")
+    value: float | None = Field(
+        None,
+        ge=-2 * math.pi,
+        le=2 * math.pi,
+        description="encoder_fault offset, rad (with mode 'offset'), at most one turn either way",
+    )
     mode: Literal["frozen", "zero", "stuck", "offset"] | None = Field(
         None, description="imu_dead: frozen|zero; encoder_fault: stuck|offset"
     )
@@ -449,6 +492,7 @@ class FramesIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -463,14 +507,19 @@ class FramesIn(BaseModel):
         },
     )
 
-    t: list[Annotated[float, Field(ge=0)]] = Field(
-        min_length=1, description="device time, s: finite, not negative, strictly increasing"
+    t: list[Stamp] = Field(
+        min_length=1,
+        description=f"device time, s: finite, 0 to {T_LIMIT:.0f} (100 years), strictly increasing",
     )
     joint_names: list[PartName]
-    q: list[list[float]]
+    q: list[list[Position]] = Field(description=f"(T, N) joint positions, rad, |q| <= {Q_LIMIT:g}")
     imu_names: list[PartName]
-    acc: list[list[Vector3]] = Field(description="(T, K, 3) specific force, m/s²")
-    gyro: list[list[Vector3]] = Field(description="(T, K, 3) angular rate, rad/s")
+    acc: list[list[Acc3]] = Field(
+        description=f"(T, K, 3) specific force, m/s², each axis within ±{ACC_LIMIT:.2f} (4 x 16 g)"
+    )
+    gyro: list[list[Gyro3]] = Field(
+        description=f"(T, K, 3) angular rate, rad/s, each axis within ±{GYRO_LIMIT:.2f} (4 x 2000 deg/s)"
+    )
 
 
 class KeyValueOut(BaseModel):

@@ -215,6 +215,10 @@ class Pipeline:
         self.push_source = PushSource("api")
         self._waiters: dict[int, _Waiter] = {}  # id(batch) -> its submitter, while in flight
         self._health = WriteHealth()
+        self.max_joints = int(s.max_joints_per_robot)
+        self.max_imus = int(s.max_imus_per_robot)
+        #: robot -> (joints, IMUs) stored so far, as the writer saw them (read from the store once)
+        self._parts: dict[str, tuple[frozenset[str], frozenset[str]]] = {}
 
     # ------------------------------------------------------------------------------ control
     def start(self) -> Pipeline:
@@ -464,7 +468,47 @@ class Pipeline:
             log.warning("retention prune failed: %s", _reason(err))
             self._record_failure(_reason(err))
 
+    def _known_parts(self, robot: str) -> tuple[frozenset[str], frozenset[str]]:
+        """The joints and IMUs ``robot`` has in the store (none for a new robot)."""
+        got = self._parts.get(robot)
+        if got is None:
+            try:
+                info = self.store.robot(robot)
+            except SQLAlchemyError:  # the write that follows meets the same fault and is retried
+                return frozenset(), frozenset()
+            got = (frozenset(info.joints), frozenset(info.imus)) if info else (frozenset(), frozenset())
+            self._parts[robot] = got
+        return got
+
+    def _within_part_caps(self, items: list[_Item]) -> list[_Item]:
+        """``items`` without the batches that would give their robot more than ``max_joints_per_robot``
+        joints or ``max_imus_per_robot`` IMUs (in the batch, or with the parts stored before it):
+        those are rejected, counted malformed. Every part costs rows and estimator time forever, so
+        a stream of made-up names must not grow a robot without limit."""
+        kept: list[_Item] = []
+        seen: dict[str, tuple[frozenset[str], frozenset[str]]] = {}
+        for src, b in items:
+            joints, imus = seen.get(b.robot) or self._known_parts(b.robot)
+            joints, imus = joints | set(b.joint_names), imus | set(b.imu_names)
+            over = [
+                f"{len(parts)} {what} (at most {cap}, {setting})"
+                for parts, what, cap, setting in (
+                    (joints, "joints", self.max_joints, "max_joints_per_robot"),
+                    (imus, "IMUs", self.max_imus, "max_imus_per_robot"),
+                )
+                if len(parts) > cap
+            ]
+            if over:
+                self._reject(src, b, FrameError(f"robot {b.robot!r} would have {' and '.join(over)}"))
+                continue
+            seen[b.robot] = (joints, imus)
+            kept.append((src, b))
+        return kept
+
     def _commit(self, items: list[_Item]) -> None:
+        items = self._within_part_caps(items)
+        if not items:
+            return
         try:
             stored = self._write_retrying(items)
         except FrameError as err:  # a lone batch is the bad one; else write one by one, keep the good
@@ -479,6 +523,8 @@ class Pipeline:
                         self._reject(src, b, bad)
         for src, b in stored:
             src.counters.add("stored", b.n_samples)
+            joints, imus = self._known_parts(b.robot)
+            self._parts[b.robot] = (joints | set(b.joint_names), imus | set(b.imu_names))
         self._settle(stored, "stored")
         if stored and self.on_commit is not None:
             try:

@@ -83,7 +83,8 @@ def client(sstore: Store, farm: RecordingFarm) -> Iterator[TestClient]:
     sstore.write(batch("arm"))
     sstore.write(batch("sim"))
     sstore.mark_simulated("sim", "ur5e")
-    with TestClient(create_app(sstore, settings=SETTINGS, damage=farm)) as c:
+    app = create_app(sstore, settings=SETTINGS, damage=farm)
+    with TestClient(app, headers={"X-Requested-With": "bodyhealth"}) as c:
         yield c
 
 
@@ -155,7 +156,9 @@ def test_operator_baseline_through_worker_resolves_alerts(sstore: Store) -> None
     sstore.save_topology("arm", MOVED, 100.0, 0.19)
     a = sstore.upsert_alert("arm", "imu_moved", "imu:imu1", {"kind": "imu_moved", "imu": "imu1"}, "active", 1)
     w = Worker(sstore, SETTINGS, estimator=lambda rec, m: TOPO)
-    c = TestClient(create_app(sstore, settings=SETTINGS, worker=w))
+    c = TestClient(
+        create_app(sstore, settings=SETTINGS, worker=w), headers={"X-Requested-With": "bodyhealth"}
+    )
     assert c.post("/api/v1/robots/arm/baseline").status_code == 200
     assert c.get("/api/v1/robots/arm/alerts?active=true").json() == []
     assert [x["state"] for x in c.get("/api/v1/robots/arm/alerts").json()] == ["resolved"]

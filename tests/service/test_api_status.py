@@ -147,7 +147,7 @@ def test_unconfirmed_difference_is_undetermined_and_active_alerts_are_damage(sto
     store.set_baseline("arm", FULL, "auto")
     moved = Topology(dict(FULL.joint_parent), {**FULL.imu_joint, "imu1": "j1"}, method="fast")
     store.save_topology("arm", moved, 101.0, 0.19)
-    c = TestClient(create_app(store, settings=SETTINGS))
+    c = TestClient(create_app(store, settings=SETTINGS), headers={"X-Requested-With": "bodyhealth"})
     # the newest estimate differs, the worker has not confirmed it: neither healthy nor damaged
     body = status(c, "arm")
     assert body["status"] == "undetermined" and body["diff"]["changed"] is True

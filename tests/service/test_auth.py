@@ -1,6 +1,7 @@
-"""Who may call the API: bearer tokens on every mutating route (and on reads with a read token), JSON-only
-bodies, trusted Host headers, no CORS, the OpenAPI security scheme, and ``serve`` refusing a network
-address without a token. Real app, real SQLite store in tmp_path."""
+"""Who may call the API: bearer tokens on every mutating route (and on reads of robot data unless
+``read_token_required`` is off), JSON-only bodies, trusted Host headers, no CORS, the OpenAPI security
+scheme, and ``serve`` refusing a network address without a token. Requests from other sites:
+tests/service/test_security_origin.py. Real app, real SQLite store in tmp_path."""
 
 from __future__ import annotations
 
@@ -136,9 +137,13 @@ def concrete(path: str, store: Store) -> str:
     return path.format(**{n: values[n] for n in names})
 
 
+#: What a client of the API sends with a body-less request (a JSON body's type does as much).
+INTENT = {"X-Requested-With": "bodyhealth"}
+
+
 def send(client: TestClient, method: str, template: str, store: Store, headers: dict[str, str]) -> Any:
     body = BODIES.get(template)
-    return client.request(method, concrete(template, store), json=body, headers=headers)
+    return client.request(method, concrete(template, store), json=body, headers={**INTENT, **headers})
 
 
 def test_the_app_has_the_mutating_routes_this_test_knows(store: Store) -> None:
@@ -200,11 +205,17 @@ def test_without_tokens_the_api_stays_open(store: Store) -> None:
         assert client.get(concrete(path, store)).status_code == 200, path
 
 
-def test_write_token_alone_leaves_reads_open(store: Store) -> None:
+def test_write_token_alone_guards_reads_unless_told_not_to(store: Store) -> None:
     client = make_client(store, api_token=WRITE)
     learn_geometry(store)
-    for path in read_routes(client):
-        assert client.get(concrete(path, store)).status_code == 200, path
+    paths = read_routes(client)
+    for path in paths:
+        url = concrete(path, store)
+        assert client.get(url).status_code == 401, path
+        assert client.get(url, headers={"Authorization": f"Bearer {WRITE}"}).status_code == 200, path
+    open_reads = make_client(store, api_token=WRITE, read_token_required=False)
+    for path in paths:
+        assert open_reads.get(concrete(path, store)).status_code == 200, path
 
 
 def test_read_token_guards_every_read_and_either_token_opens_it(store: Store) -> None:
@@ -235,8 +246,8 @@ def test_token_from_file_and_environment(
     f.write_text(f"  {WRITE}\n")
     client = make_client(store, api_token_file=f)
     url = "/api/v1/robots/sim/topology/retrain"
-    assert client.post(url).status_code == 401
-    assert client.post(url, headers={"Authorization": f"Bearer {WRITE}"}).status_code == 202
+    assert client.post(url, headers=INTENT).status_code == 401
+    assert client.post(url, headers={"Authorization": f"Bearer {WRITE}", **INTENT}).status_code == 202
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("BODYHEALTH_API_TOKEN", WRITE)
     monkeypatch.setenv("BODYHEALTH_API_READ_TOKEN", READ)
@@ -256,6 +267,8 @@ def test_token_from_file_and_environment(
         ({"api_token_file": "empty"}, "is empty"),
         ({"api_token": WRITE, "api_token_file": "empty"}, "not both"),
         ({"api_read_token": READ}, "api_read_token needs api_token"),
+        ({"read_token_required": True}, "read_token_required needs api_token"),
+        ({"api_token": WRITE, "api_read_token": READ, "read_token_required": False}, "unset one of them"),
     ],
 )
 def test_token_misconfiguration_is_refused(tmp_path: Path, kwargs: dict[str, str], message: str) -> None:
@@ -297,17 +310,20 @@ def test_mutating_routes_take_json_bodies_only(store: Store, headers: dict[str, 
 
 
 def test_json_bodies_and_bodyless_posts_pass_the_type_check(store: Store) -> None:
-    client = make_client(store, retrain_min_interval_seconds=0)  # two retrains in a row below
+    client = make_client(store, retrain_min_interval_seconds=0)  # retrains in a row below
     resp = client.post(
         "/api/v1/robots/sim/simulate/damage",
         content=b'{"kind": "imu_dead"}',
         headers={"content-type": "application/json; charset=utf-8"},
     )
     assert resp.status_code == 201
-    # what the dashboard's fetch sends: no body, no content type; or a body-less JSON post
-    assert client.post("/api/v1/robots/sim/topology/retrain").status_code == 202
-    resp = client.post("/api/v1/robots/sim/topology/retrain", headers={"content-type": "application/json"})
-    assert resp.status_code == 202
+    # a body-less post says it is JSON or sends the intent header; with neither it is refused
+    url = "/api/v1/robots/sim/topology/retrain"
+    assert client.post(url, headers=INTENT).status_code == 202
+    assert client.post(url, headers={"content-type": "application/json"}).status_code == 202
+    resp = client.post(url)
+    assert resp.status_code == 403 and "X-Requested-With: bodyhealth" in resp.json()["detail"]
+    assert client.post(url, headers={"X-Requested-With": "XMLHttpRequest"}).status_code == 403
 
 
 def test_untrusted_host_header_is_400(store: Store) -> None:
@@ -344,20 +360,36 @@ def test_no_cors(store: Store) -> None:
     assert got.status_code == 200 and "access-control-allow-origin" not in got.headers
 
 
-def test_openapi_declares_the_bearer_scheme_on_api_routes(store: Store) -> None:
-    spec = make_client(store, api_token=WRITE).get("/openapi.json").json()
+@pytest.mark.parametrize(
+    ("settings", "reads", "writes"),
+    [
+        ({}, False, False),
+        ({"api_token": WRITE}, True, True),
+        ({"api_token": WRITE, "read_token_required": False}, False, True),
+    ],
+    ids=["no-token", "token", "token-open-reads"],
+)
+def test_openapi_declares_what_each_operation_needs(
+    store: Store, settings: dict[str, Any], reads: bool, writes: bool
+) -> None:
+    """Per operation: the bearer scheme where a token is needed, an empty list where none is."""
+    client = make_client(store, **settings)
+    spec = client.get("/openapi.json").json()
     scheme = spec["components"]["securitySchemes"]["bearer"]
     assert (scheme["type"], scheme["scheme"]) == ("http", "bearer")
     n = 0
     for path, ops in spec["paths"].items():
         for method, op in ops.items():
+            mutating = method.upper() in MUTATING_METHODS
+            needed = path.startswith("/api/v1") and (writes if mutating else reads)
+            assert op["security"] == ([{"bearer": []}] if needed else []), (method, path)
             if path.startswith("/api/v1"):
-                assert op.get("security") == [{"bearer": []}], (method, path)
                 assert "401" in op["responses"], (method, path)
                 n += 1
-            else:
-                assert "security" not in op, (method, path)
-    assert n == 16
+            # and the answers agree with the document
+            if needed and not mutating and "{" not in path:
+                assert client.get(path).status_code == 401, path
+    assert n == len(mutating_routes(client)) + len(read_routes(client))
 
 
 def test_serve_refuses_a_network_address_without_a_token(

@@ -78,7 +78,7 @@ def test_retrain_is_limited_per_robot_with_retry_after(store: Store) -> None:
     app = create_app(
         store, settings=settings, worker=worker, extra_state={"retrain_limiter": RetrainLimiter(30, clock)}
     )
-    c = TestClient(app)
+    c = TestClient(app, headers={"X-Requested-With": "bodyhealth"})
     url = "/api/v1/robots/{}/topology/retrain"
     assert c.post(url.format("a"), params={"method": "mlp"}).status_code == 202
     resp = c.post(url.format("a"))
@@ -97,12 +97,15 @@ def test_retrain_is_limited_per_robot_with_retry_after(store: Store) -> None:
 def test_retrain_limit_comes_from_the_settings_and_zero_disables_it(store: Store) -> None:
     store.write(batch("a"))
     url = "/api/v1/robots/a/topology/retrain"
-    limited = TestClient(create_app(store, settings=Settings(database_url="sqlite://"), worker=Recorder()))
+    app = create_app(store, settings=Settings(database_url="sqlite://"), worker=Recorder())
+    limited = TestClient(app, headers={"X-Requested-With": "bodyhealth"})
     assert [limited.post(url).status_code for _ in range(3)] == [202, 429, 429]
     assert int(limited.post(url).headers["retry-after"]) == 30
     free = Settings(database_url="sqlite://", retrain_min_interval_seconds=0)
     worker = Recorder()
-    unlimited = TestClient(create_app(store, settings=free, worker=worker))
+    unlimited = TestClient(
+        create_app(store, settings=free, worker=worker), headers={"X-Requested-With": "bodyhealth"}
+    )
     assert [unlimited.post(url).status_code for _ in range(3)] == [202, 202, 202]
     assert len(worker.requests) == 3
 

@@ -244,7 +244,7 @@ def test_unreachable_scheduler_degrades_then_retrains_resume(tmp_path: Path) -> 
         w = _worker(store, settings, cluster)
         cluster.start()
         app = create_app(store, settings=settings, worker=w)
-        with TestClient(app) as http:
+        with TestClient(app, headers={"X-Requested-With": "bodyhealth"}) as http:
             w.request("arm", "network")
             r = w.run_cycle()["arm"]
             assert r.methods == ["fast"] and r.topology is not None  # monitoring goes on
@@ -326,7 +326,7 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
         assert daemon.store is not None and daemon.cluster is not None
         assert daemon.cluster.fault is None  # nothing asked for it yet: not started, not a fault
         feed(daemon.store, synth(np.random.default_rng(7), seconds=8))
-        with TestClient(app) as http:
+        with TestClient(app, headers={"X-Requested-With": "bodyhealth"}) as http:
             assert http.post("/api/v1/robots/arm/topology/retrain?method=network").status_code == 202
             t0 = time.monotonic()
             assert daemon.worker is not None

@@ -88,7 +88,10 @@ def farm() -> Farm:
 
 @pytest.fixture
 def client(store: Store, farm: Farm) -> TestClient:
-    return TestClient(create_app(store, settings=SETTINGS, damage=farm))
+    # a client of the API: its body-less requests say so (tests/service/test_security_origin.py)
+    return TestClient(
+        create_app(store, settings=SETTINGS, damage=farm), headers={"X-Requested-With": "bodyhealth"}
+    )
 
 
 # ---------------------------------------------------------------------------------------- alert ids
@@ -396,12 +399,13 @@ def test_real_farm_arguments_error_is_clean(store: Store) -> None:
 EXPECTED: dict[tuple[str, str], set[str]] = {
     ("get", "/api/v1/robots"): {"401", "503"},
     ("get", "/api/v1/robots/{robot}"): {"401", "404", "422", "503"},
-    ("post", "/api/v1/robots/{robot}/frames"): {"401", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/frames"): {"401", "403", "413", "415", "422", "503"},
     ("get", "/api/v1/robots/{robot}/status"): {"401", "404", "422", "503"},
     ("get", "/api/v1/robots/{robot}/topology"): {"401", "404", "422", "503"},
     ("get", "/api/v1/robots/{robot}/topology/history"): {"401", "404", "422", "503"},
     ("post", "/api/v1/robots/{robot}/topology/retrain"): {
         "401",
+        "403",
         "404",
         "409",
         "413",
@@ -410,12 +414,29 @@ EXPECTED: dict[tuple[str, str], set[str]] = {
         "429",
         "503",
     },
-    ("post", "/api/v1/robots/{robot}/baseline"): {"401", "404", "409", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/baseline"): {"401", "403", "404", "409", "413", "415", "422", "503"},
     ("get", "/api/v1/alerts"): {"401", "422", "503"},
     ("get", "/api/v1/robots/{robot}/alerts"): {"401", "404", "422", "503"},
-    ("post", "/api/v1/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422", "503"},
-    ("post", "/api/v1/robots/{robot}/alerts/{alert_id}/ack"): {"401", "404", "413", "415", "422", "503"},
-    ("post", "/api/v1/robots/{robot}/simulate/damage"): {"401", "404", "409", "413", "415", "422", "503"},
+    ("post", "/api/v1/alerts/{alert_id}/ack"): {"401", "403", "404", "413", "415", "422", "503"},
+    ("post", "/api/v1/robots/{robot}/alerts/{alert_id}/ack"): {
+        "401",
+        "403",
+        "404",
+        "413",
+        "415",
+        "422",
+        "503",
+    },
+    ("post", "/api/v1/robots/{robot}/simulate/damage"): {
+        "401",
+        "403",
+        "404",
+        "409",
+        "413",
+        "415",
+        "422",
+        "503",
+    },
     ("get", "/readyz"): {"503"},
 }
 
