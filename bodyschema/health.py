@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from bodyschema.recording import Recording
-from bodyschema.timing import aligned_recording
+from bodyschema.timing import aligned_recording, timed_view
 from bodyschema.topology import Topology
 
 __all__ = [
@@ -280,6 +280,7 @@ def one_clock(rec: Recording, current: Topology | None = None) -> Recording:
     reported in ``current.timing`` (none: no lag); when the streams overlap too little for that, the
     encoder positions are interpolated at the IMU stamps (:meth:`Recording.synced`).
     """
+    rec = timed_view(rec)  # positions only, on one clock: aligned like two clocks (t_q = t)
     if rec.t_q is None:
         return rec.derived()
     timing = current.timing if current is not None else {}

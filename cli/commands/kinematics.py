@@ -80,7 +80,10 @@ def format_kinematics(kin: Kinematics) -> str:
     lines = [f"band {kin.band_hz:.1f} Hz, IMU lag {kin.lag_ms:.2f} ms, {kin.samples} samples"]
     for name, k in kin.imus.items():
         if k.axis is None or k.lever_arm is None:
-            lines.append(f"{name}  {k.joint or 'base'}  -- {k.reason}")
+            from bodyschema.diff import UNDETERMINED_HERE
+
+            where = "?" if k.reason.startswith(UNDETERMINED_HERE) else (k.joint or "base")  # not placed
+            lines.append(f"{name}  {where}  -- {k.reason}")
             continue
         ax = " ".join(f"{x:+.3f}" for x in k.axis)
         la = " ".join(f"{x * 1e3:+.1f}" for x in k.lever_arm)

@@ -97,7 +97,10 @@ def format_tree(topo: Topology) -> str:
         └── j2  (0.50)  [imus: b]
     method fast, 0.10 CPU s, unique
     """
-    imus = _imus_by_joint(topo)
+    from bodyschema.diff import UNDETERMINED_HERE, open_parts
+
+    open_ = open_parts(topo)  # parts the data did not place are listed apart, never as on a link
+    imus = {j: [i for i in v if f"imu:{i}" not in open_] for j, v in _imus_by_joint(topo).items()}
     und = set(topo.undetermined)
     lines = ["base" + (f"  [imus: {', '.join(imus[None])}]" if imus.get(None) else "")]
 
@@ -115,6 +118,8 @@ def format_tree(topo: Topology) -> str:
     walk(None, "")
     if und:
         lines.append("insufficient excitation (undetermined): " + ", ".join(sorted(und)))
+    if open_:
+        lines.append(f"{UNDETERMINED_HERE}: " + "; ".join(open_.values()))
     tail = f"method {topo.method}, {topo.seconds:.2f} CPU s, "
     tail += "unique" if topo.unique else f"not unique: {1 + len(topo.candidates)} trees fit the data"
     lines.append(tail)
