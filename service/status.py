@@ -21,6 +21,13 @@ How the answer is decided, in this order:
 3. **healthy** — only when none of that holds: one tree fits, every joint was placed, and the diff
    against a unique baseline finds nothing.
 
+Beside the answer: what the worker waits on for the robot (``waiting``: the network confirmation of a
+pending alert, the networks' answer a baseline needs, each since when and until when it waits; the
+robot's retrains in the training queue, ``queue``), as the worker last wrote it
+(:meth:`~service.store.Store.set_waiting`), and what the sensor networks say of a baseline adopted
+without them (``baseline_networks``, :func:`service.alert_path.baseline_verdict`): one they
+contradict makes an otherwise healthy robot undetermined.
+
 Example
 -------
 >>> from bodyschema.topology import Topology
@@ -37,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -44,6 +52,7 @@ from typing import Any, Literal
 from bodyschema.diff import deciding_joints, diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
 from bodyschema.findings import ALERT_KINDS, Diff
 from bodyschema.topology import Topology
+from service.alert_path import baseline_verdict
 from service.store import AlertRecord, Store, TopologyRecord
 
 __all__ = [
@@ -56,6 +65,7 @@ __all__ = [
     "robot_status",
     "robot_statuses",
     "trees_fit",
+    "wait_text",
 ]
 
 StatusValue = Literal["healthy", "damaged", "undetermined"]
@@ -78,7 +88,9 @@ class RobotStatus:
     each on its own with the others still, would decide between the trees or place an unplaced joint.
     ``topology`` is the estimate judged; ``current`` and ``baseline`` are the store's records when the
     answer was read from a store. ``network`` is the robot's newest sensor-network topology (when
-    another method is judged): what the last retrain learned, and how it trained.
+    another method is judged): what the last retrain learned, and how it trained. ``waiting`` and
+    ``queue`` are what the worker waits on and the robot's retrains in the training queue (module
+    doc); ``baseline_networks`` what the networks say of a fast-unconfirmed baseline.
     """
 
     robot: str
@@ -95,6 +107,9 @@ class RobotStatus:
     current: TopologyRecord | None = None
     baseline: TopologyRecord | None = None
     network: TopologyRecord | None = None
+    waiting: tuple[dict[str, Any], ...] = ()
+    queue: tuple[dict[str, Any], ...] = ()
+    baseline_networks: str = ""
 
     @property
     def timing(self) -> dict[str, float | None]:
@@ -146,7 +161,23 @@ def _alert_text(a: AlertRecord) -> str:
         where = f" ({f.get('from') or 'base'} → {f.get('to') or 'base'})"
     else:
         where = f" ({f['detail']})" if f.get("detail") else ""
-    return f"{a.kind} on {a.part}{where}"
+    word = " [unconfirmed by the sensor networks]" if a.confirmed is False else ""
+    return f"{a.kind} on {a.part}{where}{word}"
+
+
+def _when(t: float | None) -> str:
+    """A wall time as UTC, to the second."""
+    return "?" if t is None else time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(float(t)))
+
+
+def wait_text(w: dict[str, Any]) -> str:
+    """One wait of the worker's record as a sentence.
+
+    >>> wait_text({"what": "baseline: the sensor networks' answer", "since": 60.0})
+    "waiting on baseline: the sensor networks' answer since 1970-01-01 00:01:00 UTC"
+    """
+    until = f" (at most until {_when(w['until'])})" if w.get("until") is not None else ""
+    return f"waiting on {w.get('what', '?')} since {_when(w.get('since'))}{until}"
 
 
 def _finding_text(f: dict[str, Any]) -> str:
@@ -211,7 +242,7 @@ def judge(
     if pending:
         reasons.append(
             "seen but not yet confirmed (an alert needs several worker cycles in a row): "
-            + "; ".join(_alert_text(a) for a in pending)
+            + "; ".join(_alert_text(a) + (f", {a.note}" if a.note else "") for a in pending)
         )
     if diff is not None and not ambiguous:
         # a difference already pending as an alert is reported once, above
@@ -245,6 +276,7 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
         store.alerts(robot, active=True),
         store.alerts(robot, state="pending"),
         store.latest_topology(robot, method="network"),
+        info.waiting if (info := store.robot(robot)) is not None else {},
     )
 
 
@@ -255,10 +287,29 @@ def _judged(
     active: Sequence[AlertRecord],
     pending: Sequence[AlertRecord],
     net: TopologyRecord | None,
+    waiting: dict[str, Any] | None = None,
 ) -> RobotStatus:
-    """:func:`judge`, with the newest network topology beside it when there is one."""
+    """:func:`judge`, with the newest network topology beside it when there is one, what the worker
+    waits on, and what the networks say of a baseline adopted without them (module doc)."""
     st = judge(robot, cur, base, active, pending)
-    return dataclasses.replace(st, network=net) if net is not None else st
+    waits = tuple((waiting or {}).get("waits") or ())
+    verdict, why = baseline_verdict(base, net)
+    reasons = list(st.reasons)
+    if why:
+        reasons.append(why)
+    reasons.extend(wait_text(w) for w in waits)
+    status = st.status
+    if verdict == "contradicted" and status == "healthy":
+        status, reasons = "undetermined", reasons[1:]  # "one tree fits ... matches the baseline" no more
+    return dataclasses.replace(
+        st,
+        status=status,
+        reasons=tuple(reasons),
+        network=net,
+        waiting=waits,
+        queue=tuple((waiting or {}).get("queue") or ()),
+        baseline_networks=verdict,
+    )
 
 
 def _by_robot(alerts: Sequence[AlertRecord]) -> dict[str, list[AlertRecord]]:
@@ -288,6 +339,7 @@ def robot_statuses(
     anyway = store.latest_topologies() if method is None else {}
     net = store.latest_topologies("network")
     bases = store.baselines()
+    waiting = store.waiting()
     active, pending = _by_robot(store.alerts(active=True)), _by_robot(store.alerts(state="pending"))
     kept: dict[str, tuple[Any, RobotStatus]] = {} if judged is None else judged
     out: dict[str, RobotStatus] = {}
@@ -298,6 +350,7 @@ def robot_statuses(
             active.get(robot, []),
             pending.get(robot, []),
             net.get(robot),
+            waiting.get(robot, {}),
         )
         # compared, never hashed: alert records compare by value (their finding too)
         key = (
@@ -306,6 +359,7 @@ def robot_statuses(
             tuple(args[2]),
             tuple(args[3]),
             _record_key(args[4]),
+            args[5],
         )
         hit = kept.get(robot)
         if hit is not None and hit[0] == key:

@@ -3,8 +3,13 @@
 Readiness follows what happens to the data, not only whether the database answers a ping: the store's
 SQLite file must still be the one it opened (:meth:`Store.storage_fault`), the ingest writer's newest
 write must have succeeded (:meth:`Pipeline.write_health`: a full disk answers pings and refuses every
-commit) and the worker's heartbeat must be fresh. A 503 names each reason in ``reasons`` (and all of
-them joined in ``reason``), so an operator reads the cause off the probe.
+commit) and the worker must be alive. A 503 names each reason in ``reasons`` (and all of them joined
+in ``reason``), so an operator reads the cause off the probe.
+
+Readiness means the service can take frames and answer. A worker in this process whose thread runs but
+whose heartbeat is old is *slow*, not dead (a loaded machine stretches its cycles; ingest and the API go
+on): it is answered 200 with its lag in ``degraded`` and ``checks.worker_lag``. A worker thread that
+died, or, with no worker in this process, a heartbeat older than a few intervals, is a 503.
 
 A training cluster that cannot be reached (:mod:`service.cluster`) is a *degraded* state, not a
 reason to be unready: ingest, the API and the fast monitoring every cycle go on without it, and a
@@ -68,8 +73,8 @@ def readyz(
     checks["writes"] = health.as_dict()
     if health.failing:
         reasons.append(f"writes failing: {health.reason}")
-    _check_worker(store, settings, worker, checks, reasons)
     degraded: list[str] = []
+    _check_worker(store, settings, worker, checks, reasons, degraded)
     if isinstance(worker, TrainingStatus):
         training = worker.training_fault()
         checks["training"] = training or "ok"
@@ -91,8 +96,10 @@ def _check_worker(
     worker: MonitorControl | None,
     checks: dict[str, object],
     reasons: list[str],
+    degraded: list[str],
 ) -> None:
-    """The worker's heartbeat (and thread, when there is one) into ``checks``; why not, into ``reasons``."""
+    """The worker's heartbeat (and thread, when there is one) into ``checks``; why not ready, into
+    ``reasons``; a slow but running worker, into ``degraded`` (module doc)."""
     beat = None
     if checks["database"]:
         try:
@@ -104,8 +111,17 @@ def _check_worker(
     age = None if beat is None else time.time() - beat
     checks["worker_heartbeat_age_s"] = None if age is None else round(age, 3)
     checks["worker"] = age is not None and age <= max_age
+    progress = getattr(worker, "progress", None)
+    if callable(progress):
+        checks["worker_lag"] = progress()
     if worker is not None:
         checks["worker_thread"] = worker.running
+        if not worker.running:
+            reasons.append("worker thread not running")
+            return
+        if not checks["worker"] and age is not None:
+            degraded.append(f"worker slow: heartbeat {age:.0f} s old (allowed {max_age:.0f} s)")
+            return
     if not checks["worker"] and checks["database"]:
         reasons.append("no worker heartbeat" if age is None else f"worker heartbeat {age:.0f} s old")
 

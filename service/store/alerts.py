@@ -58,7 +58,9 @@ class AlertRecord:
         return self.state != "resolved"
 
 
-def resolve_open_alerts(s: Session, rid: int, wall_time: float, note: str = "") -> int:
+def resolve_open_alerts(
+    s: Session, rid: int, wall_time: float, note: str = "a new baseline was approved"
+) -> int:
     """Resolve every open (pending or active) alert of robot ``rid`` at ``wall_time``, in the caller's
     transaction, saying why in ``note``; returns how many were open."""
     res = s.execute(

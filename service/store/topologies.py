@@ -226,7 +226,7 @@ class TopologiesMixin(StoreBase):
                     raise LookupError(f"no topology learned for {robot!r} yet")
                 topo = Topology.from_json(newest[0].topology)
             bid = _insert_baseline(s, rid, topo, source, now, None)
-            resolve_open_alerts(s, rid, now, f"a new baseline was approved ({source})")
+            resolve_open_alerts(s, rid, now)
             row = s.get(Baseline, bid)
             assert row is not None
             return _baseline_record(row, robot)
