@@ -11,6 +11,8 @@ import itertools
 import json
 import math
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -30,7 +32,7 @@ ICUB = ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat"
 GO1_MAP = _ROOT / "examples" / "import" / "go1-trot.toml"
 ICUB_MAP = _ROOT / "examples" / "import" / "icub-walking.toml"
 
-pytestmark = pytest.mark.skipif(
+needs_logs = pytest.mark.skipif(
     not (GO1.is_file() and ICUB.is_file()),
     reason=f"robot logs missing in {ROBOTS} (set BODYHEALTH_ROBOTS_DIR to the folder holding go1-trot/ "
     "and icub-walking/)",
@@ -67,6 +69,7 @@ def _repeats(rows: list[dict[str, str]], cols: list[str]) -> int:
     return sum(a == b for a, b in itertools.pairwise(vals))
 
 
+@needs_logs
 def test_go1_imports_with_its_map(go1, go1_rows) -> None:
     rec, rep = go1
     assert rec.joint_names == GO1_JOINTS
@@ -84,6 +87,7 @@ def test_go1_imports_with_its_map(go1, go1_rows) -> None:
     assert c["gaps"]["count"] == 0 and c["jitter_std_s"] == pytest.approx(np.diff(t).std(), rel=1e-12)
 
 
+@needs_logs
 def test_go1_held_accelerometer_is_measured(go1, go1_rows) -> None:
     rec, rep = go1
     steps = rec.n_samples - 1
@@ -98,6 +102,7 @@ def test_go1_held_accelerometer_is_measured(go1, go1_rows) -> None:
     assert acc["unit"] == "m/s^2" and acc["unit_assumed"] is False
 
 
+@needs_logs
 def test_go1_encoder_quantum_is_geared_not_a_power_of_two(go1) -> None:
     _, rep = go1
     hip = rep["encoders"]["FR_hip"]
@@ -110,6 +115,7 @@ def test_go1_encoder_quantum_is_geared_not_a_power_of_two(go1) -> None:
     assert rep["encoders"]["FR_calf"]["matches_power_of_two"] is None
 
 
+@needs_logs
 def test_icub_imports_with_its_map(icub) -> None:
     rec, rep = icub
     assert rec.joint_names == tuple(ICUB_JOINTS) and rec.imu_names == ("root_link_imu",)
@@ -134,6 +140,7 @@ def test_icub_imports_with_its_map(icub) -> None:
     assert abs(c["min_step_s"] - 8.4e-3) <= 0.05e-3 and abs(c["max_step_s"] - 11.4e-3) <= 0.05e-3
 
 
+@needs_logs
 def test_icub_encoder_quantum_is_2pi_over_4096(icub) -> None:
     _, rep = icub
     assert set(rep["encoders"]) == set(ICUB_JOINTS)
@@ -142,6 +149,7 @@ def test_icub_encoder_quantum_is_2pi_over_4096(icub) -> None:
         assert abs(e["quantum_rad"] / (2 * math.pi / 4096) - 1) <= QUANTUM_SCALE_TOL, joint
 
 
+@needs_logs
 @pytest.mark.parametrize("which", ["go1", "icub"])
 def test_round_trip_is_bit_for_bit(which: str, request, tmp_path) -> None:
     rec, rep = request.getfixturevalue(which)
@@ -168,6 +176,7 @@ def _copy_without(src: Path, dst: Path, drop: set[str]) -> None:
                 a.copy(k, b)
 
 
+@needs_logs
 def test_a_recording_lacking_optional_extras_imports_with_the_same_map(tmp_path) -> None:
     other = tmp_path / "other.mat"
     _copy_without(ICUB, other, {"lfWrench", "rfWrench", "imuRot", "imgTime"})
@@ -176,6 +185,7 @@ def test_a_recording_lacking_optional_extras_imports_with_the_same_map(tmp_path)
     assert "lf_wrench" not in rec.extra and rec.extra["base_pos"].shape == (8851, 3)
 
 
+@needs_logs
 def test_a_required_stream_missing_is_named_with_close_matches(tmp_path) -> None:
     other = tmp_path / "other.mat"
     _copy_without(ICUB, other, {"imuOmega"})
@@ -184,6 +194,7 @@ def test_a_required_stream_missing_is_named_with_close_matches(tmp_path) -> None
     assert {"imuAcc", "imuRot"} <= set(str(err.value).split("close matches: ")[1].split(", "))
 
 
+@needs_logs
 def test_cli_json_is_the_report_kept_in_the_recording(tmp_path, capsys) -> None:
     out = tmp_path / "go1.npz"
     assert main(["import", "csv", str(GO1), "--map", str(GO1_MAP), "-o", str(out), "--json"]) == 0
@@ -194,3 +205,68 @@ def test_cli_json_is_the_report_kept_in_the_recording(tmp_path, capsys) -> None:
     text = capsys.readouterr().out
     assert "acc:root_link_imu: m/s^2; repeats 0.6 % of rows" in text
     assert "26 with a quantum 2pi/2^bits" in text
+
+
+MULTI_MAP = """
+[clock]
+unit = "ms"
+[joints]
+positions = "pos"
+names = ["a", "b"]
+unit = "deg"
+velocities = "vel"
+velocity_unit = "deg/s"
+time = "t_enc"
+[[imus]]
+name = "imu0"
+acc = ["ax", "ay", "az"]
+acc_unit = "g"
+gyro = "gyro"
+time = "t_imu"
+"""
+
+
+def test_separate_clocks_make_a_multirate_recording_and_units_are_converted(tmp_path) -> None:
+    """Encoders at 500 Hz and the IMU at 200 Hz on their own clocks (in ms), angles in degrees, the
+    accelerometer in g: the recording holds SI units and the report says which units were stated."""
+    te, ti = np.arange(50) * 2.0, np.arange(20) * 5.0 + 0.3
+    rng = np.random.default_rng(7)
+    pos, acc = rng.normal(size=(50, 2)), rng.normal(size=(20, 3))
+    with h5py.File(tmp_path / "log.mat", "w") as f:
+        for k, v in {"t_enc": te[:, None], "t_imu": ti[:, None], "pos": pos, "vel": 2 * pos,
+                     "gyro": np.zeros((20, 3))}.items():  # fmt: skip
+            f.create_dataset(k, data=v.T).attrs["MATLAB_class"] = np.bytes_(b"double")
+        for i, axis in enumerate("xyz"):
+            f.create_dataset(f"a{axis}", data=acc[:, i][None, :]).attrs["MATLAB_class"] = np.bytes_(b"double")
+    (tmp_path / "map.toml").write_text(MULTI_MAP)
+    rec, rep = import_log(tmp_path / "log.mat", tmp_path / "map.toml", "mat")
+    assert rec.is_multirate and rec.t_q.shape == (50,) and rec.t.shape == (20,)
+    np.testing.assert_allclose(rec.t_q, te * 1e-3, rtol=1e-15)
+    np.testing.assert_allclose(rec.q, np.deg2rad(pos), rtol=1e-15)
+    np.testing.assert_allclose(rec.qd, np.deg2rad(2 * pos), rtol=1e-15)
+    np.testing.assert_allclose(rec.acc[:, 0], acc * 9.80665, rtol=1e-15)
+    assert rep["clocks"]["t_enc"]["rate_hz"] == pytest.approx(500) and rep["clocks"]["t_imu"][
+        "rate_hz"
+    ] == pytest.approx(200)
+    assert rep["streams"]["q"]["unit"] == "deg" and rep["streams"]["q"]["unit_assumed"] is False
+    assert (rep["streams"]["gyro:imu0"]["unit"], rep["streams"]["gyro:imu0"]["unit_assumed"]) == (
+        "rad/s",
+        True,
+    )
+    assert rep["streams"]["gyro:imu0"]["repeat_fraction"] == 1.0  # an all-zero gyro: every row repeats
+    assert rep["units"]["gravity"]["assumed"] is True and rep["units"]["time"] == {
+        "unit": "ms",
+        "assumed": False,
+    }
+
+
+def test_building_the_cli_parser_loads_no_log_reader() -> None:
+    code = (
+        "import sys\nfrom cli.main import build_parser\n"
+        "build_parser().parse_args(['import', 'mat', 'x.mat', '--map', 'm.toml', '-o', 'o.npz'])\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('h5py', 'sim2real')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    )
+    assert out.stdout.strip() == "[]"
