@@ -172,6 +172,7 @@ class _Run:
         self.watch: AlertWatch | None = None
         self.phases: dict[str, list[float]] = {}
         self.list_errors = 0
+        self.approved = 0
 
     # ------------------------------------------------------------------ helpers
     def now(self) -> float:
@@ -190,6 +191,14 @@ class _Run:
         while (wait := min(until, self.deadline) - time.monotonic()) > 0:
             self.check_alive()
             time.sleep(min(1.0, wait))
+
+    def readiness(self) -> str:
+        """``/readyz`` in a few words (a dead worker or database shows there), for a run that missed."""
+        try:
+            r = self.api.get("/readyz")
+        except httpx.HTTPError as err:
+            return type(err).__name__
+        return f"{r.status_code} {r.text[:300]}"
 
     def phase(self, name: str, start: float) -> None:
         self.phases[name] = [round(start, 1), round(self.now(), 1)]
@@ -230,6 +239,8 @@ class _Run:
                 _log(f"run {self.index}: {self.now():.0f} s, baselines {self.baselines}")
             time.sleep(self.o.poll_seconds)
         self.robots = sorted(self.baselines)
+        if not self.baselines or None in self.baselines.values():
+            self.notes.append(f"baselines missed; /readyz then: {self.readiness()}")
         if self.watch is not None:
             self.watch.robots = self.robots
         self.phase("baseline", 0.0)
@@ -243,7 +254,8 @@ class _Run:
             self.sleep_until(start + (k + 0.5) * seconds / n)
             if time.monotonic() >= self.deadline:
                 break
-            robot = robots[k % len(robots)]
+            robot = robots[self.approved % len(robots)]
+            self.approved += 1
             took, status = timed(lambda robot=robot: self.api.post(f"/api/v1/robots/{robot}/baseline"))
             self.last_approval_wall[robot] = time.time()
             lat.append(took)
@@ -393,28 +405,30 @@ def run_once(opts: Options, index: int) -> dict[str, Any]:
     """One run, every child process ended before it returns (also on Ctrl-C or an error)."""
     data_dir = Path(tempfile.mkdtemp(prefix="bench-alerts-"))
     load_before = os.getloadavg()[0]
-    busy = BusyLoops(opts.busy)
-    _log(f"run {index}: {opts.busy} busy loops on cores {busy.cores[: max(1, opts.busy)]}")
+    busy = BusyLoops()
     r = _Run(opts, index, data_dir)
+    code = busy_alive = None
     try:
+        busy.start(opts.busy)
+        _log(f"run {index}: {opts.busy} busy loops on cores {busy.cores[: max(1, opts.busy)]}")
         r.start()
         r.wait_baselines()
         if any(v is not None for v in r.baselines.values()):
             r.healthy()
-            r.inject()
-            r.wait_alerts()
-        else:
-            r.notes.append("no robot reached a baseline within the limit: nothing injected")
+        r.inject()  # a damage of a robot without a baseline is reported as not injected
+        r.wait_alerts()
     except RuntimeError as err:
         r.notes.append(f"run ended early: {str(err)[:2000]}")
         _log(f"run {index}: ended early: {str(err)[:500]}")
     finally:
-        if r.watch is not None:
-            r.watch.stop_event.set()
-        code = r.service.stop(timeout=120)
-        busy_alive = busy.alive()
-        busy.stop()
-        r.api.close()
+        try:
+            if r.watch is not None:
+                r.watch.stop_event.set()
+            code = r.service.stop(timeout=120)
+            busy_alive = busy.alive()
+        finally:
+            busy.stop()
+            r.api.close()
         _log(f"run {index}: service stopped (exit code {code}); busy loops running at the end: {busy_alive}")
     out = r.result() | {
         "load_before": load_before,

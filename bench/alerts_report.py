@@ -356,7 +356,7 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
         f"statuses {_statuses(fl.get('statuses', {}))}; Retry-After {fl.get('retry_after', '—')}.",
         "",
     ]
-    lines += [f"- {n}" for n in r.get("notes", [])] + ([""] if r.get("notes") else [])
+    lines += [f"- {' '.join(n.split())[:500]}" for n in r.get("notes", [])] + ([""] if r.get("notes") else [])
     return lines
 
 

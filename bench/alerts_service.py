@@ -39,9 +39,11 @@ class BusyLoops:
     """``n`` processes each spinning ``while True: pass`` on a core of its own (round robin over the
     cores this process may use): the other work of a busy robot computer."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self) -> None:
         self.cores = sorted(os.sched_getaffinity(0))
         self.procs: list[subprocess.Popen[bytes]] = []
+
+    def start(self, n: int) -> None:
         for k in range(n):
             core = self.cores[k % len(self.cores)]
             self.procs.append(subprocess.Popen([sys.executable, "-c", _BUSY, str(core)]))
@@ -143,11 +145,14 @@ class Service:
         try:
             return proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(30)
-            return None
+            pass
+        finally:  # also when interrupted while waiting: nothing of it outlives the bench
+            if proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(30)
+        return None
 
 
 class Api:
