@@ -85,7 +85,7 @@ class CsvLog:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.label = Path(path).name
         try:
-            with open(path, newline="", encoding="utf-8") as f:
+            with open(path, newline="", encoding="utf-8-sig") as f:  # -sig: a spreadsheet's byte-order mark
                 rows = list(csv.reader(f))
         except (OSError, UnicodeDecodeError, csv.Error) as err:
             raise RecordingError(f"{self.label}: not a readable CSV file ({err})") from err
@@ -263,7 +263,12 @@ class _Import:
                 "(qdd, the second difference of q, needs three)"
             )
         check_finite(t, label)
-        check_stamps(t, label)
+        try:
+            check_stamps(t, label)
+        except RecordingError as err:  # the loader's repair option does not apply to a log
+            raise RecordingError(
+                str(err).replace("load with repair=True to drop them", "fix the log")
+            ) from None
         self.clocks[name] = t
         return t
 

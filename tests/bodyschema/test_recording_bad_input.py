@@ -101,6 +101,13 @@ def test_time_going_backwards_is_named(tmp_path, capsys) -> None:
     rows[6][0] = "0.04"
     _write_log(tmp_path, rows)
     assert "log.csv: clock 't' goes backwards at index 6 (0.05 s -> 0.04 s" in _import_fails(tmp_path, capsys)
+    rows[6][0] = "0.05"
+    log, map_path = _write_log(tmp_path, rows)
+    with pytest.raises(
+        RecordingError,
+        match=r"^log.csv: clock 't' has duplicate stamps at index 6 \(0.05 s, 1 in all\); fix the log$",
+    ):
+        import_log(log, map_path, "csv")
 
 
 def test_unknown_column_lists_close_matches(tmp_path, capsys) -> None:
