@@ -11,6 +11,12 @@ so the cells of one robot differ only in how it was sensed. Every estimate is cl
 * **confidently wrong**: it claims one tree, decides every joint, and is wrong. A health monitor must
   never do this.
 
+Every cell is estimated a second time in its **single-clock** form: the same samples as a logger with
+one clock writes them, one ``t`` (the IMU stamps) and positions only, each IMU sample paired with the
+encoder sample nearest in time (what an approximate-time synchroniser logs); no ``t_q``, no ``qd``
+(:func:`single_clock`). Its counts are the table's last column; its skew is not compared (the pairing
+adds up to half an encoder period of its own).
+
 Skew error: for timed data, the estimated IMU-to-encoder skew (the lag less the stated on-chip filter
 delay) against the true skew plus the drift accumulated to the middle of the fit, in ms. CPU seconds
 are measured on one thread (BLAS, FFT and torch limited to one), estimate only (not the simulation).
@@ -33,7 +39,10 @@ from bodyschema.progress import progress
 from sim2real.figures import save_figure
 from simulators.sensing import PRESETS, SensingOptions
 
-__all__ = ["CELLS", "add_arguments", "run"]
+__all__ = ["CELLS", "SHAPES", "add_arguments", "run", "single_clock"]
+
+#: The two forms each cell is estimated in: as the sensing model logs it, and single-clock.
+SHAPES = ("sensed", "single-clock")
 
 #: Every non-ideal cell starts here: position-only 14-bit encoders and IMUs, both at 100 Hz, with the
 #: robot preset's clock imperfections (30 ppm drift, 0.2 ms stamp jitter), and changes one thing.
@@ -83,9 +92,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=5,
         help="seeds per catalog robot run on the robot preset with the fast method (0: none)",
     )
+    parser.add_argument(
+        "--single-clock",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also estimate every cell in its single-clock form (one t, positions only)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="robots simulated and estimated in parallel")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+
+
+def single_clock(rec: Any) -> Any:
+    """``rec`` as a one-clock logger would write it: the IMU stamps, each IMU sample with the encoder
+    sample nearest in time (IMU samples outside the encoder stream's span dropped), positions only.
+
+    >>> from bodyschema.recording import Recording
+    >>> t, tq = np.arange(5) * 0.01, np.arange(9) * 0.005 + 0.001
+    >>> rec = Recording(t=t, t_q=tq, joint_names=["j"], q=tq[:, None], imu_names=["i"],
+    ...                 acc=np.zeros((5, 1, 3)), gyro=np.zeros((5, 1, 3)))
+    >>> one = single_clock(rec)
+    >>> one.t_q is None, one.t.tolist(), one.q[:, 0].tolist()
+    (True, [0.01, 0.02, 0.03, 0.04], [0.011, 0.021, 0.031, 0.041])
+    """
+    if rec.t_q is None:
+        return replace(rec, qd=None, qdd=None)
+    keep = (rec.t >= rec.t_q[0]) & (rec.t <= rec.t_q[-1])
+    t = rec.t[keep]
+    hi = np.clip(np.searchsorted(rec.t_q, t), 1, len(rec.t_q) - 1)
+    near = np.where(t - rec.t_q[hi - 1] <= rec.t_q[hi] - t, hi - 1, hi)
+    extra = {k: (v[keep] if v.shape[:1] == rec.t.shape else v) for k, v in rec.extra.items()}
+
+    def pick(v: np.ndarray | None) -> np.ndarray | None:
+        return None if v is None else v[keep]
+
+    return replace(
+        rec,
+        t=t,
+        t_q=None,
+        q=rec.q[near],
+        qd=None,
+        qdd=None,
+        acc=rec.acc[keep],
+        gyro=rec.gyro[keep],
+        ref_quat=pick(rec.ref_quat),
+        ref_pos=pick(rec.ref_pos),
+        extra=extra,
+    )
 
 
 def _classify(topo: Any, truth_parent: dict, truth_imu: dict) -> str:
@@ -97,9 +150,8 @@ def _classify(topo: Any, truth_parent: dict, truth_imu: dict) -> str:
 
 
 def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
-    """Simulate one robot and estimate it under every cell (runs in a worker process)."""
-    from bodyschema.estimate import estimate_topology
-    from bodyschema.threads import blas_threads, set_torch_threads
+    """Simulate one robot and estimate it under every cell, in both shapes (runs in a worker process)."""
+    from bodyschema.threads import set_torch_threads
     from simulators.random_robot import random_robot
     from simulators.sensing import apply_sensing
     from simulators.simulation import Simulation
@@ -110,45 +162,50 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
     robot_ss, sim_ss, sense_ss = ss.spawn(3)
     robot = random_robot(np.random.default_rng(robot_ss), n, rate=1000.0)
     fine = Simulation(robot, seed=sim_ss, rate=1000.0).advance(seconds=job["seconds"])
-    truth_parent, truth_imu = fine.truth_parent_map, fine.truth_imu_map
     rows = []
     for c, (cell, opts) in enumerate(CELLS.items()):
         if opts is None:
             rec = fine.select(slice(None, None, 10))  # 100 Hz, synced, exact velocities
         else:
             rec = apply_sensing(fine, opts, np.random.default_rng(sense_ss.spawn(len(CELLS))[c]))
+        shapes = (rec, single_clock(rec)) if job.get("single_clock", True) else (rec,)
         for method in job["methods"]:
             if method != "fast" and (cell not in job["network_cells"] or index >= job["network_robots"]):
                 continue
-            kw = {"seed": 1} if method != "fast" else {}
-            with blas_threads(1):
-                start = time.process_time()
-                try:
-                    topo = estimate_topology(rec, method, **kw)
-                    verdict, err = _classify(topo, truth_parent, truth_imu), None
-                except ValueError as exc:  # refused data is an honest answer, not a crash
-                    topo, verdict, err = None, "undetermined", str(exc)
-                cpu = time.process_time() - start
-            row: dict[str, Any] = {
-                "joints": n,
-                "robot": index,
-                "imus": fine.n_imus,
-                "cell": cell,
-                "method": method,
-                "verdict": verdict,
-                "cpu_s": round(cpu, 3),
-            }
-            if err:
-                row["error"] = err
-            if topo is not None and topo.training:  # network methods: epochs trained, converged or not
-                row["epochs"] = int(topo.training["epochs"])
-                row["converged"] = bool(topo.training["converged"])
-            if topo is not None and topo.timing and opts is not None:
-                truth_ms = 1e3 * (opts.skew + 1e-6 * opts.drift_ppm * topo.timing["at_s"])
-                row["skew_ms"] = round(topo.timing["skew_ms"], 3)
-                row["skew_err_ms"] = round(topo.timing["skew_ms"] - truth_ms, 3)
-            rows.append(row)
+            for shape, one in zip(SHAPES, shapes, strict=False):
+                row = {"joints": n, "robot": index, "imus": fine.n_imus, "cell": cell, "method": method}
+                row.update(_estimate(one, method, fine, opts if shape == "sensed" else None))
+                if shape != "sensed":
+                    row["shape"] = shape
+                rows.append(row)
     return rows
+
+
+def _estimate(rec: Any, method: str, fine: Any, opts: SensingOptions | None) -> dict[str, Any]:
+    """One estimate's verdict, CPU s, training and (``opts`` given, timed data) skew error."""
+    from bodyschema.estimate import estimate_topology
+    from bodyschema.threads import blas_threads
+
+    kw = {"seed": 1} if method != "fast" else {}
+    with blas_threads(1):
+        start = time.process_time()
+        try:
+            topo = estimate_topology(rec, method, **kw)
+            verdict, err = _classify(topo, fine.truth_parent_map, fine.truth_imu_map), None
+        except ValueError as exc:  # refused data is an honest answer, not a crash
+            topo, verdict, err = None, "undetermined", str(exc)
+        cpu = time.process_time() - start
+    row: dict[str, Any] = {"verdict": verdict, "cpu_s": round(cpu, 3)}
+    if err:
+        row["error"] = err
+    if topo is not None and topo.training:  # network methods: epochs trained, converged or not
+        row["epochs"] = int(topo.training["epochs"])
+        row["converged"] = bool(topo.training["converged"])
+    if topo is not None and topo.timing and opts is not None:
+        truth_ms = 1e3 * (opts.skew + 1e-6 * opts.drift_ppm * topo.timing["at_s"])
+        row["skew_ms"] = round(topo.timing["skew_ms"], 3)
+        row["skew_err_ms"] = round(topo.timing["skew_ms"] - truth_ms, 3)
+    return row
 
 
 def _catalog_task(job: dict[str, Any]) -> dict[str, Any]:
@@ -193,6 +250,7 @@ def run(args: argparse.Namespace) -> Path:
             "methods": methods,
             "network_cells": net_cells,
             "network_robots": args.network_robots,
+            "single_clock": args.single_clock,
         }
         for n in sizes
         for i in range(args.robots)
@@ -203,6 +261,8 @@ def run(args: argparse.Namespace) -> Path:
             pool.map(_robot_task, jobs), total=len(jobs), desc="bench realism", unit="robot"
         ):
             rows.extend(part)
+    single = [r for r in rows if r.get("shape") == "single-clock"]
+    rows = [r for r in rows if "shape" not in r]
     catalog: list[dict[str, Any]] = []
     if args.catalog_seeds > 0:
         from simulators.catalog import CATALOG
@@ -221,9 +281,13 @@ def run(args: argparse.Namespace) -> Path:
         f"bodyhealth bench realism --joints {args.joints} --robots {args.robots} --seconds {args.seconds:g} "
         f"--methods {args.methods} --network-cells '{args.network_cells}' "
         f"--network-robots {args.network_robots} --catalog-seeds {args.catalog_seeds} --seed {args.seed}"
+        + ("" if args.single_clock else " --no-single-clock")
     )
     summary = _summary(rows, sizes, methods)
+    for m in methods:
+        summary[m]["single_clock"] = _single_summary([r for r in single if r["method"] == m])
     data = {"machine": machine_note(), "command": command, "summary": summary, "rows": rows}
+    data["single_clock_rows"] = single
     data["catalog"] = catalog
     text = _markdown(summary, sizes, methods, command, rows) + _catalog_markdown(catalog)
     return write_results(out, "realism", data, text, lambda path: _plot(summary, sizes, methods, path))
@@ -289,6 +353,21 @@ def _summary(rows: list[dict], sizes: list[int], methods: list[str]) -> dict[str
     return out
 
 
+def _counts(sel: list[dict]) -> dict[str, int]:
+    return {
+        "robots": len(sel),
+        "exact": sum(r["verdict"] == "exact" for r in sel),
+        "undetermined": sum(r["verdict"] == "undetermined" for r in sel),
+        "wrong": sum(r["verdict"] == "wrong" for r in sel),
+    }
+
+
+def _single_summary(sel: list[dict]) -> dict[str, Any]:
+    """Single-clock counts over every size, per cell and in all."""
+    cells = {c: _counts([r for r in sel if r["cell"] == c]) for c in CELLS}
+    return {**_counts(sel), "cells": {c: v for c, v in cells.items() if v["robots"]}}
+
+
 def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str, rows: list[dict]) -> str:
     lines = [
         "# Benchmark: body schemas from realistically sensed data",
@@ -300,7 +379,9 @@ def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str,
         "Each cell: exact / undetermined / **confidently wrong** of the robots run, and the mean CPU s "
         "per robot (estimate only). Cells other than `ideal` start from position-only 14-bit encoders and "
         "IMUs at 100 Hz with 30 ppm drift and 0.2 ms jitter, and change one thing; `robot preset` is the "
-        "default preset of the simulators (250 Hz encoders, DLPF 42 Hz, 8 ms skew, 0.5 % drops).",
+        "default preset of the simulators (250 Hz encoders, DLPF 42 Hz, 8 ms skew, 0.5 % drops). "
+        "*Single-clock*: the same samples with one `t` and positions only, each IMU sample paired with "
+        "the nearest encoder sample; exact / undetermined / **wrong** over every size.",
         "",
     ]
     for m in methods:
@@ -317,9 +398,10 @@ def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str,
                 if s["max_abs_skew_err_ms_where_exact"] is not None
                 else "."
             ),
+            *_single_line(s.get("single_clock")),
             "",
-            "| cell | " + " | ".join(f"{n} joints" for n in sizes) + " |",
-            "|---|" + "---|" * len(sizes),
+            "| cell | " + " | ".join(f"{n} joints" for n in sizes) + " | single-clock |",
+            "|---|" + "---|" * (len(sizes) + 1),
         ]
         for cell, per in s["cells"].items():
             parts = []
@@ -330,6 +412,8 @@ def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str,
                     if c is None
                     else f"{c['exact']}/{c['undetermined']}/**{c['wrong']}** ({c['cpu_s_mean']:.1f} s)"
                 )
+            one = (s.get("single_clock") or {}).get("cells", {}).get(cell)
+            parts.append("" if one is None else f"{one['exact']}/{one['undetermined']}/**{one['wrong']}**")
             lines.append(f"| {cell} | " + " | ".join(parts) + " |")
         lines.append("")
         epochs = sorted(r["epochs"] for r in rows if r["method"] == m and "epochs" in r)
@@ -345,6 +429,16 @@ def _markdown(summary: dict, sizes: list[int], methods: list[str], command: str,
         lines += ["Refused inputs (counted as undetermined):", ""] + [f"- {e}" for e in errors] + [""]
     lines += ["![realism](realism.png)", ""]
     return "\n".join(lines)
+
+
+def _single_line(one: dict | None) -> list[str]:
+    if not one or not one["robots"]:
+        return []
+    return [
+        "",
+        f"Single-clock: {one['exact']} exact, {one['undetermined']} undetermined, **{one['wrong']} "
+        f"confidently wrong** of {one['robots']} estimates.",
+    ]
 
 
 def _plot(summary: dict, sizes: list[int], methods: list[str], path: Path) -> None:
