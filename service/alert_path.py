@@ -96,11 +96,15 @@ def confirm_timeout(settings: Settings, queue: list[dict[str, Any]]) -> float:
     return min(cap, max(2.0 * settings.worker_interval_seconds, CONFIRM_FACTOR * max(expected)))
 
 
-def baseline_verdict(base: TopologyRecord | None, net: TopologyRecord | None) -> tuple[str, str]:
+def baseline_verdict(
+    base: TopologyRecord | None, net: TopologyRecord | None, changed: bool = False
+) -> tuple[str, str]:
     """What the sensor networks' newest topology ``net`` says of a baseline adopted without them
     (source ``fast-unconfirmed``): ``agree``, ``contradicted`` (a unique network body from a window
-    that ended after the baseline's, of another structure) or ``unconfirmed`` (no such answer yet),
-    with a sentence; ``("", "")`` for any other baseline."""
+    that ended after the baseline's, of another structure, while the fast screen sees the baseline's
+    body: ``changed`` False) or ``unconfirmed`` (no such answer yet, or the body changed since:
+    ``changed``, then the networks' other body is the change, not the baseline's error), with a
+    sentence; ``("", "")`` for any other baseline."""
     if base is None or base.source != "fast-unconfirmed":
         return "", ""
     if (
@@ -116,6 +120,11 @@ def baseline_verdict(base: TopologyRecord | None, net: TopologyRecord | None) ->
         )
     if net.topology.same_structure(base.topology):
         return "agree", "the sensor networks' newest topology agrees with the fast-unconfirmed baseline"
+    if changed:
+        return "unconfirmed", (
+            "the baseline was adopted from the fast screen while the sensor networks were late; their "
+            "newest topology differs from it as the robot's open alerts say the body changed"
+        )
     return "contradicted", (
         f"the baseline (fast-unconfirmed) is contradicted by the sensor networks' topology {net.id}: "
         "the alerts against it are in doubt; approve a baseline"

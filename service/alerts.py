@@ -126,7 +126,7 @@ class AlertTracker:
                 self._tracks[(robot, f.kind, f.part)] = _Track(
                     f,
                     since=since,
-                    seen=0 if pending else self.m,
+                    seen=1 if pending else self.m,
                     active=not pending,
                     confirmed=confirmed,
                     restored=True,
@@ -197,7 +197,8 @@ class AlertTracker:
                 )
                 return [Transition(*key, "active", f, False, note)]
             if new:
-                return [Transition(*key, "pending", f, None, f"waiting for {ev.why or 'confirmation'}")]
+                note = f"waiting for confirmation by {ev.why or 'the sensor networks'}"
+                return [Transition(*key, "pending", f, None, note)]
             return []
         conf = True if pk in ev.confirmed else None
         if not tr.active and tr.seen >= self.m:

@@ -49,7 +49,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from bodyschema.diff import deciding_joints, diff_bodies, is_ambiguous, undetermined_reasons, unplaced_reasons
+from bodyschema.diff import (
+    STRUCTURAL_KINDS,
+    deciding_joints,
+    diff_bodies,
+    is_ambiguous,
+    undetermined_reasons,
+    unplaced_reasons,
+)
 from bodyschema.findings import ALERT_KINDS, Diff
 from bodyschema.topology import Topology
 from service.alert_path import baseline_verdict
@@ -293,7 +300,8 @@ def _judged(
     waits on, and what the networks say of a baseline adopted without them (module doc)."""
     st = judge(robot, cur, base, active, pending)
     waits = tuple((waiting or {}).get("waits") or ())
-    verdict, why = baseline_verdict(base, net)
+    changed = any(a.kind in STRUCTURAL_KINDS for a in (*active, *pending))
+    verdict, why = baseline_verdict(base, net, changed)
     reasons = list(st.reasons)
     if why:
         reasons.append(why)

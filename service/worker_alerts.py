@@ -87,9 +87,9 @@ class AlertPath:
         evidence = Evidence(now=self.clock(), rejudge=full and robot in self._rejudge)
         if self.networks_on:
             net = self.store.latest_topology(robot, method="network")
-            verdict, why = baseline_verdict(base, net)
-            if verdict == "contradicted":  # no structural alert against a body the networks deny
-                hold = tuple(sorted({*hold, *STRUCTURAL_KINDS}))
+            changed = any(f.kind in STRUCTURAL_KINDS for f in res.diff.findings)
+            verdict, why = baseline_verdict(base, net, changed)
+            if verdict == "contradicted":  # the fast screen sees the baseline, the networks another body
                 waits.add(f"baseline: an operator's approval ({why})", base.wall_time)
             elif verdict == "unconfirmed":
                 waits.add(
@@ -219,7 +219,7 @@ class AlertPath:
             waiting=frozenset(waiting),
             confirmed=frozenset(confirmed),
             withdrawn=withdrawn,
-            why="the sensor networks' confirmation",
+            why="the sensor networks",
         )
 
     def _networks_late(self, robot: str, net: TopologyRecord | None) -> bool:
