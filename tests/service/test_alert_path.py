@@ -144,7 +144,9 @@ def test_pending_at_once_then_unconfirmed_after_the_timeout(
     (tr,) = w.run_cycle()["arm"].transitions
     assert (tr.state, tr.confirmed) == ("active", False)
     (a,) = sqlite_store.alerts("arm", active=True)
-    assert a.confirmed is False and a.note.startswith("unconfirmed: the sensor networks did not answer within 90 s")
+    assert a.confirmed is False and a.note.startswith(
+        "unconfirmed: the sensor networks did not answer within 90 s"
+    )
     st = robot_status(sqlite_store, "arm")
     assert st.status == "damaged" and "unconfirmed by the sensor networks" in st.reasons[0]
     assert not any(x["what"].startswith("network confirmation") for x in st.waiting)
