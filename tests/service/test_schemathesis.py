@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
-from schemathesis.checks import positive_data_acceptance
+from schemathesis.checks import not_a_server_error, positive_data_acceptance
 from schemathesis.config import SchemathesisConfig
 
 from bodyschema.topology import Topology
@@ -88,11 +88,10 @@ APP = create_app(
     damage=Farm(),
 )
 schema = schemathesis.openapi.from_asgi("/openapi.json", APP)
-#: The same store behind an app with both tokens configured: every /api/v1 route needs a bearer token.
-WRITE_TOKEN, READ_TOKEN = "conformance-write-0123", "conformance-read-4567"
-TOKEN_SETTINGS = Settings(
-    database_url="sqlite://", retrain_min_interval_seconds=0, api_token=WRITE_TOKEN, api_read_token=READ_TOKEN
-)
+#: The same store behind an app with a token configured, as an operator sets one: every /api/v1 route,
+#: reads included (read_token_required defaults to on), needs a bearer token.
+WRITE_TOKEN = "conformance-write-0123"
+TOKEN_SETTINGS = Settings(database_url="sqlite://", retrain_min_interval_seconds=0, api_token=WRITE_TOKEN)
 TOKEN_APP = create_app(
     STORE,
     settings=TOKEN_SETTINGS,
@@ -144,6 +143,11 @@ def check(case: Any) -> None:
     if (case.method, case.path) in CONTRACT_422 and response.status_code == 422:
         if isinstance(response.json().get("detail"), str):
             excluded.append(positive_data_acceptance)
+    if case.path == "/readyz" and response.status_code == 503:
+        # the probe's designed and documented answer for a worker that is not running (this one is
+        # never started), not a server error
+        assert response.json()["status"] == "not ready"
+        excluded.append(not_a_server_error)
     case.validate_response(response, excluded_checks=excluded)
 
 
@@ -159,5 +163,5 @@ def test_api_conforms_to_its_openapi_document(case: Any) -> None:
 @token_schema.parametrize()
 @HYPOTHESIS
 def test_api_with_tokens_conforms_to_its_openapi_document(case: Any) -> None:
-    """Both tokens configured; the write token is sent, and left out or wrong where auth is tested."""
+    """A token configured; it is sent, and left out or wrong where auth is tested."""
     check(case)
