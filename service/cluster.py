@@ -16,6 +16,12 @@ Connecting never blocks the caller: it happens on a background thread, retried e
 (``/readyz`` reports it as a degraded reason). A client whose scheduler went away reconnects on its
 own for ``connect_timeout`` seconds and then closes; :attr:`TrainingCluster.client` notices the closed
 client and starts connecting again, so retrains resume when the scheduler is back.
+
+Closing (at the service's stop) drops the retrains in flight: their windows are trained again after a
+restart. An embedded cluster's workers are told to stop and given
+:attr:`ClusterOptions.worker_stop_seconds` to end on their own, then killed: a worker in the middle of a
+training step reads its stop message only when the step returns, which can take minutes, and Dask's
+own close would wait 4 s for each before killing it.
 """
 
 from __future__ import annotations
@@ -26,12 +32,21 @@ import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from service.log_config import child_log_env
 from service.settings import Settings
 
 if TYPE_CHECKING:
     from distributed import Client, Future, LocalCluster
 
-__all__ = ["WORKER_PRELOAD", "ClusterOptions", "TrainingCluster", "embedded_workers", "local_cluster"]
+__all__ = [
+    "WORKER_LOGS",
+    "WORKER_PRELOAD",
+    "ClusterOptions",
+    "TrainingCluster",
+    "embedded_workers",
+    "local_cluster",
+    "stop_workers",
+]
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +54,10 @@ log = logging.getLogger(__name__)
 #: (:mod:`service.worker_preload`), named rather than imported: the service process itself never
 #: trains, and need not load torch.
 WORKER_PRELOAD = "service.worker_preload"
+
+#: The preload that makes the embedded cluster's worker processes log as the service does
+#: (:mod:`service.worker_logs`).
+WORKER_LOGS = "service.worker_logs"
 
 
 def embedded_workers(cpus: int | None = None) -> int:
@@ -53,14 +72,16 @@ def embedded_workers(cpus: int | None = None) -> int:
 
 def local_cluster(workers: int) -> LocalCluster:
     """The embedded cluster: ``workers`` worker processes of one thread, each preloading the training
-    code (:data:`WORKER_PRELOAD`), listening on loopback only, without a dashboard."""
+    code (:data:`WORKER_PRELOAD`) and the service's log format (:data:`WORKER_LOGS`), listening on
+    loopback only, without a dashboard."""
     from distributed import LocalCluster
 
     return LocalCluster(
         n_workers=workers,
         threads_per_worker=1,
         processes=True,
-        preload=[WORKER_PRELOAD],
+        preload=[WORKER_PRELOAD, WORKER_LOGS],
+        env=child_log_env(),
         host="127.0.0.1",  # the scheduler and workers listen on loopback only
         # no dashboard; the scheduler's plain HTTP routes (health, metrics) on a free loopback port
         # rather than 8787, which another cluster on the machine may hold
@@ -68,14 +89,38 @@ def local_cluster(workers: int) -> LocalCluster:
     )
 
 
+def stop_workers(cluster: LocalCluster, seconds: float) -> None:
+    """Tell every worker of ``cluster`` to stop, and kill those still running after ``seconds``.
+
+    Dask's nanny waits 80 % of its close timeout for the worker process before it kills it, then up to
+    the whole timeout for the killed process to be reaped."""
+    import asyncio
+
+    nannies = list(cluster.workers.values())
+
+    async def stop() -> None:
+        await asyncio.gather(
+            *(n.close(timeout=seconds / 0.8, reason="service-stop") for n in nannies), return_exceptions=True
+        )
+
+    if nannies:
+        cluster.sync(stop)
+
+
 @dataclass(frozen=True)
 class ClusterOptions:
-    """Where the retrains run: ``scheduler`` None starts an embedded cluster of ``workers`` processes."""
+    """Where the retrains run: ``scheduler`` None starts an embedded cluster of ``workers`` processes.
+
+    ``worker_stop_seconds``: how long an embedded worker is given to end on its own at a stop before it
+    is killed. An idle worker ends within a few tenths of a second; one in a training step would not
+    end before the step returns, and its retrain is dropped either way.
+    """
 
     scheduler: str | None = None
     workers: int | None = None
     connect_timeout: float = 5.0
     retry_seconds: float = 2.0
+    worker_stop_seconds: float = 1.0
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ClusterOptions:
@@ -151,7 +196,8 @@ class TrainingCluster:
         return c.submit(fn, *args, key=key, pure=False, retries=0)
 
     def close(self) -> None:
-        """Close the client and the embedded cluster (its worker processes end); idempotent."""
+        """Close the client, then the embedded cluster: its workers are told to stop and killed after
+        ``worker_stop_seconds`` (retrains in flight are dropped); idempotent."""
         self._closed.set()
         thread = self._thread
         if thread is not None:
@@ -160,11 +206,14 @@ class TrainingCluster:
             client, cluster = self._client, self._cluster
             self._client = self._cluster = None
             self._fault = "closed"
-        for what in (client, cluster):
-            if what is None:
-                continue
+        steps: list[Any] = []
+        if client is not None:
+            steps.append(client.close)
+        if cluster is not None:
+            steps += [lambda: stop_workers(cluster, self.options.worker_stop_seconds), cluster.close]
+        for step in steps:
             try:
-                what.close()
+                step()
             except Exception:
                 log.exception("closing the training cluster failed")
 

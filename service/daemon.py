@@ -4,12 +4,12 @@ Start order: store (migrated) → pipeline (sources attached, reader and writer 
 (its estimates in a child process, :mod:`service.estimation`) → HTTP server in the main thread. The
 training cluster (:mod:`service.cluster`) never delays the start: an external scheduler is connected on
 a background thread, an embedded cluster is started there on the first retrain. SIGTERM or SIGINT stops
-the server, then the worker (after its current robot) and its estimating child, then the training
-cluster (an embedded one's worker processes end; retrains in flight are dropped), then the pipeline
-(readers stop, everything already queued is written), then the store is closed, and the process exits
-0. A SIGKILL loses at most the batches still queued: every committed transaction is in the database
-(SQLite WAL or PostgreSQL), and a replay source resumes after the last stored frame; the estimating
-child ends within a second of its parent.
+the server, then, side by side, the worker (after its current robot) and its estimating child, the
+training cluster (an embedded one's worker processes end; retrains in flight are dropped) and the
+pipeline (readers stop, everything already queued is written) with its sources; then the store is
+closed, and the process exits 0. A SIGKILL loses at most the batches still queued: every committed
+transaction is in the database (SQLite WAL or PostgreSQL), and a replay source resumes after the last
+stored frame; the estimating child ends within a second of its parent.
 """
 
 from __future__ import annotations
@@ -153,15 +153,48 @@ class Daemon:
         )
 
     def stop(self) -> None:
-        """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent)."""
+        """Stop worker, close the training cluster, drain the pipeline, close the store (idempotent).
+
+        Three independent parts stop side by side, each waiting mostly on threads and processes: the
+        worker (after its current robot) and its estimating child; the training cluster (retrains in
+        flight are dropped); the pipeline (everything queued is written) and then its sources. The
+        store is closed once all three are done. The seconds each part took are logged with ``service
+        stopped`` (``steps``), so a slow stop says which part held it."""
+        steps: dict[str, float] = {}
+        parts = [
+            ("worker", self._stop_worker),
+            ("cluster", self._stop_cluster),
+            ("ingest", self._stop_ingest),
+        ]
+        threads = [
+            threading.Thread(target=_timed, args=(fn, name, steps), name=f"bodyhealth-stop-{name}")
+            for name, fn in parts
+        ]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        if self._commit_log is not None:
+            self._commit_log.close()
+            self._commit_log = None
+        if self.store is not None:
+            _timed(self.store.close, "store", steps)
+        self.worker = self.pipeline = self.store = None
+        log.info("service stopped", extra={"steps": steps})
+
+    def _stop_worker(self) -> None:
         if self.worker is not None:
             self.worker.stop()
         if self._estimates is not None:
             self._estimates.close()
             self._estimates = None
+
+    def _stop_cluster(self) -> None:
         if self.cluster is not None:
             self.cluster.close()
             self.cluster = None
+
+    def _stop_ingest(self) -> None:
         if self.pipeline is not None:
             self.pipeline.stop()
             log.info("ingest drained", extra={"counters": self.pipeline.totals()})
@@ -170,13 +203,6 @@ class Daemon:
                 src.close()
             except Exception:
                 log.exception("closing source %s failed", src.name)
-        if self._commit_log is not None:
-            self._commit_log.close()
-            self._commit_log = None
-        if self.store is not None:
-            self.store.close()
-        self.worker = self.pipeline = self.store = None
-        log.info("service stopped")
 
     def serve(self, announce: bool = True) -> int:
         """Run until SIGTERM/SIGINT; returns the exit code (0 on a clean stop)."""
@@ -224,6 +250,17 @@ class Daemon:
             for sig, h in previous.items():
                 signal.signal(sig, h)
         return code
+
+
+def _timed(fn: Any, name: str, steps: dict[str, float]) -> None:
+    """Run ``fn()`` and put the seconds it took under ``name`` in ``steps``; an error is logged, so one
+    part that fails to stop does not keep the others from stopping."""
+    t0 = time.monotonic()
+    try:
+        fn()
+    except Exception:
+        log.exception("stopping the %s failed", name)
+    steps[name] = round(time.monotonic() - t0, 3)
 
 
 def _ensure_sqlite_dir(url: str) -> None:

@@ -1,7 +1,11 @@
 """Structured log lines: one JSON object per line on stderr, so logs can be grepped and shipped as is.
 
 Extra fields passed with ``extra={...}`` land as top-level keys. With ``json=False`` the lines are the
-usual human format.
+usual human format. Libraries that install handlers of their own (distributed when it is imported,
+uvicorn when it starts) are taken back to the root handler, and Python warnings are logged, so that
+every line of the service is in one format. The service's child processes (the embedded Dask cluster's
+workers) log in the same format: :func:`child_log_env` is the environment that carries it, and
+:func:`configure_child_logging` applies it in the child.
 
 Example
 -------
@@ -19,11 +23,33 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import time
 from typing import Any
 
-__all__ = ["JsonFormatter", "configure_logging"]
+__all__ = ["CHILD_LOG_ENV", "JsonFormatter", "child_log_env", "configure_child_logging", "configure_logging"]
+
+#: The environment variable that carries the service's log format to its child processes:
+#: ``json:<level>`` or ``text:<level>`` (level as a number).
+CHILD_LOG_ENV = "BODYHEALTH_CHILD_LOGS"
+
+#: Loggers that get handlers of their own from their library (distributed's at import, uvicorn's at
+#: start) and would otherwise print lines in that library's format beside ours.
+ROUTED_LOGGERS: tuple[str, ...] = (
+    "uvicorn",
+    "uvicorn.error",
+    "uvicorn.access",
+    "distributed",
+    "distributed.client",
+    "distributed.gc",
+    "tornado",
+    "tornado.application",
+    "bokeh",
+    "py.warnings",
+)
+
+_configured: tuple[int, bool] | None = None
 
 _STANDARD = set(vars(logging.LogRecord("", 0, "", 0, "", None, None))) | {"message", "asctime"}
 
@@ -49,7 +75,9 @@ class JsonFormatter(logging.Formatter):
 
 
 def configure_logging(level: int = logging.INFO, json_lines: bool = True) -> None:
-    """Route the root logger (and uvicorn's) to stderr in the chosen format; replaces earlier handlers."""
+    """Route the root logger (and uvicorn's, distributed's, warnings) to stderr in the chosen format;
+    replaces earlier handlers."""
+    global _configured
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(
         JsonFormatter() if json_lines else logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s")
@@ -59,8 +87,33 @@ def configure_logging(level: int = logging.INFO, json_lines: bool = True) -> Non
         root.removeHandler(h)
     root.addHandler(handler)
     root.setLevel(level)
-    for name in ("uvicorn", "uvicorn.error", "uvicorn.access"):
+    routed = set(ROUTED_LOGGERS) | {
+        name for name in logging.root.manager.loggerDict if name.split(".")[0] in ("distributed", "uvicorn")
+    }
+    for name in sorted(routed):
         lg = logging.getLogger(name)
         lg.handlers = []
         lg.propagate = True
     logging.getLogger("uvicorn.access").setLevel(logging.WARNING)
+    logging.captureWarnings(True)
+    _configured = (level, json_lines)
+
+
+def child_log_env() -> dict[str, str]:
+    """The environment a child process needs to log as this one does (empty before
+    :func:`configure_logging`: the child then keeps its libraries' defaults), e.g.
+    ``{"BODYHEALTH_CHILD_LOGS": "json:20"}``."""
+    if _configured is None:
+        return {}
+    level, json_lines = _configured
+    return {CHILD_LOG_ENV: f"{'json' if json_lines else 'text'}:{level}"}
+
+
+def configure_child_logging() -> bool:
+    """In a child process: log as the parent that set :data:`CHILD_LOG_ENV` does; False when unset."""
+    value = os.environ.get(CHILD_LOG_ENV, "")
+    kind, _, level = value.partition(":")
+    if kind not in ("json", "text"):
+        return False
+    configure_logging(int(level) if level.isdigit() else logging.INFO, json_lines=kind == "json")
+    return True
