@@ -17,11 +17,12 @@ start. Measured per run, on the bench's clock:
 * false alerts: every alert of the run whose robot, kind and part is no damage injected before it
   (those raised after the restart counted apart).
 
-An approval makes the newest learned topology the baseline and has the worker learn the robot's
-geometry afresh; a geometry damage injected before that geometry is learned would become part of it,
-so the injections wait (``--geometry-limit``) until every robot to get one has a geometry learned
-after its last approval. Every wait ends at its own limit and at the run's ``--max-run-seconds``; a
-value not seen by then is reported as missed. Results: ``alerts.json``, ``alerts.md``, ``alerts.png``.
+A drift damage (``imu_rotated``, ...) is judged against the geometry the worker learns under the
+baseline; one injected before that geometry is learned would become part of it. So the injections wait
+(``--geometry-limit``) until every robot to get one has its geometry, and the approvals go to the other
+robots (an approval has the geometry learned afresh). Every wait ends at its own limit and at the
+run's ``--max-run-seconds``; a value not seen by then is reported as missed. Results: ``alerts.json``,
+``alerts.md``, ``alerts.png``.
 """
 
 from __future__ import annotations
@@ -246,10 +247,12 @@ class _Run:
         self.phase("baseline", 0.0)
 
     def approve_spread(self, n: int, seconds: float, label: str) -> None:
-        """``n`` approvals spaced evenly over ``seconds``, the robots in turn; latency per request."""
+        """``n`` approvals spaced evenly over ``seconds``, the robots in turn (those no geometry damage
+        is planned for, where there are such); latency per request."""
         start = time.monotonic()
         lat, statuses = [], {}
         robots = [r for r in self.robots if self.baselines.get(r) is not None]
+        robots = [r for r in robots if r not in self.geometry_robots()] or robots
         for k in range(n if robots else 0):
             self.sleep_until(start + (k + 0.5) * seconds / n)
             if time.monotonic() >= self.deadline:
@@ -306,11 +309,15 @@ class _Run:
         self.restart = {"t_s": t, "exit_code": code, "stop_s": stopped - t, "down_s": self.now() - t}
         _log(f"run {self.index}: restarted, {self.restart}")
 
+    def geometry_robots(self) -> set[str]:
+        return {robot for robot, kind, _ in map(parse_damage, self.o.damages) if kind in GEOMETRY_KINDS}
+
     def wait_geometry(self, robots: set[str]) -> None:
-        """Until each of ``robots`` has a geometry learned after its last approval (or the limit)."""
+        """Until each of ``robots`` has a geometry learned under its baseline, after its last approval
+        if it had one (or the limit)."""
         until = time.monotonic() + self.left(self.o.geometry_limit)
         t = self.now()
-        waiting = {r for r in robots if r in self.last_approval_wall}
+        waiting = {r for r in robots if self.baselines.get(r) is not None}
         while waiting and time.monotonic() < until:
             self.check_alive()
             for r in sorted(waiting):
@@ -318,16 +325,16 @@ class _Run:
                     base = (self.api.get(f"/api/v1/robots/{r}/kinematics").json() or {}).get("baseline")
                 except (httpx.HTTPError, ValueError):  # busy: ask again
                     continue
-                if base and float(base.get("wall_time", 0)) > self.last_approval_wall[r]:
+                if base and float(base.get("wall_time", 0)) > self.last_approval_wall.get(r, 0.0):
                     waiting.discard(r)
             time.sleep(self.o.poll_seconds)
         if waiting:
-            self.notes.append(f"no geometry relearned after the last approval for {sorted(waiting)}")
+            self.notes.append(f"injected before a geometry was learned under the baseline: {sorted(waiting)}")
         self.phase("geometry", t)
 
     def inject(self) -> None:
         specs = [parse_damage(s) for s in self.o.damages]
-        self.wait_geometry({robot for robot, kind, _ in specs if kind in GEOMETRY_KINDS})
+        self.wait_geometry(self.geometry_robots())
         for robot, kind, params in specs:
             if self.baselines.get(robot) is None:
                 self.injections.append(Injection(robot, kind, params, detail="not injected: no baseline"))

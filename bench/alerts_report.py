@@ -58,12 +58,17 @@ def update_first_seen(seen: dict[AlertKey, dict[str, float]], t: float, alerts: 
     """Record in ``seen`` the first time ``t`` each (robot, kind, part) is seen in each state.
 
     States are taken as the route names them (``pending``, ``active``, ``resolved`` or any the service
-    adds), so a new state shows up in the results without a change here.
+    adds), so a new state shows up in the results without a change here. Where an alert says whether
+    the sensor networks confirmed it (``confirmed`` true or false), that is kept too, as ``STATE
+    confirmed`` or ``STATE unconfirmed`` beside the plain state.
     """
     for a in alerts:
         key = (str(a["robot"]), str(a["kind"]), str(a["part"]))
         states = seen.setdefault(key, {})
-        states.setdefault(str(a["state"]), float(t))
+        state = str(a["state"])
+        states.setdefault(state, float(t))
+        if a.get("confirmed") is not None:
+            states.setdefault(f"{state} {'confirmed' if a['confirmed'] else 'unconfirmed'}", float(t))
 
 
 def first_seen(polls: Iterable[tuple[float, Sequence[Mapping]]]) -> dict[AlertKey, dict[str, float]]:

@@ -1,5 +1,5 @@
 """``bodyhealth bench alerts``: the timeline, the false-alert rule and the summary on constructed
-data; and one real run of the harness against the demo service (slow, e2e)."""
+data; and one real run of the harness against the demo service, restart included (slow, e2e)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ STRAY = {"robot": "quadruped-1", "kind": "imu_detached", "part": "imu:imu3"}
 
 def _timeline() -> list[tuple[float, list[dict]]]:
     """Polls of one run: a stray alert in the healthy phase that resolves, the two damages injected
-    at 100 s, one going pending then active, one seen first as already active, a new state name."""
+    at 100 s, one going pending then active (unconfirmed by the networks, then confirmed), one seen
+    first as already active, and a state name the service may add."""
     return [
         (50.0, []),
         (60.0, [{**STRAY, "state": "pending"}]),
@@ -36,7 +37,8 @@ def _timeline() -> list[tuple[float, list[dict]]]:
         (70.0, [{**STRAY, "state": "resolved"}]),
         (130.0, [{**MOVED, "state": "pending"}, {**STRAY, "state": "resolved"}]),
         (132.0, [{**MOVED, "state": "unconfirmed"}, {**LOCKED, "state": "active"}]),
-        (170.0, [{**MOVED, "state": "active"}, {**LOCKED, "state": "active"}]),
+        (170.0, [{**MOVED, "state": "active", "confirmed": False}, {**LOCKED, "state": "active"}]),
+        (180.0, [{**MOVED, "state": "active", "confirmed": True}, {**LOCKED, "state": "active"}]),
     ]
 
 
@@ -53,6 +55,8 @@ def test_first_seen_keeps_the_first_time_of_every_state_whatever_its_name() -> N
         "pending": 130.0,
         "unconfirmed": 132.0,
         "active": 170.0,
+        "active unconfirmed": 170.0,
+        "active confirmed": 180.0,
     }
     assert seen[("ur5e-1", "joint_locked", "joint:wrist_2")] == {"active": 132.0}
     assert seen[("quadruped-1", "imu_detached", "imu:imu3")] == {
@@ -173,7 +177,7 @@ BASELINE_LIMIT = 300.0
 def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     args = bench_args(
         alerts,
-        *("--runs", "1", "--busy", "0", "--speed", "4", "--healthy-seconds", "6"),
+        *("--runs", "1", "--busy", "0", "--speed", "4", "--healthy-seconds", "6", "--restart"),
         *("--approvals", "2", "--flood-rps", "2", "--geometry-limit", "0", "--alert-limit", "10"),
         *("--damage", "paper-3-1:imu_moved:imu=imu0,to=j2", "--damage", "ur5e-1:imu_rotated:angle_deg=2"),
         *("--baseline-limit", f"{BASELINE_LIMIT:g}", "--out", str(tmp_path)),
@@ -192,6 +196,8 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert data["summary"]["baseline_s"]["max"] == run["baseline_s"]
     assert sum(run["approvals"]["quiet"]["statuses"].values()) == 1
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
+    # SIGTERM mid healthy phase: a clean exit, the same data served again, the flood answered after it
+    assert run["restart"]["exit_code"] == 0 and run["restart"]["down_s"] >= run["restart"]["stop_s"] > 0
     assert run["flood"]["statuses"].get("202", 0) >= 1 and run["flood"]["requests"] >= 2
     moved, rotated = run["damages"]
     assert moved["part"] == "imu:imu0" and moved["t_s"] >= run["baseline_s"]
