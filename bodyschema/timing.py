@@ -307,7 +307,8 @@ def encoders_moved(rec: Recording, seconds: float) -> Recording:
     30 ppm apart drift 108 ms an hour; on a robot whose motion repeats (a gait) a search that misses
     the true peak finds a wrong one inside its range. Moving the stamps by the last lag keeps the true
     one near the middle; :func:`lag_moved` puts the move back into what the estimate reports. A
-    single-clock ``rec`` is returned as it is.
+    single-clock ``rec`` with measured velocities is returned as it is (it has no lag to search); one
+    without is read as ``t_q = t`` first (:func:`timed_view`).
 
     >>> import numpy as np
     >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
@@ -317,6 +318,7 @@ def encoders_moved(rec: Recording, seconds: float) -> Recording:
     """
     from dataclasses import replace
 
+    rec = timed_view(rec) if seconds != 0.0 else rec  # positions only, on one clock: t_q = t
     if rec.t_q is None or seconds == 0.0:
         return rec
     return replace(rec, t_q=rec.t_q + float(seconds))
@@ -347,7 +349,8 @@ def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: 
     """``estimate(rec)`` with ``rec``'s encoder stamps moved by the lag ``hint`` (s,
     :func:`lag_search_centre`) and the move put back into the timing it reports: a lag that drifted
     past the search range stays in it. How a monitor that follows one robot from window to window
-    estimates its tree; ``hint`` 0 (or a single-clock ``rec``) is the estimate as it is.
+    estimates its tree; ``hint`` 0 (or a single-clock ``rec`` with measured velocities) is the estimate
+    as it is.
 
     >>> import numpy as np
     >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
@@ -359,7 +362,7 @@ def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: 
     """
     from dataclasses import replace
 
-    if not hint or rec.t_q is None:
+    if not hint or timed_view(rec).t_q is None:
         return estimate(rec)
     topo = estimate(encoders_moved(rec, hint))
     return replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
