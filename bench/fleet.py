@@ -236,7 +236,7 @@ def _round(
     ``submitted()`` is called once every job is on the cluster (their windows are fixed then)."""
     from service.cluster import ClusterOptions, TrainingCluster, local_cluster
     from service.metrics import Metrics
-    from service.training import RemoteRetrains
+    from service.training import RemoteRetrains, RetrainLimits
 
     cluster = local_cluster(workers)
     tc = TrainingCluster(ClusterOptions(scheduler=cluster.scheduler_address))
@@ -247,7 +247,9 @@ def _round(
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no client for the local cluster: {tc.fault}")
             time.sleep(0.1)
-        remote = RemoteRetrains(tc, store, window, options=options, metrics=Metrics())
+        # every job on the cluster at once: the round measures the cluster, not the service's queue
+        limits = RetrainLimits(max_queued=len(names))
+        remote = RemoteRetrains(tc, store, window, options=options, metrics=Metrics(), limits=limits)
         for name in names:
             remote.want(name, "network")
         t0 = time.monotonic()
