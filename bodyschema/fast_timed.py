@@ -3,7 +3,7 @@
 Positions without velocities measured by the robot, on the encoders' own stamps or on the IMU's (a
 single-clock recording: ``t_q = t``, docs/recording-format.md), go through :func:`timed_fit`: the
 velocity is the band-limited derivative of the positions, the IMU's lag behind the encoders is
-estimated, and the tests of :mod:`bodyschema.fast` run with an error model in place of a tolerance.
+estimated, and the tests of :mod:`bodyschema.fast_core` run with an error model in place of a tolerance.
 The public entry point is :func:`bodyschema.fast.fast_fit`, which picks the path.
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from bodyschema.fast import (
+from bodyschema.fast_core import (
     FastFit,
     FastOptions,
     _explained,
