@@ -262,9 +262,20 @@ def _full_queue_is_429(store: Store, remote: RemoteRetrains, wall: float) -> Non
         assert ("arm2", "network") not in remote.wanted()
         again = http.post("/api/v1/robots/arm/topology/retrain", params={"method": "network"})
         assert again.status_code == 202 and remote.wanted() == set()
-    (entry,) = remote.queue_status()
-    assert isinstance(entry, RetrainQueueEntry) and entry.expected_seconds is not None
-    assert entry.expected_seconds <= wall
+    remote.want("arm2", "mlp")  # the worker's own wants beyond the cap wait, holding no window
+    assert remote.submit_wanted() == [] and remote.wanted() == {("arm2", "mlp")}
+    running, waiting = remote.queue_status()
+    assert isinstance(running, RetrainQueueEntry)
+    assert (running.robot, running.state, running.position) == ("arm", "running", 0)
+    assert (waiting.robot, waiting.state, waiting.position, waiting.window_end) == (
+        "arm2",
+        "waiting",
+        1,
+        None,
+    )
+    assert running.expected_seconds is not None and running.expected_seconds <= wall
+    assert waiting.expected_seconds is None  # no mlp retrain finished here yet
+    assert remote.metrics.retrains_waiting._value.get() == 1
     _until(
         "the second retrain stored",
         lambda: len(_network_rows(store)) == 2,
