@@ -328,6 +328,8 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
             f"| {fmt(d.get('pending_s'), '.0f')} | {fmt(d.get('active_s'), '.0f')} | {states} |"
         )
     false = r["false_alerts"]
+    if r["damages"]:
+        lines += ["", f"Alerts were waited for up to {r['alert_limit_s']:.0f} s after the injections."]
     lines += [
         "",
         f"False alerts: {len(false)} ({sum(f['became_active'] for f in false)} became active; "
@@ -387,12 +389,10 @@ def plot(path: Any, data: Mapping[str, Any]) -> None:
     runs = data["runs"]
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 1.8 + 0.7 * max(1, len(runs))), sharey=True)
     for y, r in enumerate(runs):
-        for name, t in r["baselines"].items():
-            if t is None:
-                left.plot([r["baseline_limit_s"]], [y], "rx")
-            else:
-                left.plot([t], [y], "o", color="tab:blue", ms=4)
-                left.annotate(name, (t, y), fontsize=6, xytext=(2, 3), textcoords="offset points")
+        for k, (name, t) in enumerate(r["baselines"].items()):
+            x = r["baseline_limit_s"] if t is None else t
+            left.plot([x], [y], "x" if t is None else "o", color="k" if t is None else "tab:blue", ms=4)
+            left.annotate(name, (x, y), fontsize=6, xytext=(2, 4 + 7 * k), textcoords="offset points")
         for d, dy in zip(r["damages"], (-0.2, 0.0, 0.2, 0.3, -0.3, 0.1), strict=False):
             limit = r.get("alert_limit_s", TARGETS["active_s"])
             for what, marker, color in (("pending_s", "o", "tab:orange"), ("active_s", "s", "tab:red")):

@@ -31,8 +31,16 @@ from bench.alerts_report import AlertKey, update_first_seen
 
 __all__ = ["AlertWatch", "Api", "BusyLoops", "RetrainFlood", "Service", "timed"]
 
-#: A busy loop: one Python process spinning on the core given as its argument.
-_BUSY = "import os, sys\nos.sched_setaffinity(0, {int(sys.argv[1])})\nwhile True:\n    pass\n"
+#: A busy loop: one Python process spinning on the core given as its first argument. It asks the kernel
+#: for a SIGKILL when its parent (the second argument) ends, so not even a killed bench leaves it spinning.
+_BUSY = """import ctypes, os, signal, sys
+ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+if os.getppid() != int(sys.argv[2]):
+    sys.exit(0)
+os.sched_setaffinity(0, {int(sys.argv[1])})
+while True:
+    pass
+"""
 
 
 class BusyLoops:
@@ -46,7 +54,7 @@ class BusyLoops:
     def start(self, n: int) -> None:
         for k in range(n):
             core = self.cores[k % len(self.cores)]
-            self.procs.append(subprocess.Popen([sys.executable, "-c", _BUSY, str(core)]))
+            self.procs.append(subprocess.Popen([sys.executable, "-c", _BUSY, str(core), str(os.getpid())]))
 
     def alive(self) -> int:
         return sum(p.poll() is None for p in self.procs)

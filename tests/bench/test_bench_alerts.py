@@ -131,6 +131,7 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
         "baselines": {"paper-3-1": 40.0, "ur5e-1": None},
         "baseline_s": None,
         "baseline_limit_s": 360.0,
+        "alert_limit_s": 600.0,
         "damages": damages,
         "false_alerts": classify(seen, INJECTED),
         "restart": None,
@@ -198,7 +199,8 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
     # SIGTERM mid healthy phase: a clean exit, the same data served again, the flood answered after it
     assert run["restart"]["exit_code"] == 0 and run["restart"]["down_s"] >= run["restart"]["stop_s"] > 0
-    assert run["flood"]["statuses"].get("202", 0) >= 1 and run["flood"]["requests"] >= 2
+    # each retrain request is taken (202) or refused for now (429: too soon, or the training queue full)
+    assert set(run["flood"]["statuses"]) <= {"202", "429"} and run["flood"]["requests"] >= 2
     moved, rotated = run["damages"]
     assert moved["part"] == "imu:imu0" and moved["t_s"] >= run["baseline_s"]
     assert rotated["part"] is not None and rotated["part"].startswith("imu:")
