@@ -43,10 +43,13 @@ def test_token_is_required_over_real_http(tmp_path: Path) -> None:
                 resp = c.post(frames, json=FRAMES, headers=headers)
                 assert resp.status_code == 401 and resp.headers["www-authenticate"] == "Bearer"
                 assert isinstance(resp.json()["detail"], str)
-            assert c.get("/api/v1/robots").json() == []  # reads are open without a read token
-            resp = c.post(frames, json=FRAMES, headers={"Authorization": f"Bearer {TOKEN}"})
+            assert c.get("/api/v1/robots").status_code == 401  # with a token, reads need it too
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            evil = c.post(frames, json=FRAMES, headers={**auth, "Origin": "https://evil.example"})
+            assert evil.status_code == 403  # another site's page, even with the token
+            resp = c.post(frames, json=FRAMES, headers=auth)
             assert resp.status_code == 201 and resp.json() == {"stored": 3}
-            assert [r["name"] for r in c.get("/api/v1/robots").json()] == ["arm"]
+            assert [r["name"] for r in c.get("/api/v1/robots", headers=auth).json()] == ["arm"]
             form = c.post(
                 frames,
                 content=b"t=1",
