@@ -33,6 +33,7 @@ import shutil
 import signal
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -189,11 +190,21 @@ class _Run:
         if not self.service.alive():
             raise RuntimeError(f"the service ended at {self.now():.0f} s:\n{self.service.tail()}")
 
+    def ticks(self, until: float, every: float) -> Iterator[int]:
+        """Yield now and then every ``every`` s until monotonic ``until`` (and the run's bound), at
+        most as often as that time allows, the service checked alive before each."""
+        until = min(until, self.deadline)
+        for k in range(int(max(0.0, until - time.monotonic()) / every) + 2):
+            if time.monotonic() >= until:
+                return
+            self.check_alive()
+            yield k
+            time.sleep(max(0.0, min(every, until - time.monotonic())))
+
     def sleep_until(self, until: float) -> None:
         """Sleep to monotonic ``until`` (bounded by the run), checking the service every second."""
-        while (wait := min(until, self.deadline) - time.monotonic()) > 0:
-            self.check_alive()
-            time.sleep(min(1.0, wait))
+        for _ in self.ticks(until, 1.0):
+            pass
 
     def readiness(self) -> str:
         """``/readyz`` in a few words (a dead worker or database shows there), for a run that missed."""
@@ -222,8 +233,7 @@ class _Run:
         self.limits["baseline_s"] = self.now() + self.left(self.o.baseline_limit)
         until = time.monotonic() + self.left(self.o.baseline_limit)
         last_log = 0.0
-        while time.monotonic() < until:
-            self.check_alive()
+        for _ in self.ticks(until, self.o.poll_seconds):
             try:
                 listed = self.api.get("/api/v1/robots").json()
             except (httpx.HTTPError, ValueError):  # busy or still starting: poll again
@@ -241,7 +251,6 @@ class _Run:
             if time.monotonic() - last_log > 30:
                 last_log = time.monotonic()
                 _log(f"run {self.index}: {self.now():.0f} s, baselines {self.baselines}")
-            time.sleep(self.o.poll_seconds)
         self.robots = sorted(self.baselines)
         if not self.baselines or None in self.baselines.values():
             self.notes.append(f"baselines missed; /readyz then: {self.readiness()}")
@@ -301,14 +310,12 @@ class _Run:
         code = self.service.stop(timeout=120)
         stopped = self.now()
         self.service.start(self.left(self.o.startup_limit))
-        while time.monotonic() < self.deadline:
-            self.check_alive()
+        for _ in self.ticks(self.deadline, 0.5):
             try:
                 if self.api.get("/livez").status_code == 200:
                     break
             except httpx.HTTPError:  # not answering yet
                 pass
-            time.sleep(0.5)
         self.restart = {"t_s": t, "exit_code": code, "stop_s": stopped - t, "down_s": self.now() - t}
         _log(f"run {self.index}: restarted, {self.restart}")
 
@@ -321,8 +328,9 @@ class _Run:
         until = time.monotonic() + self.left(self.o.geometry_limit)
         t = self.now()
         waiting = {r for r in robots if self.baselines.get(r) is not None}
-        while waiting and time.monotonic() < until:
-            self.check_alive()
+        for _ in self.ticks(until, self.o.poll_seconds):
+            if not waiting:
+                break
             for r in sorted(waiting):
                 try:
                     base = (self.api.get(f"/api/v1/robots/{r}/kinematics").json() or {}).get("baseline")
@@ -330,7 +338,6 @@ class _Run:
                     continue
                 if base and float(base.get("wall_time", 0)) > self.last_approval_wall.get(r, 0.0):
                     waiting.discard(r)
-            time.sleep(self.o.poll_seconds)
         if waiting:
             self.notes.append(f"injected before a geometry was learned under the baseline: {sorted(waiting)}")
         self.phase("geometry", t)
@@ -365,8 +372,7 @@ class _Run:
         until = time.monotonic() + self.limits["alert_s"]
         applied = [i for i in self.injections if i.applied]
         last_log = 0.0
-        while applied and time.monotonic() < until:
-            self.check_alive()
+        for _ in self.ticks(until if applied else 0.0, self.o.poll_seconds):
             seen = self.watch.snapshot()
             lat = [damage_latency(seen, i) for i in applied]
             if all(x["active_s"] is not None for x in lat):
@@ -375,7 +381,6 @@ class _Run:
                 last_log = time.monotonic()
                 states = {f"{i.robot} {i.kind}": x["states"] for i, x in zip(applied, lat, strict=True)}
                 _log(f"run {self.index}: {self.now():.0f} s, alerts {states}")
-            time.sleep(self.o.poll_seconds)
         self.phase("alerts", t)
 
     # ------------------------------------------------------------------ the run
