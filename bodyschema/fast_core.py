@@ -120,6 +120,19 @@ class FastOptions:
     #: ``model_tol²`` in ``ε²``, :func:`bodyschema.fast_timed.timed_fit`).
     model_tol: float = 2e-3
 
+    def __post_init__(self) -> None:
+        # validated once, here: every entry point takes these options
+        bad = [
+            f"{f.name}={getattr(self, f.name)!r}"
+            for f in fields(self)
+            if (v := getattr(self, f.name)) is not None
+            and not (v > 0 if f.name in ("fit_ratio", "imu_bandwidth", "band", "max_lag") else v >= 0)
+        ]
+        if bad:
+            raise ValueError(
+                f"FastOptions: {', '.join(bad)} out of range (ratios, rates and lags > 0, the rest >= 0)"
+            )
+
 
 _FIELDS = frozenset(f.name for f in fields(FastOptions))
 _SHARED = frozenset({"fit_ratio", "min_excitation_snr", "min_excitation"})

@@ -164,9 +164,11 @@ def _timed_grid(
     fc = float(opts.band) if opts.band is not None else tm.choose_band(f_imu, f_enc, opts.imu_bandwidth)
     lo, hi = max(t[0], t_q[0]) + opts.max_lag, min(t[-1], t_q[-1]) - opts.max_lag
     if hi - lo < 4 * tm.edge_margin(fc):
+        span = min(t[-1], t_q[-1]) - max(t[0], t_q[0])
+        what = "the recording spans" if np.array_equal(t, t_q) else "the streams overlap for"
         raise ValueError(
-            f"the streams overlap for {min(t[-1], t_q[-1]) - max(t[0], t_q[0]):.3g} s; need at least "
-            f"{4 * tm.edge_margin(fc) + 2 * opts.max_lag:.3g} s at a {fc:g} Hz band"
+            f"{what} {span:.3g} s; need at least {4 * tm.edge_margin(fc) + 2 * opts.max_lag:.3g} s at a "
+            f"{fc:g} Hz band to derive velocities from positions"
         )
     # 1. uniform grids; the IMU grid's length is ``step`` times a length the FFT handles fast (a few
     # samples at the end are given up so that no filter call pads: hundreds of calls per fit)

@@ -131,6 +131,8 @@ def test_estimator_class_learns_the_tree_and_passes_its_settings_on(rng):
     [
         (lambda r: r.select(slice(0, 20)), "at least"),
         (lambda r: replace(r, q=None, qd=None, qdd=None), "positions q"),
+        # positions only, on one clock: the timed path needs the band's edges and the lag search inside
+        (lambda r: replace(r.select(slice(0, 90)), qd=None, qdd=None), "the recording spans 0.89 s"),
     ],
 )
 def test_bad_input_is_refused_clearly(rng, mutate, message):
@@ -161,3 +163,5 @@ def test_options_and_keywords_are_one_setting(rng):
     assert PATH_SETTINGS["synced"] | PATH_SETTINGS["timed"] == set(FastOptions.__dataclass_fields__)
     with pytest.raises(TypeError, match="FastOptions"):
         FastEstimator(fit_raito=3.0)
+    with pytest.raises(ValueError, match=r"fit_ratio=0\.0, band=-1\.0 out of range"):
+        FastOptions(fit_ratio=0.0, band=-1.0)
