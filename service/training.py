@@ -426,7 +426,11 @@ class RemoteRetrains:
         pins = self.store.window_pins
         window = WindowPin(job.robot, job.epoch, job.window_end - job.window_seconds, job.window_end)
         pins.pin(key, window, ttl=self.limits.pin_seconds(self.capacity()))
-        future = self.cluster.submit(run_retrain, job, key=key)
+        try:
+            future = self.cluster.submit(run_retrain, job, key=key)
+        except BaseException:
+            pins.unpin(key)
+            raise
         if future is None:
             pins.unpin(key)
             return False
