@@ -1,4 +1,10 @@
-"""Alerts: per robot and across robots, and acknowledging them."""
+"""Alerts: per robot and across robots, and acknowledging them.
+
+``state=pending`` lists what the fast screen saw and the worker has not raised yet (waiting for more
+cycles, or for the sensor networks' confirmation: its ``note`` says which); an active alert's
+``confirmed`` says whether the networks confirmed it. Acknowledging writes one row in its own
+transaction: it never waits for the worker.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +16,7 @@ from service.api.cache import read_cache
 from service.api.deps import RobotName, get_robot, get_store, known_robot
 from service.api.errors import responses
 from service.api.schemas import AlertOut
-from service.store import RobotInfo, Store
+from service.store import ALERT_STATES, RobotInfo, Store
 
 __all__ = ["router"]
 
@@ -20,6 +26,9 @@ router = APIRouter(prefix="/api/v1", tags=["alerts"], responses=responses(401, 4
 AlertId = Annotated[int, Path(ge=1, le=2**63 - 1, description="alert id (a signed 64-bit key)")]
 
 ACTIVE = Query(None, description="true: active only; false: pending and resolved only; absent: all")
+STATE = Query(
+    None, description=f"one state only: {', '.join(ALERT_STATES)}", pattern="^(pending|active|resolved)$"
+)
 
 
 @router.get("/alerts", response_model=list[AlertOut], summary="alerts of every robot, newest first")
@@ -27,10 +36,12 @@ async def all_alerts(
     request: Request,
     store: Store = Depends(get_store),
     active: bool | None = ACTIVE,
+    state: str | None = STATE,
     limit: int = Query(500, ge=1, le=10000),
 ) -> Response:
     return await read_cache(request).respond(
-        ("alerts", active, limit), lambda: [AlertOut.of(a) for a in store.alerts(active=active, limit=limit)]
+        ("alerts", active, state, limit),
+        lambda: [AlertOut.of(a) for a in store.alerts(active=active, state=state, limit=limit)],
     )
 
 
@@ -45,13 +56,14 @@ async def robot_alerts(
     request: Request,
     store: Store = Depends(get_store),
     active: bool | None = ACTIVE,
+    state: str | None = STATE,
     limit: int = Query(500, ge=1, le=10000),
 ) -> Response:
     def render() -> list[AlertOut]:
         name = known_robot(store, robot)
-        return [AlertOut.of(a) for a in store.alerts(name, active=active, limit=limit)]
+        return [AlertOut.of(a) for a in store.alerts(name, active=active, state=state, limit=limit)]
 
-    return await read_cache(request).respond(("robot_alerts", robot, active, limit), render)
+    return await read_cache(request).respond(("robot_alerts", robot, active, state, limit), render)
 
 
 def _ack(store: Store, alert_id: int, robot: str | None) -> AlertOut:

@@ -1,7 +1,8 @@
 // bodyhealth dashboard: plain JS polling the REST API (no build step).
 // Robots with their monitoring answer (healthy / damaged / undetermined, as the API's status gives it),
 // their learned trees (baseline vs current, SVG), their geometry (joint axes, IMU lever arms, drift),
-// active alerts, simulated damage.
+// active and pending alerts (confirmed by the sensor networks or not), what the worker waits on for
+// each robot and its retrains in the training queue, simulated damage.
 "use strict";
 
 const API = "/api/v1";
@@ -21,7 +22,9 @@ const TOKEN_KEY = "bodyhealth-token";  // sessionStorage: the token lives as lon
 
 // ------------------------------------------------------------------------------------ API token
 // A service with BODYHEALTH_API_TOKEN set answers 401 without it: the page then asks for the token
-// once (kept in this tab's sessionStorage) and sends it on every request.
+// once (kept in this tab's sessionStorage) and sends it on every request. Every request that changes
+// something says it is JSON from this page (Content-Type and X-Requested-With), which a cross-site form
+// cannot send: the API refuses writes without them.
 function apiToken() {
   try { return window.sessionStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
 }
@@ -30,6 +33,11 @@ function apiFetch(url, opts = {}) {
   const token = apiToken();
   const headers = new Headers(opts.headers || {});
   if (token) headers.set("Authorization", `Bearer ${token}`);
+  const method = (opts.method || "GET").toUpperCase();
+  if (method !== "GET" && method !== "HEAD") {
+    if (!headers.has("Content-Type")) headers.set("Content-Type", "application/json");
+    headers.set("X-Requested-With", "bodyhealth");
+  }
   return fetch(url, { ...opts, headers });
 }
 
@@ -424,8 +432,43 @@ function renderStatus(card, st) {
       extra.forEach((e, i) => { if (i) row.append(" · "); row.append(e); });
       lines.push(row);
     }
+    const waits = renderWaits(st);
+    if (waits) lines.push(waits);
   }
   card.detail.replaceChildren(...lines);
+}
+
+function ago(t) {
+  const s = Math.max(0, Date.now() / 1000 - t);
+  return s < 120 ? `${s.toFixed(0)} s` : `${(s / 60).toFixed(1)} min`;
+}
+
+// What the worker waits on for this robot (since when, until when at most) and its retrains in the
+// training queue (position, CPU spent, expected finish), as the status gives them.
+function renderWaits(st) {
+  const waits = st.waiting || [], queue = st.training_queue || [];
+  const baseline = st.baseline_source === "fast-unconfirmed"
+    ? `baseline from the fast screen, not confirmed by the sensor networks (${st.baseline_networks || "unconfirmed"})` : null;
+  if (!waits.length && !queue.length && !baseline) return null;
+  const box = el("div", { class: "waiting" });
+  if (baseline) {
+    box.appendChild(el("div", { class: "baseline-source " + (st.baseline_networks || ""),
+      "data-baseline": st.baseline_networks || "unconfirmed" }, baseline));
+  }
+  waits.forEach((w) => {
+    const until = w.until === null || w.until === undefined ? "" : `, at most until ${fmtTime(w.until)}`;
+    box.appendChild(el("div", { class: "wait", "data-what": w.what },
+      `waiting on ${w.what} for ${ago(w.since)} (since ${fmtTime(w.since)}${until})`));
+  });
+  queue.forEach((q) => {
+    const cpu = q.cpu_seconds === null || q.cpu_seconds === undefined ? "CPU not reported yet"
+      : `${q.cpu_seconds.toFixed(1)} CPU s`;
+    const finish = q.expected_finish === null || q.expected_finish === undefined ? "finish not known yet"
+      : `expected to finish ${fmtTime(q.expected_finish)}`;
+    box.appendChild(el("div", { class: "queue", "data-state": q.state },
+      `${q.method} retrain ${q.state}, position ${q.position + 1} in the queue for ${ago(q.since)}: ${cpu}, ${finish}`));
+  });
+  return box;
 }
 
 function renderSummary(robots) {
@@ -444,7 +487,12 @@ function renderAlerts(alerts) {
     const moved = a.kind === "imu_moved" || a.kind === "joint_reparented";
     const detail = moved ? `${f.from ?? "base"} → ${f.to ?? "base"}`
       : [f.detail, f.from ? `(on ${f.from})` : null].filter(Boolean).join(" ");
+    const state = a.state === "pending" ? "pending"
+      : a.confirmed === false ? "active, unconfirmed" : a.confirmed === true ? "active, confirmed" : "active";
+    tr.classList.add(a.state);
+    if (a.confirmed === false) tr.classList.add("unconfirmed");
     tr.append(el("td", {}, a.robot), el("td", {}, a.kind), el("td", {}, a.part), el("td", {}, detail),
+      el("td", { class: "state", title: a.note || "" }, state + (a.note ? ` (${a.note})` : "")),
       el("td", {}, fmtTime(a.raised_at)));
     const td = el("td", {});
     if (a.acked) td.textContent = "acked";
@@ -462,9 +510,12 @@ function renderAlerts(alerts) {
   });
   body.replaceChildren(...rows);
   document.getElementById("no-alerts").hidden = alerts.length > 0;
+  const active = alerts.filter((a) => a.state === "active").length;
   const c = document.getElementById("alert-count");
-  c.textContent = String(alerts.length);
-  c.classList.toggle("bad", alerts.length > 0);
+  c.textContent = String(active);
+  c.classList.toggle("bad", active > 0);
+  const p = document.getElementById("pending-count");
+  if (p) p.textContent = String(alerts.length - active);
 }
 
 let busy = false;
@@ -474,10 +525,14 @@ async function refresh() {
   const status = document.getElementById("status");
   try {
     const ready = await apiFetch("/readyz").then((r) => r.json()).catch(() => null);
-    status.textContent = ready ? ready.status : "unreachable";
-    status.className = "status " + (ready && ready.status === "ready" ? "ready" : "down");
-    const [robots, alerts] = await Promise.all([getJSON(`${API}/robots`), getJSON(`${API}/alerts?active=true`)]);
-    renderAlerts(alerts);
+    const degraded = ready && ready.degraded && ready.degraded.length ? ready.degraded : null;
+    status.textContent = !ready ? "unreachable"
+      : ready.status === "ready" && degraded ? `ready, degraded: ${degraded.join("; ")}`
+        : ready.status === "ready" ? "ready" : `not ready: ${ready.reason}`;
+    status.className = "status " + (ready && ready.status === "ready" ? (degraded ? "degraded" : "ready") : "down");
+    const [robots, alerts, pending] = await Promise.all([getJSON(`${API}/robots`),
+      getJSON(`${API}/alerts?active=true`), getJSON(`${API}/alerts?state=pending`)]);
+    renderAlerts([...alerts, ...pending]);
     renderSummary(robots);
     await Promise.all(robots.map((r) => renderRobot(r, alerts)));
     document.body.dataset.loaded = "1";
