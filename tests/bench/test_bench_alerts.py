@@ -4,6 +4,7 @@ data; and one real run of the harness against the demo service, restart included
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -187,6 +188,10 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     data = json.loads((tmp_path / "alerts.json").read_text())
     (run,) = data["runs"]
     assert run["exit_code"] == 0 and run["busy_running_at_end"] == 0
+    # the service runs on this environment's settings (the suite's network schedule among them), and
+    # the results say which
+    env = {k: v for k, v in os.environ.items() if k.startswith("BODYHEALTH_") and "TOKEN" not in k}
+    assert data["settings_from_environment"] == env
     assert sorted(run["baselines"]) == ["paper-3-1", "quadruped-1", "ur5e-1"]
     assert (tmp_path / "alerts.png").stat().st_size > 1000
     if run["baseline_s"] is None:  # the miss is reported, and nothing was injected
