@@ -87,12 +87,15 @@ class FramesMixin(RobotsMixin):
             return 0
         chunks = build_chunks(batches, self.chunk_max_samples)
         with self._write_lock:
+            self._before_write()  # a failure for lack of space owes the WAL's room first
             try:
                 self._write_chunks(chunks)
-            except (SQLAlchemyError, RobotLimitReached):
+            except (SQLAlchemyError, RobotLimitReached) as err:
                 # The transaction rolled back: forget cached registrations it may have made.
                 self._known.clear()
+                self._after_write(err)
                 raise
+            self._after_write(None)
         return sum(c.n for c in chunks)
 
     def _write_chunks(self, chunks: list[PendingChunk]) -> None:

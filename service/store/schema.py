@@ -10,6 +10,15 @@ command that fixes it rather than with an SQL error about a missing table or col
 :meth:`StoreBase.upgrade` runs the migrations on the store's own engine, which is the only way to migrate
 an in-memory SQLite database (another engine would open another, empty, database).
 
+An SQLite store keeps its write-ahead log (WAL) short (:meth:`StoreBase.truncate_wal`). SQLite moves the
+WAL into the database file only once it holds 1000 pages (16 MiB here), and then needs room for both
+copies at once; on a full disk that checkpoint fails, the WAL cannot be reset, and freeing a little
+space only let the WAL take it again. So the frame writes checkpoint and truncate the WAL once it
+passes :attr:`StoreBase.wal_truncate_bytes` or half the space left on its file system (a checkpoint may
+need as much again in the database file, so it must run while that room is there), and, after a write
+failed for lack of space, before every later write until one such checkpoint succeeds: the write that
+follows has the room the WAL gave back.
+
 Example
 -------
 >>> store = StoreBase("sqlite://")          # an empty in-memory database
@@ -25,7 +34,10 @@ True
 
 from __future__ import annotations
 
+import logging
+import os
 import threading
+import time
 from typing import Any, Self
 
 from sqlalchemy import Engine, event, text
@@ -34,7 +46,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.db import migrate
-from service.db.engine import make_engine, normalize_url
+from service.db.engine import SQLITE_BUSY_TIMEOUT_MS, make_engine, normalize_url
 from service.settings import Settings, get_settings
 from service.store.identity import FileIdentity, sqlite_file
 
@@ -44,7 +56,29 @@ ROBOT_IDS = "robot_ids"
 #: parts) and nothing learned from them, so its commits leave ``analysis_generation`` as it is.
 FRAMES_ONLY = "frames_only"
 
-__all__ = ["FRAMES_ONLY", "ROBOT_IDS", "SchemaMismatch", "StoreBase"]
+__all__ = ["FRAMES_ONLY", "ROBOT_IDS", "SchemaMismatch", "StoreBase", "is_out_of_space"]
+
+log = logging.getLogger(__name__)
+
+#: SQLite result codes (low byte of an extended code) of a write that found no room: SQLITE_IOERR,
+#: SQLITE_FULL.
+_NO_ROOM_CODES = (10, 13)
+
+
+def is_out_of_space(err: BaseException) -> bool:
+    """Whether ``err`` (an SQLAlchemy error or the driver's) is SQLite failing a write for lack of space.
+
+    >>> import sqlite3
+    >>> is_out_of_space(sqlite3.OperationalError("database or disk is full"))
+    True
+    >>> is_out_of_space(sqlite3.OperationalError("database is locked"))
+    False
+    """
+    orig = getattr(err, "orig", None) or err
+    code = getattr(orig, "sqlite_errorcode", None)
+    if code is not None:
+        return code & 0xFF in _NO_ROOM_CODES
+    return "disk is full" in str(orig) or "disk I/O error" in str(orig)
 
 
 class SchemaMismatch(RuntimeError):
@@ -57,6 +91,14 @@ class StoreBase:
     ``url`` defaults to the settings' ``database_url``; retention, IMU silence and chunk size come from
     the settings unless given here. ``engine_kwargs`` go to :func:`service.db.engine.make_engine`.
     """
+
+    #: WAL size past which a frame write checkpoints and truncates it (SQLite files): 256 pages of
+    #: 16 KiB, a few seconds of a busy fleet's commits, so the WAL and its checkpoint never need more
+    #: than a few MiB beside the database.
+    wal_truncate_bytes: int = 4 * 2**20
+    #: How long a WAL checkpoint waits for readers on an older snapshot before it gives up for now:
+    #: the worker's and the API's reads take milliseconds, and the writer waits meanwhile.
+    wal_checkpoint_wait_seconds: float = 0.5
 
     def __init__(
         self,
@@ -101,6 +143,14 @@ class StoreBase:
         self._known: dict[str, Any] = {}
         # Parsed topology records by (table, id, wall time); see service.store.topologies.
         self._parsed_topologies: dict[tuple[str, int, float], Any] = {}
+        # The WAL next to an SQLite file (None otherwise), and whether a write failed for lack of space
+        # since the last checkpoint that truncated it (see the module doc).
+        db_file = sqlite_file(self.url)
+        self._wal: str | None = None if db_file is None else f"{db_file}-wal"
+        self._wal_owed = False
+        #: Checkpoints that truncated the WAL, and the last one's wall time (monotonic s).
+        self.wal_truncations = 0
+        self.wal_truncated_at: float | None = None
 
     def _committed(self, session: Any) -> None:
         with self._generation_lock:
@@ -175,6 +225,70 @@ class StoreBase:
                 return conn.execute(text("SELECT 1")).scalar() == 1
         except SQLAlchemyError:
             return False
+
+    # ------------------------------------------------------------------------------- the WAL
+    def wal_bytes(self) -> int:
+        """Size of the SQLite WAL file now (0 without one: PostgreSQL, in memory, not yet written)."""
+        if self._wal is None:
+            return 0
+        try:
+            return os.stat(self._wal).st_size
+        except OSError:
+            return 0
+
+    def truncate_wal(self) -> bool:
+        """Move the WAL into the database file and truncate it to zero bytes (``PRAGMA
+        wal_checkpoint(TRUNCATE)``); True when it was done. False, leaving everything as it was, when
+        readers held an older snapshot for :attr:`wal_checkpoint_wait_seconds` or the database file
+        had no room to take the WAL's pages (a full disk). Nothing to do (True) without an SQLite file.
+        """
+        if self._wal is None:
+            return True
+        with self._write_lock:
+            try:
+                with self.engine.connect() as conn:
+                    wait_ms = int(1000 * self.wal_checkpoint_wait_seconds)
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={wait_ms}")
+                    try:
+                        busy = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").scalar()
+                    finally:
+                        conn.exec_driver_sql(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+            except SQLAlchemyError as err:
+                log.info("WAL checkpoint failed: %s", getattr(err, "orig", err))
+                return False
+            if busy:
+                return False
+            self._wal_owed = False
+            self.wal_truncations += 1
+            self.wal_truncated_at = time.monotonic()
+            return True
+
+    def _before_write(self) -> None:
+        """Before a frame write: after a failure for lack of space, first give the WAL's room back."""
+        if self._wal_owed and self.truncate_wal():
+            log.info("WAL truncated after a write failed for lack of space; writing again")
+
+    def wal_free_bytes(self) -> float:
+        """Bytes free to this process on the WAL's file system (infinite when it cannot be told)."""
+        if self._wal is None:
+            return float("inf")
+        try:
+            st = os.statvfs(os.path.dirname(self._wal))
+        except OSError:
+            return float("inf")
+        return float(st.f_bavail * st.f_frsize)
+
+    def _after_write(self, err: BaseException | None) -> None:
+        """After a frame write (``err``: why it failed): owe a truncation after a lack of space, and
+        truncate a WAL that passed :attr:`wal_truncate_bytes` or half the free space."""
+        if self._wal is None:
+            return
+        if err is not None:
+            self._wal_owed = self._wal_owed or is_out_of_space(err)
+            return
+        wal = self.wal_bytes()
+        if wal > self.wal_truncate_bytes or wal > self.wal_free_bytes() / 2:
+            self.truncate_wal()
 
     def close(self) -> None:
         """Release every pooled connection."""
