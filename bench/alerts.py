@@ -177,6 +177,8 @@ class _Run:
         self.list_errors = 0
         self.approved = 0
         self.limits: dict[str, float] = {}
+        self.baseline_sources: dict[str, str | None] = {}
+        self.waiting: dict[str, str] = {}
 
     # ------------------------------------------------------------------ helpers
     def now(self) -> float:
@@ -240,9 +242,13 @@ class _Run:
                 listed, self.list_errors = [], self.list_errors + 1
             for r in listed:
                 self.baselines.setdefault(r["name"], None)
+                status = r.get("status") or {}
                 if r.get("has_baseline") and self.baselines[r["name"]] is None:
                     self.baselines[r["name"]] = self.now()
+                    self.baseline_sources[r["name"]] = status.get("baseline_source")
                     _log(f"run {self.index}: baseline of {r['name']} at {self.now():.0f} s")
+                waits = [w.get("what") for w in status.get("waiting") or [] if isinstance(w, dict)]
+                self.waiting[r["name"]] = "; ".join(map(str, waits))
             done = len(self.baselines) >= len(DEMO_ROBOTS) and all(
                 v is not None for v in self.baselines.values()
             )
@@ -253,7 +259,8 @@ class _Run:
                 _log(f"run {self.index}: {self.now():.0f} s, baselines {self.baselines}")
         self.robots = sorted(self.baselines)
         if not self.baselines or None in self.baselines.values():
-            self.notes.append(f"baselines missed; /readyz then: {self.readiness()}")
+            waits = {k: self.waiting.get(k) for k, v in self.baselines.items() if v is None}
+            self.notes.append(f"baselines missed; the worker waited on {waits}; /readyz: {self.readiness()}")
         if self.watch is not None:
             self.watch.robots = self.robots
         self.phase("baseline", 0.0)
@@ -400,6 +407,7 @@ class _Run:
             "run": self.index,
             "robots": self.robots,
             "baselines": self.baselines,
+            "baseline_sources": self.baseline_sources,
             "baseline_s": max(got) if all_in else None,
             # the waits as they were: each phase's limit, cut short where the run's bound came first
             "baseline_limit_s": self.limits.get("baseline_s", self.o.baseline_limit),

@@ -315,7 +315,7 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
         f"end; {r['polls']} alert polls ({r['poll_errors']} failed).",
         "",
         "Baseline: "
-        + ", ".join(f"{k} {fmt(v, '.0f')} s" for k, v in r["baselines"].items())
+        + ", ".join(_baseline_item(r, k, v) for k, v in r["baselines"].items())
         + f"; all robots: {fmt(r['baseline_s'], '.0f')} s (limit {r['baseline_limit_s']:.0f} s).",
         "",
         "| damage | part | injected at | pending after | active after | states seen |",
@@ -365,6 +365,11 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
     ]
     lines += [f"- {' '.join(n.split())[:500]}" for n in r.get("notes", [])] + ([""] if r.get("notes") else [])
     return lines
+
+
+def _baseline_item(r: Mapping[str, Any], robot: str, t: float | None) -> str:
+    source = r.get("baseline_sources", {}).get(robot)
+    return f"{robot} {fmt(t, '.0f')} s" + (f" ({source})" if source else "")
 
 
 def _false_item(f: Mapping[str, Any]) -> str:

@@ -130,6 +130,7 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
         "polls": 7,
         "poll_errors": 0,
         "baselines": {"paper-3-1": 40.0, "ur5e-1": None},
+        "baseline_sources": {"paper-3-1": "fast-unconfirmed"},
         "baseline_s": None,
         "baseline_limit_s": 360.0,
         "alert_limit_s": 600.0,
@@ -150,6 +151,7 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     }
     md = markdown(data)
     assert "| baseline_s | 180 | — (1 missed) |" in md
+    assert "Baseline: paper-3-1 40 s (fast-unconfirmed), ur5e-1 — s; all robots: — s" in md
     assert "not injectable (422)" in md
     assert "False alerts: 1 (1 became active; 0 after the restart)" in md
     assert "202: 3, 429: 40" in md
