@@ -7,8 +7,10 @@ with it: it writes its own MuJoCo XML and drives MuJoCo directly.
 * **Body**: a random labelled tree of hinge joints on a fixed base (names shuffled, so their order
   says nothing about the tree), random axes, link lengths and payload masses; one to a few IMUs
   (a site with a gyro and an accelerometer) per link at random poses. Links collide with each other
-  (MuJoCo's default filter leaves out only a body and its parent), so some joints jam.
-* **Drive**: one velocity servo per joint (a ``velocity`` actuator with a torque limit) following
+  (MuJoCo's default filter leaves out only a body and its parent), so some joints jam; a share of
+  the joints has a bearing that drags about as hard as its servo can push, and hardly moves.
+* **Drive**: one velocity servo per joint (a ``velocity`` actuator with a torque limit, integrated
+  explicitly so that the limit holds, with the reflected inertia of a geared motor) following
   a sum of slow sines (0.1-0.8 Hz) inside the joint's range, with a position term so that it does
   not wander.
 * **Sensing** (:mod:`bench.generator_sensing`): MPU-6050 datasheet limits (docs/design.md §4) for
@@ -57,6 +59,8 @@ class GeneratorOptions:
     joints: tuple[int, int] = (5, 25)
     imus_per_link: tuple[int, int] = (1, 3)
     link_length: tuple[float, float] = (0.08, 0.35)
+    link_radius: float = 0.02  # m; the payload sphere at a link's end is 1.5 times as wide
+    seized: float = 0.1  # share of joints whose bearing drags about as hard as their servo can push
     payload_kg: tuple[float, float] = (0.05, 1.5)
     seconds: float = 60.0
     rate: float = 100.0
@@ -168,6 +172,7 @@ def build_xml(
     options: GeneratorOptions,
     gains: np.ndarray | None = None,
     forces: np.ndarray | None = None,
+    friction: np.ndarray | None = None,
 ) -> str:
     """MuJoCo XML of ``spec``: capsule links with a payload sphere at the end, hinge joints, IMU sites
     with gyro and accelerometer sensors, one torque-limited velocity servo per joint."""
@@ -180,6 +185,11 @@ def build_xml(
         imus_on.setdefault(li, []).append(k)
     contact = 'contype="1" conaffinity="1"' if options.contacts else 'contype="0" conaffinity="0"'
 
+    g = np.full(n, 10.0) if gains is None else gains
+    # a geared servo's reflected rotor inertia, sized with its gain: explicit velocity feedback stays
+    # stable while gain x timestep / inertia is under 2; here it is at most 1
+    arm = np.maximum(0.01, g / options.sim_rate)
+
     def body(i: int, depth: int) -> list[str]:
         pad = "  " * depth
         name, lv = spec.joint_names[i - 1], spec.link[i - 1]
@@ -187,11 +197,13 @@ def build_xml(
         out = [
             f'{pad}<body name="L{name}" pos="{_v(spec.offset[i - 1])}">',
             f'{pad}  <joint name="{name}" type="hinge" axis="{_v(spec.axis[i - 1])}" limited="true" '
-            f'range="{lo:.6g} {hi:.6g}" damping="0.05" armature="0.01"/>',
+            f'range="{lo:.6g} {hi:.6g}" damping="0.05" armature="{arm[i - 1]:.6g}" '
+            f'frictionloss="{0.0 if friction is None else friction[i - 1]:.6g}"/>',
             # the capsule starts clear of the joint, so siblings sharing a joint point do not touch
-            f'{pad}  <geom type="capsule" fromto="{_v(0.3 * lv)} {_v(lv)}" size="0.02" mass="0.1" '
-            f"{contact}/>",
-            f'{pad}  <geom type="sphere" pos="{_v(lv)}" size="0.03" mass="{spec.payload[i - 1]:.6g}" '
+            f'{pad}  <geom type="capsule" fromto="{_v(0.3 * lv)} {_v(lv)}" '
+            f'size="{options.link_radius:.6g}" mass="0.1" {contact}/>',
+            f'{pad}  <geom type="sphere" pos="{_v(lv)}" size="{1.5 * options.link_radius:.6g}" '
+            f'mass="{spec.payload[i - 1]:.6g}" '
             f"{contact}/>",
         ]
         for k in imus_on.get(i, []):
@@ -206,8 +218,7 @@ def build_xml(
     lines = [
         '<mujoco model="generated">',
         '  <compiler angle="radian"/>',
-        '  <option timestep="%.6g" integrator="implicitfast" gravity="0 0 -9.81"/>'
-        % (1.0 / options.sim_rate),
+        '  <option timestep="%.6g" integrator="Euler" gravity="0 0 -9.81"/>' % (1.0 / options.sim_rate),
         "  <worldbody>",
         '    <body name="base">',
         '      <geom type="cylinder" size="0.1 0.05" pos="0 0 0.05" mass="5" contype="0" conaffinity="0"/>',
@@ -215,7 +226,6 @@ def build_xml(
     for c in children.get(0, []):
         lines += body(c, 3)
     lines += ["    </body>", "  </worldbody>", "  <actuator>"]
-    g = np.full(n, 10.0) if gains is None else gains
     f = np.full(n, 1e3) if forces is None else forces
     for i, name in enumerate(spec.joint_names):
         lines.append(
@@ -228,10 +238,14 @@ def build_xml(
     return "\n".join([*lines, "  </sensor>", "</mujoco>", ""])
 
 
-def _servo_sizing(model: mujoco.MjModel, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Servo gain and torque limit per joint from the gravity torque its subtree can load it with:
-    the limit is 1.5x the worst case (so a joint pushing into another link stalls instead of
-    crushing through it), the gain turns that torque into a 0.1 rad/s velocity error."""
+def _servo_sizing(
+    model: mujoco.MjModel, spec: RobotSpec, rng: np.random.Generator, seized: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Servo gain and torque limit per joint from a bound on the gravity torque its subtree can load
+    it with: the limit is 1.5x that bound (so a joint pushing into another link stalls instead of
+    crushing through it), the gain turns the limit into a 0.1 rad/s velocity error. A share ``seized``
+    of the joints gets dry friction of 0.7-1.3 times that limit (a bearing gone stiff): they hardly
+    move, as a joint jammed against another link does, but for the whole recording."""
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     n = len(spec.parent)
@@ -243,7 +257,8 @@ def _servo_sizing(model: mujoco.MjModel, spec: RobotSpec) -> tuple[np.ndarray, n
         reach = max(np.linalg.norm(data.xipos[c] - anchor) + 0.35 for c in sub)
         torque[i] = model.body_subtreemass[b] * 9.81 * reach
     force = 1.5 * torque + 1.0
-    return force / 0.1, force
+    friction = np.where(rng.random(n) < seized, rng.uniform(0.7, 1.3, n), 0.0) * force
+    return force / 0.1, force, friction
 
 
 def _qpos_index(model: mujoco.MjModel, spec: RobotSpec) -> np.ndarray:
@@ -321,15 +336,15 @@ def _sensors(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.nd
 def generate(seed: int, options: GeneratorOptions | None = None) -> Generated:
     """Draw, simulate and sense one robot; the same ``seed`` and ``options`` give the same recordings."""
     o = options or GeneratorOptions()
-    body_ss, drive_ss, sense_ss = np.random.SeedSequence([seed, 0x6E6]).spawn(3)
+    body_ss, drive_ss, sense_ss, servo_ss = np.random.SeedSequence([seed, 0x6E6]).spawn(4)
     warm = 0.1  # s simulated before the first stamp: room for the skew and the filters to settle
     dt = 1.0 / o.sim_rate
     steps = round((o.seconds + warm) * o.sim_rate) + 1
     ts = -warm + dt * np.arange(steps)
     spec = _free_of_contacts(np.random.default_rng(body_ss), o, drive_ss, ts[:1])
     probe = mujoco.MjModel.from_xml_string(build_xml(spec, o))
-    gains, forces = _servo_sizing(probe, spec)
-    xml = build_xml(spec, o, gains, forces)
+    gains, forces, friction = _servo_sizing(probe, spec, np.random.default_rng(servo_ss), o.seized)
+    xml = build_xml(spec, o, gains, forces, friction)
     model = mujoco.MjModel.from_xml_string(xml)
     q_ref, qd_ref = _reference(np.random.default_rng(drive_ss), spec, o, ts)
     qpos, qvel, sens = _simulate(model, spec, q_ref, qd_ref)
