@@ -101,24 +101,20 @@ def test_values_at_their_bound_are_accepted(client: TestClient, store: Store) ->
     assert store.sample_count("arm") == 2
 
 
-@pytest.mark.parametrize(
-    ("field", "index"), [("t", (1,)), ("q", (0, 1)), ("acc", (2, 0, 1)), ("gyro", (1, 1, 2))]
-)
 @pytest.mark.parametrize("raw", [b"true", b"false", b'"1.0"', b"null"])
-def test_only_numbers_are_numbers(
-    client: TestClient, store: Store, field: str, index: tuple[int, ...], raw: bytes
-) -> None:
+def test_only_numbers_are_numbers(client: TestClient, store: Store, raw: bytes) -> None:
     marker = 123.25
-    body = frames_body(3, t0=1.0)
-    row = body[field]
-    for i in index[:-1]:
-        row = row[i]
-    row[index[-1]] = marker
-    text = json.dumps(body).encode().replace(b"123.25", raw)
-    resp = client.post(URL, content=text, headers={"content-type": "application/json"})
-    assert resp.status_code == 422, resp.text
-    (err,) = resp.json()["detail"]
-    assert err["loc"] == ["body", field, *index] and err["type"] == "float_type"
+    for field, index in (("t", (1,)), ("q", (0, 1)), ("acc", (2, 0, 1)), ("gyro", (1, 1, 2))):
+        body = frames_body(3, t0=1.0)
+        row = body[field]
+        for i in index[:-1]:
+            row = row[i]
+        row[index[-1]] = marker
+        text = json.dumps(body).encode().replace(b"123.25", raw)
+        resp = client.post(URL, content=text, headers={"content-type": "application/json"})
+        assert resp.status_code == 422, resp.text
+        (err,) = resp.json()["detail"]
+        assert err["loc"] == ["body", field, *index] and err["type"] == "float_type"
     assert store.robot("arm") is None
     # integers are numbers
     ints = json.dumps(frames_body(3, t0=1.0)).encode().replace(b"1.0,", b"1,", 1)
