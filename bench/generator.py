@@ -314,12 +314,11 @@ def _simulate(
 def _sensors(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Joint rates and IMU readings of the trajectory ``qpos`` the encoders see.
 
-    MuJoCo computes its sensors from the forward dynamics' acceleration, while its implicit
-    integrator (needed by stiff servos) moves the joints by another one, and its positions advance
-    with the velocity of the step's end: a gyro read there lags the positions by half a step and an
-    accelerometer reads a motion that did not happen. So the rates and accelerations are taken from
-    the positions by central differences (second order: about 1e-5 relative error for 0.8 Hz at
-    500 Hz) and the sensors are evaluated on them by inverse dynamics (``mj_inverse``)."""
+    MuJoCo evaluates its sensors at a step's start, with that step's forward-dynamics acceleration,
+    and then advances the positions with the velocity of the step's end (semi-implicit Euler), so a
+    gyro read there lags the positions by half a step (1 ms at 500 Hz, which the fast estimator reads
+    as skew). So the rates and accelerations are taken from the positions by central differences
+    (second order: about 1e-5 relative error for 0.8 Hz at 500 Hz) and the sensors are evaluated on them by inverse dynamics (``mj_inverse``)."""
     dt = model.opt.timestep
     qvel = np.gradient(qpos, dt, axis=0)
     qacc = np.zeros_like(qpos)
