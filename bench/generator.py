@@ -318,7 +318,8 @@ def _sensors(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.nd
     and then advances the positions with the velocity of the step's end (semi-implicit Euler), so a
     gyro read there lags the positions by half a step (1 ms at 500 Hz, which the fast estimator reads
     as skew). So the rates and accelerations are taken from the positions by central differences
-    (second order: about 1e-5 relative error for 0.8 Hz at 500 Hz) and the sensors are evaluated on them by inverse dynamics (``mj_inverse``)."""
+    (second order: about 1e-5 relative error for 0.8 Hz at 500 Hz) and the sensors are evaluated on
+    them by inverse dynamics (``mj_inverse``)."""
     dt = model.opt.timestep
     qvel = np.gradient(qpos, dt, axis=0)
     qacc = np.zeros_like(qpos)
