@@ -255,6 +255,9 @@ class _Claims:
         # a part hangs: only the signal-level findings are made from it. A baseline that is not unique
         # gives nothing to compare a placement with either.
         self.structural = not is_ambiguous(current) and not is_ambiguous(baseline)
+        # joints the baseline window did not move: hung on the base as placeholders there, so where they
+        # and the IMUs on their links hang now cannot be compared with it
+        self.base_unplaced = {j for j in baseline.undetermined if j in baseline.joint_parent}
 
     def conf(self, key: str) -> float:
         """The current estimate's confidence in part ``key`` (``imu:NAME``, ``joint:NAME``), 1 if unstated."""
@@ -315,9 +318,9 @@ def diff_bodies(
         _loose_imus(st, health, undecided)
     _reparented_joints(st, undecided)
     reasons = undetermined_reasons(current) + unplaced_reasons(current)
-    if is_ambiguous(baseline):
-        # the baseline itself was not decided: no placement can be said unchanged against it
-        reasons += tuple(f"baseline: {r}" for r in undetermined_reasons(baseline))
+    # the baseline itself not decided (several trees, or joints it did not move): no placement can be
+    # said unchanged against it
+    reasons += tuple(f"baseline: {r}" for r in undetermined_reasons(baseline) + unplaced_reasons(baseline))
     return Diff(findings=tuple(st.findings), reasons=reasons)
 
 
@@ -432,7 +435,7 @@ def _single_imus(st: _Claims, undecided: list[str]) -> None:
         c = st.current.imu_joint[imu]
         if c == b or st.conf(f"imu:{imu}") < st.th.min_confidence:
             continue
-        if c in undecided or c in st.joints:
+        if c in undecided or c in st.joints or c in st.base_unplaced:
             continue
         if c is None and b is not None:
             # the estimator's confidence is in its (base) placement; report how sure "follows nothing" is
@@ -464,7 +467,7 @@ def _reparented_joints(st: _Claims, undecided: list[str]) -> None:
         b, c = st.baseline.joint_parent[j], st.current.joint_parent[j]
         if b == c or st.conf(f"joint:{j}") < st.th.min_confidence:
             continue
-        if c in st.joints or c in undecided:
+        if c in st.joints or c in undecided or j in st.base_unplaced or c in st.base_unplaced:
             continue
         conf = st.conf(f"joint:{j}")
         st.findings.append(Finding("joint_reparented", joint=j, from_=b, to=c, confidence=conf))

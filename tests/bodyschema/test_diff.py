@@ -246,3 +246,29 @@ def test_a_joint_the_window_did_not_move_is_never_no_change():
         "others still",
     )
     assert diff_bodies(base, base).changed is False
+
+
+def test_a_baseline_that_did_not_place_a_part_backs_no_placement_finding():
+    """A joint the baseline window did not move hangs on the base as a placeholder there, its link's IMUs
+    on its parent link: the current window placing them is no damage, and no "no change" either."""
+    base = Topology({"j1": None, "j2": None}, {"i1": "j1", "i2": "j1"}, undetermined=("j2",))
+    moved = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+    d = diff_bodies(base, moved)
+    assert d.findings == () and d.changed is None
+    assert d.reasons == (
+        "baseline: the window does not move joint j2 enough to place it; to decide, move each on its own "
+        "with the others still",
+    )
+
+
+def test_an_ambiguous_baseline_backs_no_placement_finding():
+    a = Topology({"j1": None, "j2": "j1"}, {"i1": "j1", "i2": "j2"})
+    b = Topology({"j1": "j2", "j2": None}, {"i1": "j1", "i2": "j2"})
+    amb = Topology(a.joint_parent, a.imu_joint, unique=False, candidates=(b,))
+    d = diff_bodies(amb, b)
+    assert d.findings == () and d.changed is None
+    assert d.reasons[0].startswith("baseline: 2 trees fit the data; they differ in joint j1")
+    assert (
+        d.reasons[-1]
+        == "baseline: to decide, move each of these joints on its own with the others still: j1, j2"
+    )
