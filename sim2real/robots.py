@@ -1,0 +1,635 @@
+"""A floating-base robot's URDF, its recorded encoders and contacts, and what its base IMU should read.
+
+The glue around :mod:`bodyschema.floating_base` and :mod:`bodyschema.contacts`: reads the URDF
+(``yourdfpy`` for the joints; the IMU mount from a robot-level ``<sensor>`` element, an iDynTree
+extension ``yourdfpy`` skips, or else a link named like an IMU), builds one serial chain from the IMU
+frame to every foot, finds the contacts from the recording's foot forces and predicts the IMU two
+ways where the recording allows:
+
+* ``"encoders"``: the rigid model driven by the encoders over the stance feet (leg odometry);
+* ``"mocap"``: the base pose of motion capture (``extra['base_pos']``, ``extra['base_rot']``
+  roll-pitch-yaw), carried to the IMU by the URDF mount: an independent simulation of the same IMU.
+
+Each prediction then goes through the held-out effect selection of :mod:`bodyschema.discrepancy`
+(:func:`robot_sim2real`). What a recording lacks (no forces: no contacts; no base pose: no mocap) is
+said in ``could_not``, never guessed.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from bodyschema.contacts import change_mask, contact_weights, force_contacts, ramp_time, transition_weights
+from bodyschema.floating_base import (
+    SerialChain,
+    band_cutoff,
+    body_reference,
+    chain_frames,
+    chain_motion,
+    derivative,
+    flat_foot_gravity,
+    foot_plane_gravity,
+    quantization_floor,
+    stance_twist,
+    tilt_filter,
+)
+from bodyschema.floating_effects import linear_effect, transition_ratio
+from bodyschema.recording import Recording
+from bodyschema.rigid_motion import lowpass, reference_motion
+
+__all__ = ["RobotModel", "RobotOptions", "predict_encoders", "predict_mocap", "read_robot", "robot_sim2real"]
+
+
+@dataclass(frozen=True)
+class RobotOptions:
+    """Settings of the robot analysis (the IMU analysis's own are passed through)."""
+
+    #: Common low-pass of prediction and readings, Hz (None: where encoder quantization puts
+    #: ``quantization_tol`` on the predicted specific force, at most 10 Hz).
+    cutoff: float | None = None
+    #: Specific-force noise (m/s², 1 % of g) encoder quantization may put on the prediction.
+    quantization_tol: float = 0.1
+    #: False-contact rate per sample accepted by the force threshold.
+    p_false: float = 1e-3
+    #: Time constant of the tilt carried between plane measurements (point feet), s.
+    tilt_tau: float = 0.5
+    #: Held-out time blocks, family level and least gain of the effect selection.
+    n_blocks: int = 8
+    alpha: float = 0.01
+    min_gain: float = 0.005
+    #: Half-width of the window around contact changes compared with the rest (lift-off, roll), s.
+    change_half_s: float = 0.05
+    #: A foot's stance weight ramps from 0 at its own contact change to full over this many seconds
+    #: (0: the rigid model, every foot down at full weight; set from the forces' ramp time when the
+    #: rigid model's residual shows the contact changes).
+    settle_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """What the analysis needs of a URDF: the IMU frame in the root link, every foot as a chain from
+    the IMU frame, flat or point feet, the total mass."""
+
+    name: str
+    imu_source: str
+    imu_in_root: np.ndarray
+    feet: dict[str, SerialChain]
+    flat: bool
+    mass: float
+    joint_names: tuple[str, ...]
+    unmatched: list[str] = field(default_factory=list)
+
+
+def _origin(el: ET.Element | None) -> np.ndarray:
+    T = np.eye(4)
+    if el is None:
+        return T
+    xyz = [float(x) for x in el.get("xyz", "0 0 0").split()]
+    rpy = [float(x) for x in el.get("rpy", "0 0 0").split()]
+    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()  # URDF: fixed axes x, y, z
+    T[:3, 3] = xyz
+    return T
+
+
+def _imu_mounts(path: Path, links: dict[str, object]) -> list[tuple[str, str, np.ndarray]]:
+    """Candidate (parent link, where it came from, IMU frame in that link): every robot-level
+    accelerometer or IMU ``<sensor>``, then every link named ``*imu*`` (its own frame)."""
+    root = ET.parse(path).getroot()
+    out = [
+        (s.find("parent").get("link"), f"sensor {s.get('name')}", _origin(s.find("origin")))
+        for s in root.findall("sensor")
+        if s.get("type") in ("accelerometer", "imu") and s.find("parent") is not None
+    ]
+    out.sort(key=lambda m: "imu" not in m[1].lower())  # an IMU before other accelerometers
+    out += [(n, f"link {n}", np.eye(4)) for n in links if re.search(r"imu", n, re.I)]
+    return out
+
+
+def _feet(link_names: list[str]) -> tuple[list[str], bool]:
+    """Flat feet (``*_sole`` links) when the model has them, else point feet (``*_foot``)."""
+    soles = [n for n in link_names if n.endswith("_sole")]
+    if soles:
+        return soles, True
+    feet = [n for n in link_names if n.endswith("_foot")]
+    if not feet:
+        raise ValueError("the model has no *_sole or *_foot links: no feet to stand on")
+    return feet, False
+
+
+def _joint_column(urdf_joint: str, names: tuple[str, ...]) -> int | None:
+    for c, n in enumerate(names):
+        if urdf_joint in (n, f"{n}_joint"):
+            return c
+    return None
+
+
+def read_robot(path: str | Path, joint_names: tuple[str, ...]) -> RobotModel:
+    """The robot of URDF ``path`` for a recording with ``joint_names``."""
+    import yourdfpy
+
+    path = Path(path)
+    u = yourdfpy.URDF.load(
+        str(path), load_meshes=False, build_scene_graph=False, build_collision_scene_graph=False
+    )
+    by_child = {j.child: j for j in u.robot.joints}
+    links = {lk.name: lk for lk in u.robot.links}
+
+    def to_root(link: str) -> list:
+        out = []
+        while link in by_child:
+            out.append(by_child[link])
+            link = by_child[link].parent
+        return out[::-1]
+
+    # The base IMU: the first candidate whose link only fixed joints tie to the root.
+    mounts = [m for m in _imu_mounts(path, links) if all(j.type == "fixed" for j in to_root(m[0]))]
+    if not mounts:
+        raise ValueError(f"{path.name}: no IMU sensor element or *imu* link fixed to the base")
+    imu_link, source, T_link_imu = mounts[0]
+    T_root_imu = np.eye(4)
+    for j in to_root(imu_link):
+        T_root_imu = T_root_imu @ j.origin
+    T_root_imu = T_root_imu @ T_link_imu
+    feet, flat = _feet(list(links))
+    chains, unmatched = {}, []
+    for foot in feet:
+        origins, axes, cols, pending = [], [], [], np.linalg.inv(T_root_imu)
+        for j in to_root(foot):
+            pending = pending @ j.origin
+            if j.type == "fixed":
+                continue
+            c = _joint_column(j.name, joint_names)
+            if c is None or j.type not in ("revolute", "continuous"):
+                unmatched.append(j.name)
+                continue  # held at 0: its chain is then approximate, and said so
+            origins.append(pending)
+            axes.append(np.asarray(j.axis, float) / np.linalg.norm(j.axis))
+            cols.append(c)
+            pending = np.eye(4)
+        chains[foot] = SerialChain(np.array(origins), np.array(axes), tuple(cols), pending)
+    mass = sum(lk.inertial.mass for lk in u.robot.links if lk.inertial is not None and lk.inertial.mass)
+    return RobotModel(
+        u.robot.name,
+        source,
+        T_root_imu,
+        chains,
+        flat,
+        float(mass),
+        tuple(joint_names),
+        sorted(set(unmatched)),
+    )
+
+
+def _uniform(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """A uniform grid at the recording's median step over its span, and the indices it lands on."""
+    dt = float(np.median(np.diff(rec.t)))
+    t = np.arange(rec.t[0], rec.t[-1], dt)
+    return t, np.searchsorted(rec.t, t)
+
+
+def _interp(t_new: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    flat = x.reshape(x.shape[0], -1)
+    out = np.stack([np.interp(t_new, t, flat[:, i]) for i in range(flat.shape[1])], axis=1)
+    return out.reshape((t_new.size, *x.shape[1:]))
+
+
+def _foot_forces(rec: Recording, feet: list[str]) -> tuple[np.ndarray | None, str]:
+    """(T, F) force per foot in ``feet`` order from the recording's extras, matched by name prefix
+    (``lf_force_z`` -> ``l_sole``; ``foot_force`` columns ``FR_Force`` ... -> ``FR_foot``)."""
+    prefix = [f.split("_")[0].lower() for f in feet]
+    ex = rec.extra
+    if all(f"{p}f_force_z" in ex for p in prefix):
+        return np.stack([np.asarray(ex[f"{p}f_force_z"], float) for p in prefix], axis=1), "*f_force_z"
+    if "foot_force" in ex:
+        report = json.loads(str(ex["import_report"])) if "import_report" in ex else {}
+        cols = report.get("streams", {}).get("extra:foot_force", {}).get("source")
+        if cols and len(cols) == ex["foot_force"].shape[1]:
+            order = [[c.split("_")[0].lower() for c in cols].index(p) for p in prefix]
+            return np.asarray(ex["foot_force"], float)[:, order], "foot_force"
+    return None, ""
+
+
+def _quantum(rec: Recording) -> float | None:
+    """The encoders' quantum from the import report (None when it did not resolve one)."""
+    if "import_report" not in rec.extra:
+        return None
+    enc = json.loads(str(rec.extra["import_report"])).get("encoders", {})
+    qs = [
+        v["quantum_rad"] if v.get("matches_power_of_two") else v.get("resolution_rad")
+        for v in enc.values()
+        if isinstance(v, dict)
+    ]
+    qs = [q for q in qs if q]
+    return float(np.median(qs)) if qs else None
+
+
+@dataclass
+class Prediction:
+    """One prediction of the IMU on the uniform grid: the reference motion, the readings resampled
+    beside it, the usable samples and what was said about how it was made."""
+
+    name: str
+    ref: object
+    gyro: np.ndarray
+    acc: np.ndarray
+    valid: np.ndarray
+    notes: dict[str, object] = field(default_factory=dict)
+    #: Gyro regressors (T, 3, k) of the robot's own effects on the same grid, by effect name.
+    regressors: dict[str, np.ndarray] = field(default_factory=dict)
+    #: Grid samples within a window of a contact change.
+    near_change: np.ndarray | None = None
+
+
+def _stance(rec: Recording, model: RobotModel, t: np.ndarray, opts: RobotOptions, could_not: list[str]):
+    """(weights (T, F), contacts JSON, down (T, F)) on the grid ``t`` from the foot forces."""
+    names = list(model.feet)
+    forces, source = _foot_forces(rec, names)
+    if forces is None:
+        could_not.append(
+            "contacts from forces: the recording has no foot forces (no prediction from encoders)"
+        )
+        return None, None, None, None
+    f = _interp(t, rec.t, forces)
+    rate = 1.0 / float(np.median(np.diff(t)))
+    c = force_contacts(f, rate, opts.p_false)
+    info = {"source": source, "feet": names, **c.to_json()}
+    if model.flat and "lf_force_z" in rec.extra:
+        info["threshold_of_weight"] = [float(x / (model.mass * 9.81)) for x in c.threshold]
+    w = contact_weights(f, c)
+    if opts.settle_s > 0:
+        w = w * transition_weights(c.down, rate, opts.settle_s)
+        tot = w.sum(axis=1, keepdims=True)
+        w = np.divide(w, tot, out=np.zeros_like(w), where=tot > 0)
+    info["settle_s"] = ramp_time(f, c, rate)
+    return w, info, c.down, f
+
+
+def predict_encoders(
+    rec: Recording, model: RobotModel, opts: RobotOptions, could_not: list[str], k: int = 0
+) -> Prediction | None:
+    """The IMU predicted by the rigid model over the stance feet (None when no contacts are known)."""
+    t, _ = _uniform(rec)
+    weights, contacts, down, forces = _stance(rec, model, t, opts, could_not)
+    if weights is None:
+        return None
+    rate = 1.0 / float(np.median(np.diff(t)))
+    q = lowpass(_interp(t, rec.t, rec.q), rate, opts.cutoff)
+    qd = derivative(t, q)
+    feet = [chain_motion(ch, q, qd, model.flat) for ch in model.feet.values()]
+    gyro = _interp(t, rec.t, rec.gyro[:, k])
+    acc = _interp(t, rec.t, rec.acc[:, k])
+    fill = None if model.flat else lowpass(gyro, rate, opts.cutoff)
+    w, v, seen = stance_twist(feet, weights, fill)
+    g = np.asarray(rec.gravity, float)
+    if model.flat:
+        g_body = flat_foot_gravity(feet, weights, g)
+        tilt = "flat stance feet taken level"
+    else:
+        plane = foot_plane_gravity(np.stack([f.p for f in feet], axis=1), down, g)
+        g_body = tilt_filter(t, w, plane, opts.tilt_tau)
+        tilt = f"plane of >= 3 stance feet ({np.isfinite(plane[:, 0]).mean():.1%} of samples), carried by w"
+    any_down = down.any(axis=1)
+    g_body = np.where(np.isfinite(g_body), g_body, np.nan)
+    if np.isnan(g_body).any():
+        g_body = _fill_nan(g_body)
+    ref = body_reference(t, w, v, g_body, g, opts.cutoff)
+    notes = {
+        "contacts": contacts,
+        "tilt": tilt,
+        "gyro_predicted_fraction": seen.mean(axis=0).tolist(),
+        "gyro_fully_predicted": float(seen.all(axis=1).mean()),
+        "gyro_fill": None if model.flat else "measured gyro, only about axes the stance feet leave free",
+        "samples_no_foot_down": float(1.0 - any_down.mean()),
+    }
+    regs = _compliance(model, q, weights, forces, g_body, t, opts, could_not) if model.flat else {}
+    if not model.flat:
+        could_not.append("leg_compliance: tested for flat feet only (a point foot's flex moves no rotation)")
+    near = change_mask(down, rate, opts.change_half_s)
+    return Prediction("encoders", ref, gyro, acc, any_down, notes, regs, near)
+
+
+def _compliance(
+    model: RobotModel,
+    q: np.ndarray,
+    weights: np.ndarray,
+    forces: np.ndarray,
+    g_body: np.ndarray,
+    t: np.ndarray,
+    opts: RobotOptions,
+    could_not: list[str],
+) -> dict[str, np.ndarray]:
+    """The leg-compliance regressor (T, 6, legs), gyro then specific force, per leg with a hip-roll
+    joint (see :mod:`bodyschema.floating_effects`)."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    F = lowpass(forces, rate, opts.cutoff)
+    dF = derivative(t, F)
+    ddF = derivative(t, dF)
+    cols = []
+    for f, ch in enumerate(model.feet.values()):
+        hr = [i for i, c in enumerate(ch.columns) if "hip_roll" in model.joint_names[c]]
+        if not hr:
+            continue
+        _, _, axes, points = chain_frames(ch, q)
+        a, pj = axes[:, hr[0]], points[:, hr[0]]
+        w = weights[:, f, None]
+        gyro = -w * dF[:, f, None] * a
+        acc = w * (ddF[:, f, None] * np.cross(a, pj) - F[:, f, None] * np.cross(a, g_body))
+        cols.append(np.concatenate([gyro, acc], axis=1))
+    if not cols:
+        could_not.append("leg_compliance: no joint named *hip_roll* in the legs")
+        return {}
+    return {"leg_compliance": np.stack(cols, axis=2)}
+
+
+def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(residual (T, 6) measured - predicted, both low-passed alike; samples used; their 2 s blocks)."""
+    from bodyschema.imu_effects import specific_force
+
+    ref, t = pred.ref, pred.ref.t
+    rate = 1.0 / float(np.median(np.diff(t)))
+    meas = np.concatenate([lowpass(pred.gyro, rate, opts.cutoff), lowpass(pred.acc, rate, opts.cutoff)], 1)
+    model = np.concatenate([ref.omega, specific_force(ref.R, ref.acc_world, ref.gravity)], 1)
+    m = round(0.25 * rate)
+    use = pred.valid.copy()
+    use[:m], use[-m:] = False, False
+    block = np.floor((t - t[0]) / 2.0).astype(int)
+    return meas - model, use, block
+
+
+def _extend(pred: Prediction, opts: RobotOptions) -> list[dict[str, object]]:
+    """Test the robot's own effects on the rigid model's residual (held out over 2 s blocks) and
+    put the named ones into the prediction, before the IMU effects are selected."""
+    res, use, block = _rigid_residual(pred, opts)
+    ref = pred.ref
+    scale = np.sqrt(np.mean(res[use] ** 2, axis=0).reshape(2, 3).mean(axis=1)).repeat(3)
+    out = []
+    for name, X in pred.regressors.items():
+        e = linear_effect(
+            name, (res / scale)[use], X[use] / scale[None, :, None], block[use], opts.alpha, opts.min_gain
+        )
+        hb, ha = (np.asarray(e["held_out_energy"][k]) for k in ("before", "after"))
+        e.update(
+            channel="gyro and acc",
+            unit="rad/N",
+            channel_gain={
+                "gyro": float(1 - ha[:3].sum() / hb[:3].sum()),
+                "acc": float(1 - ha[3:].sum() / hb[3:].sum()),
+            },
+        )
+        out.append(e)
+        if e["named"]:
+            d = X @ np.asarray(e["value"])
+            pred.ref = replace(
+                ref,
+                omega=ref.omega + d[:, :3],
+                acc_world=ref.acc_world + np.einsum("tij,tj->ti", ref.R, d[:, 3:]),
+            )
+            ref = pred.ref
+    return out
+
+
+def _settle(
+    rec: Recording, model: RobotModel, opts: RobotOptions, rigid: Prediction, k: int
+) -> tuple[Prediction, dict[str, object]]:
+    """The rigid model against one whose feet settle in and out over the forces' ramp time: the
+    residual energy per channel of both on the same samples (nothing is fitted to the IMU, so every
+    sample is held out), and the prediction to go on with."""
+    window = float(rigid.notes["contacts"]["settle_s"])
+    soft = predict_encoders(rec, model, replace(opts, settle_s=window), [], k) if window > 0 else None
+    effect: dict[str, object] = {"effect": "contact_settling", "params": {"window_s": window}, "named": False}
+    if soft is None:
+        return rigid, effect
+    r0, use, block = _rigid_residual(rigid, opts)
+    r1, _, _ = _rigid_residual(soft, opts)
+    gains = {
+        ch: float(1 - np.sum(r1[use][:, s] ** 2) / np.sum(r0[use][:, s] ** 2))
+        for ch, s in (("gyro", slice(0, 3)), ("acc", slice(3, 6)))
+    }
+    per_block = [
+        1 - np.sum(r1[use & (block == b)] ** 2) / np.sum(r0[use & (block == b)] ** 2)
+        for b in np.unique(block[use])
+    ]
+    effect.update(
+        channel_gain=gains,
+        gain=float(np.mean(list(gains.values()))),
+        block_gains=[float(g) for g in per_block],
+    )
+    effect["named"] = bool(max(gains.values()) >= opts.min_gain and np.median(per_block) > 0)
+    return (soft if effect["named"] else rigid), effect
+
+
+def _fill_nan(x: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(x[:, 0])
+    idx = np.arange(x.shape[0])
+    return np.stack([np.interp(idx, idx[ok], x[ok, i]) for i in range(x.shape[1])], axis=1)
+
+
+def predict_mocap(
+    rec: Recording, model: RobotModel, opts: RobotOptions, could_not: list[str], k: int = 0
+) -> Prediction | None:
+    """The IMU predicted from the motion-capture base pose through the URDF mount (None without one)."""
+    if "base_pos" not in rec.extra or "base_rot" not in rec.extra:
+        could_not.append("mocap prediction: the recording has no base pose (extra base_pos, base_rot)")
+        return None
+    t, _ = _uniform(rec)
+    pos = _interp(t, rec.t, np.asarray(rec.extra["base_pos"], float))
+    rpy = np.unwrap(np.asarray(rec.extra["base_rot"], float), axis=0)
+    R_wb = Rotation.from_euler("xyz", _interp(t, rec.t, rpy))
+    R_bi = Rotation.from_matrix(model.imu_in_root[:3, :3])
+    quat_xyzw = (R_wb * R_bi).as_quat()
+    p_wi = pos + R_wb.apply(model.imu_in_root[:3, 3])
+    ref = reference_motion(t, np.roll(quat_xyzw, 1, axis=1), p_wi, rec.gravity, opts.cutoff)
+    gyro = _interp(t, rec.t, rec.gyro[:, k])
+    acc = _interp(t, rec.t, rec.acc[:, k])
+    notes = {"pose": "extra base_pos (m), base_rot (roll-pitch-yaw, fixed axes x-y-z)"}
+    return Prediction("mocap", ref, gyro, acc, np.ones(t.size, bool), notes)
+
+
+def _channel_gain(held: dict[str, object]) -> dict[str, float]:
+    """Held-out gain per channel: 1 - (RMS after / RMS before)² on the held-out blocks."""
+    return {
+        ch: float(1.0 - (held[f"{ch}_after"] / held[f"{ch}_before"]) ** 2)
+        for ch in ("gyro", "acc")
+        if held.get(f"{ch}_before")
+    }
+
+
+def _analyze(
+    pred: Prediction, opts: RobotOptions, expected_acc_delay: float, first: list[dict[str, object]] = ()
+) -> dict[str, object]:
+    """The robot's body effects on the rigid model's residual (named ones join the model), the
+    held-out selection of IMU effects (:mod:`bodyschema.discrepancy`), then the accelerometer's own
+    delay and the residual near contact changes (:mod:`bodyschema.floating_effects`)."""
+    extended = list(first) + _extend(pred, opts)
+    from bodyschema.discrepancy import analyze
+    from bodyschema.discrepancy.fit import residual
+
+    rep = analyze(
+        pred.ref,
+        pred.gyro,
+        pred.acc,
+        pred.valid,
+        cutoff=opts.cutoff,
+        n_blocks=opts.n_blocks,
+        alpha=opts.alpha,
+        min_gain=opts.min_gain,
+    )
+    out = rep.to_json()
+    for key in ("structure_before", "structure_after", "screening"):
+        out.pop(key, None)
+    out["prediction"] = pred.name
+    out["notes"] = pred.notes
+    prob = rep.problem
+    idx = prob.index
+    fitted = {k: v for k, v in rep.params.items() if k != "noise"}
+    res, model = residual(prob, fitted)
+    ta = prob.ref.t[idx]
+    block = np.floor((ta - ta[0]) / 2.0).astype(int)  # the analysis's 2 s evidence blocks
+    robot = list(extended)
+    after = {"gyro": res[idx, :3].copy(), "acc": res[idx, 3:].copy()}
+    dacc = np.gradient(model[:, 3:], prob.ref.t, axis=0)[idx]
+    e = linear_effect("acc_delay", after["acc"], -dacc[..., None], block, opts.alpha, opts.min_gain)
+    e.update(channel="acc", unit="s", expected=expected_acc_delay)
+    robot.append(e)
+    if e["named"]:
+        after["acc"] = after["acc"] - (-dacc[..., None]) @ np.asarray(e["value"])
+    if pred.near_change is not None:
+        near = _interp(ta, pred.ref.t, pred.near_change.astype(float)) > 0.5
+        robot.append(
+            {
+                **transition_ratio(
+                    np.concatenate([after["gyro"], after["acc"]], 1) / prob.scale.repeat(3), near, block
+                ),
+                "channel": "both, normalised",
+            }
+        )
+    out["robot_effects"] = robot
+    out["held_out"]["channel_gain"] = _channel_gains(rep.held_out, robot)
+    return out
+
+
+def _channel_gains(held: dict[str, object], robot: list[dict[str, object]]) -> dict[str, float]:
+    """Held-out gain per channel, 1 - (RMS after / RMS before)²: of the IMU effects alone (the
+    analysis's folds, on the model the body effects extended), and of the whole extension against
+    the rigid model (each named effect's held-out share of what the others leave, multiplied)."""
+    out = {}
+    for ch in ("gyro", "acc"):
+        g = 1.0 - (held[f"{ch}_rms_after"] / held[f"{ch}_rms_before"]) ** 2
+        out[f"{ch}_imu_effects"] = float(g)
+        keep = 1.0 - g
+        for e in robot:
+            if not e.get("named"):
+                continue
+            if "channel_gain" in e:
+                keep *= 1.0 - float(e["channel_gain"][ch])
+            elif e.get("channel") == ch:
+                keep *= 1.0 - float(e["gain"])
+        out[ch] = float(1.0 - keep)
+    return out
+
+
+def _agreement(reports: dict[str, dict[str, object]]) -> dict[str, object]:
+    """Whether the encoder and mocap predictions agree on the time offset and the mount rotation:
+    each prediction's estimate in its final model (named or not; both channels) with a 95 %
+    interval from its block-robust standard error; they agree when the intervals overlap on every
+    axis."""
+    from scipy.stats import t as t_dist
+
+    if not {"encoders", "mocap"} <= set(reports):
+        return {}
+    out: dict[str, object] = {}
+    for effect in ("time_offset", "mounting_rotation"):
+        got = {}
+        for name, rep in reports.items():
+            ev = next((e for e in rep["evidence"] if e["effect"] == effect and e["channel"] == "both"), None)
+            if ev is None:
+                continue
+            q = float(t_dist.ppf(0.975, max(int(ev["clusters"]) - 1, 1)))
+            est, se = np.asarray(ev["estimate"], float), np.asarray(ev["stderr"], float)
+            named = any(c["effect"] == effect for c in rep["causes"])
+            got[name] = {
+                "estimate": est.tolist(),
+                "interval": np.c_[est - q * se, est + q * se].tolist(),
+                "named": named,
+            }
+        if len(got) == 2:
+            a, b = got["encoders"]["interval"], got["mocap"]["interval"]
+            agree = all(max(x[0], y[0]) <= min(x[1], y[1]) for x, y in zip(a, b, strict=True))
+            out[effect] = {"agree": bool(agree), **got}
+    return out
+
+
+def _acc_hold_delay(rec: Recording, k: int) -> float:
+    """The accelerometer's lag behind the gyro its hold implies: half the update period beyond the
+    log's own step when the import report says it updates slower than the log (0 otherwise)."""
+    if "import_report" not in rec.extra:
+        return 0.0
+    streams = json.loads(str(rec.extra["import_report"])).get("streams", {})
+    name = rec.imu_names[k]
+    up_a = streams.get(f"acc:{name}", {}).get("update_rate_hz")
+    up_g = streams.get(f"gyro:{name}", {}).get("update_rate_hz")
+    if not up_a or not up_g or up_a > 0.8 * up_g:
+        return 0.0
+    return float(0.5 / up_a - 0.5 / up_g)
+
+
+def robot_sim2real(
+    rec: Recording, urdf: str | Path, options: RobotOptions | None = None, imu: int = 0
+) -> dict[str, object]:
+    """What the rigid model of a floating-base robot gets wrong about its base IMU, per prediction
+    (``"encoders"``, ``"mocap"`` where the recording has a base pose), with the contacts, the encoder
+    quantization floor, the two predictions' agreement and what could not be done."""
+    opts = options or RobotOptions()
+    model = read_robot(urdf, rec.joint_names)
+    could_not: list[str] = []
+    if model.unmatched:
+        could_not.append(f"joints of the legs not in the recording, held at 0: {model.unmatched}")
+    if rec.q is None:
+        raise ValueError("the recording has no joint positions (q): nothing drives the rigid model")
+    rate = 1.0 / float(np.median(np.diff(rec.t)))
+    q_mid = np.median(rec.q, axis=0)[None]
+    lever = float(np.median([np.linalg.norm(chain_frames(c, q_mid)[1][0]) for c in model.feet.values()]))
+    legs = max(len(c.columns) for c in model.feet.values())
+    quantum = _quantum(rec)
+    if quantum is None:
+        could_not.append(
+            "encoder quantization: the import report resolved no quantum (floor and band not derived)"
+        )
+    if opts.cutoff is None:
+        cut = 10.0 if quantum is None else band_cutoff(quantum, rate, lever, legs, opts.quantization_tol)
+        opts = replace(opts, cutoff=round(cut, 2))
+    floor = None
+    if quantum is not None:
+        floor = {
+            "quantum_rad": quantum,
+            "lever_m": lever,
+            "joints": legs,
+            **quantization_floor(quantum, rate, opts.cutoff, lever, legs),
+        }
+    delay = _acc_hold_delay(rec, imu)
+    reports = {}
+    enc = predict_encoders(rec, model, opts, could_not, imu)
+    if enc is not None:
+        enc, settle = _settle(rec, model, opts, enc, imu)
+        reports["encoders"] = _analyze(enc, opts, delay, [settle])
+    mocap = predict_mocap(rec, model, opts, could_not, imu)
+    if mocap is not None:
+        reports["mocap"] = _analyze(mocap, opts, delay)
+    return {
+        "robot": model.name,
+        "imu": rec.imu_names[imu],
+        "imu_mount": {"source": model.imu_source, "in_root": model.imu_in_root.round(6).tolist()},
+        "feet": {"names": list(model.feet), "flat": model.flat},
+        "cutoff_hz": opts.cutoff,
+        "predictions": reports,
+        "agreement": _agreement(reports),
+        "encoder_quantization": floor,
+        "could_not": could_not,
+    }
