@@ -1506,8 +1506,10 @@ def estimate_kinematics(
     """Joint axes, IMU lever arms and same-link rotations of ``rec`` (model in the module docstring).
 
     ``topology`` is the learned or given tree; without one the fast estimator learns it. A multi-rate
-    recording is aligned with the lag in ``topology.timing`` (the fast estimator's; a topology without
-    timing gets it from a fast fit of ``rec``).
+    recording, or a single-clock one without measured velocities (read as ``t_q = t``,
+    :func:`bodyschema.timing.timed_view`), is aligned with the lag in ``topology.timing`` (the fast
+    estimator's; a topology without timing gets it from a fast fit of ``rec``). An IMU the tree that
+    fits does not place (:func:`bodyschema.diff.open_parts`) is not fitted: its reason says so.
     """
     opts = options or KinematicsOptions()
     rec = timed_view(rec)  # positions only, on one clock: the timed path, as the fast estimator reads it
