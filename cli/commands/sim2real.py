@@ -57,7 +57,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--report", type=Path, default=None, help="write report.md, JSON and PNG plots here")
     p.add_argument("--transfer", type=Path, nargs="*", default=(), help="recordings to test the fit on")
-    p.add_argument("--cutoff", type=float, default=10.0, help="common low-pass of both sides, Hz")
+    p.add_argument(
+        "--cutoff",
+        type=float,
+        default=None,
+        help="common low-pass of both sides, Hz (10; a walking robot's URDF: from its encoder quantization)",
+    )
     p.add_argument("--blocks", type=int, default=8, help="held-out time blocks")
     p.add_argument("--alpha", type=float, default=0.01, help="family significance level of a round's tests")
     p.add_argument(
@@ -83,6 +88,10 @@ def _run(args: argparse.Namespace) -> int:
     from simulators.recording_io import load_recording
 
     rec = load_recording(args.recording)
+    if _floating_base(rec, args):
+        return _robot(rec, args)
+    if args.cutoff is None:
+        args.cutoff = 10.0
     if args.encoders:
         return _encoders(rec, args)
     refs = _robot_references(rec, args)
@@ -119,6 +128,47 @@ def _encoders(rec: Recording, args: argparse.Namespace) -> int:
     else:
         print(f"== {args.recording.name} encoders against {args.model}")
         print("\n".join(report.summary()))
+    return 0
+
+
+def _floating_base(rec: Recording, args: argparse.Namespace) -> bool:
+    """A walking robot's log against its URDF: ``--model`` names a ``.urdf`` file, the recording has
+    joint positions and no reference motion, and neither ``--encoders`` nor ``--gravity-case`` asks
+    for the fixed-base analyses."""
+    model = str(args.model or "")
+    return (
+        model.lower().endswith(".urdf")
+        and Path(model).is_file()
+        and rec.q is not None
+        and rec.ref_quat is None
+        and not args.encoders
+        and not args.gravity_case
+        and _has_feet(model)
+    )
+
+
+def _has_feet(model: str) -> bool:
+    """Whether the URDF has feet (``*_sole`` or ``*_foot`` links) for the floating-base analysis."""
+    import re
+
+    return re.search(r'<link\s+name="[^"]*_(sole|foot)"', Path(model).read_text(errors="replace")) is not None
+
+
+def _robot(rec: Recording, args: argparse.Namespace) -> int:
+    """A floating-base robot's base IMU against its rigid model (:func:`sim2real.robots.robot_sim2real`)."""
+    from sim2real.robots import RobotOptions, format_robot, robot_sim2real
+
+    imu = rec.imu_names.index(args.imu) if args.imu else 0
+    opts = RobotOptions(cutoff=args.cutoff, n_blocks=args.blocks, alpha=args.alpha, min_gain=args.min_gain)
+    out = robot_sim2real(rec, args.model, opts, imu)
+    if args.report:
+        args.report.mkdir(parents=True, exist_ok=True)
+        (args.report / "robot_sim2real.json").write_text(json.dumps(out, indent=2))
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print(f"== {args.recording.name} {out['imu']} against {args.model}")
+        print("\n".join(format_robot(out)))
     return 0
 
 
