@@ -680,12 +680,10 @@ def format_robot(out: dict[str, object]) -> list[str]:
         for e in rep.get("robot_effects", []):
             if e.get("named"):
                 val = e.get("value", e.get("params", e.get("ratio")))
-                lines.append(
-                    f"   {e['effect']}: {_fmt(val)}  95 % {_fmt(e.get('interval', '-'))}  gain {_fmt(e.get('gain', '-'))}"
-                )
+                iv, gain = _fmt(e.get("interval", "-")), _fmt(e.get("gain", "-"))
+                lines.append(f"   {e['effect']}: {_fmt(val)}  95 % {iv}  gain {gain}")
     for effect, a in out.get("agreement", {}).items():
-        lines.append(
-            f"agreement {effect}: {a['agree']} (encoders {_fmt(a['encoders']['interval'])}, mocap {_fmt(a['mocap']['interval'])})"
-        )
+        enc, moc = _fmt(a["encoders"]["interval"]), _fmt(a["mocap"]["interval"])
+        lines.append(f"agreement {effect}: {a['agree']} (95 %: encoders {enc}, mocap {moc})")
     lines += [f"could not: {c}" for c in out["could_not"]]
     return lines
