@@ -110,8 +110,9 @@ class FastOptions:
     #: Timed data: the IMU's on-chip low-pass bandwidth, Hz (None: not stated; the IMU Nyquist
     #: frequency is assumed, and :func:`fast_fit` reads it from the recording when it can).
     imu_bandwidth: float | None = None
-    #: Timed data: the stated on-chip filter delay, s, taken out of the lag to report the clock skew.
-    imu_delay: float = 0.0
+    #: Timed data: the stated on-chip filter delay, s, taken out of the lag to report the clock skew
+    #: (None: not stated; the recording's stated filter gives it, else 0).
+    imu_delay: float | None = None
     #: Timed data: the comparison band, Hz (None: :func:`bodyschema.timing.choose_band` picks it).
     band: float | None = None
     #: Timed data: the largest lag of the IMU behind the encoders searched, s.

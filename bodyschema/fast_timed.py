@@ -42,7 +42,7 @@ def stated_filter(rec: Recording, opts: FastOptions) -> FastOptions:
     if cfg is None:
         return opts
     bandwidth, delay = DLPF_GYRO[int(cfg)]
-    stated_delay = delay if opts.imu_delay == 0.0 else opts.imu_delay
+    stated_delay = delay if opts.imu_delay is None else opts.imu_delay
     return replace(opts, imu_bandwidth=bandwidth, imu_delay=stated_delay)
 
 
@@ -91,7 +91,7 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
         fit = _fit_at(data, err, lag, lag_unc, opts)
     fit.lag_ms = 1e3 * float(lag.mid + shift)
     fit.lag_time = lag.t_mid
-    fit.skew_ms = 1e3 * float(lag.mid + shift - opts.imu_delay)
+    fit.skew_ms = 1e3 * float(lag.mid + shift - (opts.imu_delay or 0.0))
     # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
     fit.drift_ppm = 1e6 * float(lag.drift) if n_seg >= 2 and fit.edges else None
     fit.band_hz = data.fc

@@ -68,6 +68,9 @@ def test_catalog_robot_with_the_robot_preset_is_exact_and_its_skew_is_found(seed
     truth_skew_ms = 1e3 * (8e-3 + fit.lag_time * DRIFT)
     # within 1 ms (half a physics step of MuJoCo's sensor timing remains, about 0.4 ms)
     assert abs(fit.skew_ms - truth_skew_ms) < 1.0
+    # a delay the caller states, even none, is not replaced by the recording's
+    stated = fast_fit(rec, FastOptions(imu_delay=0.0))
+    assert stated.skew_ms == pytest.approx(stated.lag_ms) and stated.lag_ms == pytest.approx(fit.lag_ms)
 
 
 def test_estimate_topology_takes_the_stamps_and_answers_the_true_tree(seed):
