@@ -256,7 +256,8 @@ class _Run:
                 break
             if time.monotonic() - last_log > 30:
                 last_log = time.monotonic()
-                _log(f"run {self.index}: {self.now():.0f} s, baselines {self.baselines}")
+                got = {k: v if v is None else round(v) for k, v in self.baselines.items()}
+                _log(f"run {self.index}: {self.now():.0f} s, baselines {got}")
         self.robots = sorted(self.baselines)
         if not self.baselines or None in self.baselines.values():
             waits = {k: self.waiting.get(k) for k, v in self.baselines.items() if v is None}
@@ -386,7 +387,10 @@ class _Run:
                 break
             if time.monotonic() - last_log > 30:
                 last_log = time.monotonic()
-                states = {f"{i.robot} {i.kind}": x["states"] for i, x in zip(applied, lat, strict=True)}
+                states = {
+                    f"{i.robot} {i.kind}": {k: round(v) for k, v in x["states"].items()}
+                    for i, x in zip(applied, lat, strict=True)
+                }
                 _log(f"run {self.index}: {self.now():.0f} s, alerts {states}")
         self.phase("alerts", t)
 

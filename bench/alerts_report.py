@@ -318,7 +318,7 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
         + ", ".join(_baseline_item(r, k, v) for k, v in r["baselines"].items())
         + f"; all robots: {fmt(r['baseline_s'], '.0f')} s (limit {r['baseline_limit_s']:.0f} s).",
         "",
-        "| damage | part | injected at | pending after | active after | states seen |",
+        "| damage | part | injected at | pending after, s | active after, s | states seen (s after) |",
         "|---|---|---:|---:|---:|---|",
     ]
     for d in r["damages"]:
