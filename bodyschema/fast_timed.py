@@ -95,6 +95,7 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
     # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
     fit.drift_ppm = 1e6 * float(lag.drift) if n_seg >= 2 and fit.edges else None
     fit.band_hz = data.fc
+    fit.path = "timed"
     return fit
 
 
