@@ -18,7 +18,7 @@ other feet, a foot whose predicted world speed stays below what encoder noise al
 >>> rng = np.random.default_rng(0)
 >>> f = np.where(np.arange(1000) % 200 < 120, 300.0, 0.0) + rng.normal(0, 5, 1000)
 >>> c = force_contacts(f[:, None], rate=100.0)
->>> bool(c.down[:120, 0].all()), bool(c.down[130:190, 0].any()), round(c.threshold[0] / 5, 0)
+>>> bool(c.down[:120, 0].all()), bool(c.down[130:190, 0].any()), float(round(c.threshold[0] / 5, 0))
 (True, False, 3.0)
 """
 

@@ -288,7 +288,7 @@ def predict_encoders(
     if weights is None:
         return None
     rate = 1.0 / float(np.median(np.diff(t)))
-    q = lowpass(_interp(t, rec.t, rec.q), rate, opts.cutoff)
+    q = lowpass(_interp(t, rec.t if rec.t_q is None else rec.t_q, rec.q), rate, opts.cutoff)
     qd = derivative(t, q)
     feet = [chain_motion(ch, q, qd, model.flat) for ch in model.feet.values()]
     gyro = _interp(t, rec.t, rec.gyro[:, k])
