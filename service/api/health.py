@@ -45,13 +45,18 @@ def livez() -> dict[str, str]:
 
 @router.get(
     "/readyz",
-    summary="database reachable and unchanged, writes succeeding, worker heartbeat fresh (503 otherwise)",
+    summary="database reachable and unchanged, writes succeeding, worker alive (503 otherwise; a slow "
+    "worker is degraded)",
     responses={
         503: {
             "description": "not ready: the same body, with `reason` naming why (database unreachable, "
-            "database file deleted or replaced, writes failing, worker heartbeat stale)"
+            "database file deleted or replaced, writes failing, worker thread stopped, or no worker in "
+            "this process and its heartbeat stale)"
         },
-        200: {"description": "ready; `degraded` names what works less well (training cluster unreachable)"},
+        200: {
+            "description": "ready; `degraded` names what works less well (training cluster unreachable, "
+            "worker slow: its lag in `checks.worker_lag`)"
+        },
     },
 )
 def readyz(
