@@ -184,6 +184,10 @@ def fit_topology(
         excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
         evidence=evidence,
     )
+    if method != "fast":  # the networks' ranking is sure only where held-out rivals fail
+        from bodyschema.network_confidence import heldout_check
+
+        topo = heldout_check(rec, topo)
     topo = _with(
         topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=training
     )
