@@ -85,6 +85,7 @@ def _placed(kin: Kinematics, truth: dict[str, ImuTruth]) -> dict[str, tuple[floa
     return out
 
 
+@pytest.mark.slow
 def test_kinematics_on_the_single_clock_form_places_every_imu(pair: Pair) -> None:
     multi, single = estimate_kinematics(pair.multi), estimate_kinematics(pair.single)
     err_m, err_s = _placed(multi, pair.truth), _placed(single, pair.truth)
@@ -151,3 +152,13 @@ def test_an_undetermined_tree_is_said_so_never_placed_on_the_base() -> None:
             assert k.axis is None
             checked += 1
     assert checked >= 1
+
+
+def test_a_lag_hint_moves_a_single_clock_recordings_encoders_too(pair: Pair) -> None:
+    from bodyschema.timing import encoders_moved, lag_hinted
+
+    moved = encoders_moved(pair.single, 0.05)
+    assert moved.t_q is not None and np.array_equal(moved.t_q, pair.single.t + 0.05)
+    hinted = lag_hinted(estimate_topology, pair.single, 0.05)  # the search centred 50 ms off the lag
+    assert hinted.joint_parent == pair.multi.truth_parent_map
+    assert abs(hinted.timing["lag_ms"] - estimate_topology(pair.single).timing["lag_ms"]) < 0.25
