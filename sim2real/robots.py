@@ -494,6 +494,8 @@ def _analyze(
         out.pop(key, None)
     out["prediction"] = pred.name
     out["notes"] = pred.notes
+    for c in out["causes"]:
+        c["reading"] = _reading(c)
     prob = rep.problem
     idx = prob.index
     fitted = {k: v for k, v in rep.params.items() if k != "noise"}
@@ -521,6 +523,23 @@ def _analyze(
     out["robot_effects"] = robot
     out["held_out"]["channel_gain"] = _channel_gains(rep.held_out, robot)
     return out
+
+
+#: A MEMS IMU's scale tolerance (MPU-6050 datasheet: ±3 %): a scale error well beyond it is the
+#: model's error showing through the IMU, not the sensor's.
+SENSOR_SCALE_TOL = 0.03
+
+
+def _reading(cause: dict[str, object]) -> str:
+    """What a named IMU effect says on a robot: a scale beyond three times a sensor's tolerance is
+    the rigid model getting that axis wrong, not the IMU."""
+    if cause["effect"] in ("gyro_scale", "acc_scale"):
+        worst = float(np.max(np.abs(np.ravel(cause["params"]["matrix"]) - 1.0)))
+        if worst > 3 * SENSOR_SCALE_TOL:
+            return (
+                f"scale off by {worst:.0%}, beyond 3x a sensor's ±3 %: the rigid model's error on that axis"
+            )
+    return "sensor or mount"
 
 
 def _channel_gains(held: dict[str, object], robot: list[dict[str, object]]) -> dict[str, float]:
