@@ -693,9 +693,10 @@ def format_robot(out: dict[str, object]) -> list[str]:
         for c in rep["causes"]:
             if c["effect"] == "noise":
                 continue
-            lines.append(
-                f"   {c['effect']}: {_fmt(c['params'])}  95 % {_fmt(c['interval'])}  gain {c['gain']:.3f}"
-            )
+            reading = c.get("reading", "sensor or mount")
+            note = "" if reading == "sensor or mount" else f"  ({reading})"
+            iv = _fmt(c["interval"])
+            lines.append(f"   {c['effect']}: {_fmt(c['params'])}  95 % {iv}  gain {c['gain']:.3f}{note}")
         for e in rep.get("robot_effects", []):
             if e.get("named"):
                 val = e.get("value", e.get("params", e.get("ratio")))
