@@ -40,6 +40,7 @@ BENCHMARKS: tuple[str, ...] = (
     "sim2real_encoders",
     "gravity",
     "realism",
+    "calibration",
     "shapes",
     "warmstart",
     "fleet",

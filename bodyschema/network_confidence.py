@@ -419,7 +419,8 @@ def _decide(
 def heldout_check(rec: Recording, topo: Topology, options: HeldOutOptions | None = None) -> Topology:
     """``topo`` with the held-out tests applied: undetermined parts (and the joints too weakly moved
     to resolve) make it not unique, list the joints to move in ``undetermined`` and their rival trees
-    in ``candidates``; every part's confidence is the test's, capped by the one it had.
+    in ``candidates``; every part's confidence is the test's (the dependency threshold's margin is
+    no probability), capped at ½ while ``topo`` has joints left out for want of excitation.
 
     A window too short to split in the comparison band leaves every part undetermined (the networks'
     ranking alone is never reported as sure).
@@ -435,7 +436,7 @@ def heldout_check(rec: Recording, topo: Topology, options: HeldOutOptions | None
     move: set[str] = set(topo.undetermined) | set(test.weak)
     cands: list[Topology] = list(topo.candidates)
     for key, p in test.parts.items():
-        conf[key] = min(conf.get(key, 1.0), p.confidence)
+        conf[key] = p.confidence
         if p.decided:
             continue
         move |= set(p.move)
@@ -449,6 +450,10 @@ def heldout_check(rec: Recording, topo: Topology, options: HeldOutOptions | None
                 cands.append(c)
     for j in test.weak:
         conf[f"joint:{j}"] = min(conf.get(f"joint:{j}", 0.0), 0.5)
+    if topo.undetermined:
+        # joints without excitation were left out of the tree (placeholders on the base): one of them
+        # could hang anywhere, so no part of the tree stands while there are any
+        conf = {k: min(v, 0.5) for k, v in conf.items()}
     undetermined = tuple(j for j in topo.joint_parent if j in move)
     unique = topo.unique and not undetermined
     return replace(topo, unique=unique, confidence=conf, undetermined=undetermined, candidates=tuple(cands))
