@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "topology",
     "kinematics",
     "diff",
+    "inject",
     "serve",
     "db",
     "import_",
