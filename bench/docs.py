@@ -1086,7 +1086,9 @@ def _shapes(b: _Bench) -> str:
     return (
         f"On {len({r['robot'] for r in rows})} random robots of {min(joints)}-{max(joints)} joints from the "
         "independent generator (`bench/generator.py`, no code shared with `simulators/`; "
-        f"{still} joints jammed, true rate RMS under 0.05 rad/s; {b.provenance('shapes')}): " + "; ".join(parts) + "."
+        f"{still} joints jammed, true rate RMS under 0.05 rad/s; {b.provenance('shapes')}): "
+        + "; ".join(parts)
+        + "."
     )
 
 
