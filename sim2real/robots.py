@@ -26,7 +26,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bodyschema.contacts import change_mask, contact_weights, force_contacts, ramp_time, transition_weights
+from bodyschema.contacts import (
+    change_mask,
+    contact_weights,
+    force_contacts,
+    kinematic_contact,
+    ramp_time,
+    transition_weights,
+)
 from bodyschema.floating_base import (
     SerialChain,
     band_cutoff,
@@ -316,11 +323,47 @@ def predict_encoders(
         "gyro_fill": None if model.flat else "measured gyro, only about axes the stance feet leave free",
         "samples_no_foot_down": float(1.0 - any_down.mean()),
     }
+    legs = max(len(c.columns) for c in model.feet.values())
+    notes["kinematic_contacts"] = _kinematic_contacts(rec, feet, legs, w, v, down, rate, opts)
     regs = _compliance(model, q, weights, forces, g_body, t, opts, could_not) if model.flat else {}
     if not model.flat:
         could_not.append("leg_compliance: tested for flat feet only (a point foot's flex moves no rotation)")
     near = change_mask(down, rate, opts.change_half_s)
     return Prediction("encoders", ref, gyro, acc, any_down, notes, regs, near)
+
+
+def _kinematic_contacts(
+    rec: Recording,
+    feet: list,
+    legs: int,
+    w: np.ndarray,
+    v: np.ndarray,
+    down: np.ndarray,
+    rate: float,
+    opts: RobotOptions,
+) -> dict[str, object]:
+    """Contacts from the kinematics alone, beside the forces': each foot's world speed under the
+    base twist (``v + w x p + dp``), its median on force-down and force-up samples, and the share of
+    samples where "speed within the encoders' noise" (:func:`~bodyschema.contacts.kinematic_contact`)
+    agrees with the forces. The noise: the quantization floor of two legs' rates through the foot's
+    lever, per axis."""
+    speed = np.stack([np.linalg.norm(v + np.cross(w, f.p) + f.v, axis=1) for f in feet], axis=1)
+    quantum = _quantum(rec)
+    out: dict[str, object] = {
+        "median_speed_down": [float(np.median(speed[down[:, j], j])) for j in range(len(feet))],
+        "median_speed_up": [
+            float(np.median(speed[~down[:, j], j])) if (~down[:, j]).any() else None for j in range(len(feet))
+        ],
+    }
+    if quantum is not None:
+        lever = float(np.median([np.median(np.linalg.norm(f.p, axis=1)) for f in feet]))
+        joints = max(1, rec.q.shape[1] // max(len(feet), 1))
+        sigma = (
+            quantization_floor(quantum, rate, opts.cutoff, 1.0, 2 * joints)["gyro_std"] * lever / np.sqrt(3.0)
+        )
+        kin = kinematic_contact(speed, sigma, opts.p_false)
+        out.update(speed_noise_per_axis=float(sigma), agree_with_forces=float(np.mean(kin == down)))
+    return out
 
 
 def _compliance(
