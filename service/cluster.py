@@ -201,6 +201,9 @@ class TrainingCluster:
         self._closed.set()
         thread = self._thread
         if thread is not None:
+            # A start under way is waited for: Dask neither cuts a starting worker short nor lets the
+            # process exit before it is up (its own exit hook closes the cluster then, killing busy
+            # workers only after 4 s). The connecting thread sees the close and stops what it started.
             thread.join(self.options.connect_timeout + 60.0)
         with self._lock:
             client, cluster = self._client, self._cluster
@@ -241,6 +244,7 @@ class TrainingCluster:
             if not keep:
                 client.close()
                 if cluster is not None:
+                    stop_workers(cluster, self.options.worker_stop_seconds)
                     cluster.close()
             else:
                 log.info("training cluster connected", extra={"cluster": self.options.where})
