@@ -235,7 +235,11 @@ def _hinge_gains_ok(
         pred = np.einsum("tr,rkc->tkc", X[:, :9], beta[:9].reshape(9, K, 3))
         e_h = float(np.mean(np.sum(F[0:3] ** 2, axis=0)))
         gain = np.sqrt(np.mean(np.sum(pred**2, axis=2), axis=0) / max(e_h, 1e-300))
-        se_a = np.sqrt(s2 * 9.0 / T / max(e_h, 1e-300))
+        # the contribution's standard error, collinearity with the other rows included (a parent
+        # that turns with the joint itself leaves the split between A(q) ω_h and e q̇ open)
+        X9 = X[:, :9]
+        spread = float(np.trace(Ginv[:9, :9] @ (X9.T @ X9))) / T
+        se_a = np.sqrt(s2 * spread / max(e_h, 1e-300))
         ok &= np.abs(gain - 1.0) <= tol + z * se_a
     return ok
 
