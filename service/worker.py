@@ -754,6 +754,7 @@ class Worker(AlertPath):
                 robot, "network", window_end_t=net.window_end_t, baseline_id=base_id
             )
         self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
+        self._baseline_ids[robot] = base_id  # the worker's own: nothing tracked to forget
         n = self._streak_n.get(robot, k)
         self._break_streak(robot)
         log.log(
