@@ -32,7 +32,7 @@ import numpy as np
 from scipy.stats import f as f_dist
 from scipy.stats import t as t_dist
 
-__all__ = ["linear_effect", "transition_ratio"]
+__all__ = ["forward_select", "linear_effect", "transition_ratio"]
 
 
 def _fit(r: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -112,3 +112,39 @@ def transition_ratio(resid: np.ndarray, near: np.ndarray, block: np.ndarray) -> 
         "near_fraction": float(near.mean()),
         "named": bool(np.isfinite(se) and full - q * se > 1.0),
     }
+
+
+def forward_select(
+    resid: np.ndarray,
+    candidates: dict[str, np.ndarray],
+    block: np.ndarray,
+    alpha: float = 0.01,
+    min_gain: float = 0.005,
+) -> tuple[list[str], list[dict[str, object]]]:
+    """Name candidate linear effects one at a time: each round tests every candidate not yet named,
+    its regressors and the residual with the named ones projected out (Frisch-Waugh), at ``alpha``
+    split over the round's tests (Bonferroni); the most significant one that also gains
+    ``min_gain`` held out joins. Returns the names in order and each round's tests."""
+    named: list[str] = []
+    rounds: list[dict[str, object]] = []
+    while len(named) < len(candidates):
+        base = np.concatenate([candidates[n] for n in named], axis=2) if named else None
+        r = resid if base is None else resid - base @ _fit(resid, base)
+        tests = {}
+        for name, X in candidates.items():
+            if name in named:
+                continue
+            Xp = X
+            if base is not None:
+                A = base.reshape(-1, base.shape[-1])
+                coef = np.linalg.lstsq(A, X.reshape(-1, X.shape[-1]), rcond=None)[0]
+                Xp = X - base @ coef
+            tests[name] = linear_effect(
+                name, r, Xp, block, alpha / max(len(candidates) - len(named), 1), min_gain
+            )
+        rounds.append({n: {"p_value": e["p_value"], "gain": e["gain"]} for n, e in tests.items()})
+        ok = [n for n, e in tests.items() if e["named"]]
+        if not ok:
+            break
+        named.append(min(ok, key=lambda n: tests[n]["p_value"]))
+    return named, rounds

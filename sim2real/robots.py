@@ -47,7 +47,7 @@ from bodyschema.floating_base import (
     stance_twist,
     tilt_filter,
 )
-from bodyschema.floating_effects import linear_effect, transition_ratio
+from bodyschema.floating_effects import forward_select, linear_effect, transition_ratio
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import lowpass, reference_motion
 
@@ -376,27 +376,28 @@ def _compliance(
     opts: RobotOptions,
     could_not: list[str],
 ) -> dict[str, np.ndarray]:
-    """The leg-compliance regressor (T, 6, legs), gyro then specific force, per leg with a hip-roll
-    joint (see :mod:`bodyschema.floating_effects`)."""
+    """Leg-compliance regressors, one candidate per joint of the legs (``compliance[hip_roll]``:
+    (T, 6, legs), gyro then specific force, one column per leg; see
+    :mod:`bodyschema.floating_effects`). Joints are matched across legs by their name without the
+    leg's prefix (``l_hip_roll``, ``r_hip_roll`` -> ``hip_roll``)."""
     rate = 1.0 / float(np.median(np.diff(t)))
     F = lowpass(forces, rate, opts.cutoff)
     dF = derivative(t, F)
     ddF = derivative(t, dF)
-    cols = []
+    cand: dict[str, list[np.ndarray]] = {}
     for f, ch in enumerate(model.feet.values()):
-        hr = [i for i, c in enumerate(ch.columns) if "hip_roll" in model.joint_names[c]]
-        if not hr:
-            continue
         _, _, axes, points = chain_frames(ch, q)
-        a, pj = axes[:, hr[0]], points[:, hr[0]]
         w = weights[:, f, None]
-        gyro = -w * dF[:, f, None] * a
-        acc = w * (ddF[:, f, None] * np.cross(a, pj) - F[:, f, None] * np.cross(a, g_body))
-        cols.append(np.concatenate([gyro, acc], axis=1))
-    if not cols:
-        could_not.append("leg_compliance: no joint named *hip_roll* in the legs")
-        return {}
-    return {"leg_compliance": np.stack(cols, axis=2)}
+        for i, c in enumerate(ch.columns):
+            a, pj = axes[:, i], points[:, i]
+            gyro = -w * dF[:, f, None] * a
+            acc = w * (ddF[:, f, None] * np.cross(a, pj) - F[:, f, None] * np.cross(a, g_body))
+            key = model.joint_names[c].split("_", 1)[-1]
+            cand.setdefault(f"compliance[{key}]", []).append(np.concatenate([gyro, acc], axis=1))
+    out = {k: np.stack(v, axis=2) for k, v in cand.items() if len(v) == len(model.feet)}
+    if not out:
+        could_not.append("leg_compliance: the legs share no joint names, so no per-joint compliance")
+    return out
 
 
 def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -415,35 +416,47 @@ def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, n
 
 
 def _extend(pred: Prediction, opts: RobotOptions) -> list[dict[str, object]]:
-    """Test the robot's own effects on the rigid model's residual (held out over 2 s blocks) and
-    put the named ones into the prediction, before the IMU effects are selected."""
+    """Select the robot's own effects on the rigid model's residual (forward, held out over 2 s
+    blocks, :func:`~bodyschema.floating_effects.forward_select`), fit the named ones together and
+    put them into the prediction, before the IMU effects are selected."""
+    if not pred.regressors:
+        return []
     res, use, block = _rigid_residual(pred, opts)
-    ref = pred.ref
     scale = np.sqrt(np.mean(res[use] ** 2, axis=0).reshape(2, 3).mean(axis=1)).repeat(3)
-    out = []
-    for name, X in pred.regressors.items():
-        e = linear_effect(
-            name, (res / scale)[use], X[use] / scale[None, :, None], block[use], opts.alpha, opts.min_gain
-        )
+    cands = {k: X[use] / scale[None, :, None] for k, X in pred.regressors.items()}
+    r = (res / scale)[use]
+    named, rounds = forward_select(r, cands, block[use], opts.alpha, opts.min_gain)
+    out: dict[str, object] = {
+        "effect": "leg_compliance",
+        "named": bool(named),
+        "joints": named,
+        "rounds": rounds,
+    }
+    if named:
+        X = np.concatenate([cands[n] for n in named], axis=2)
+        e = linear_effect("leg_compliance", r, X, block[use], opts.alpha, opts.min_gain)
         hb, ha = (np.asarray(e["held_out_energy"][k]) for k in ("before", "after"))
-        e.update(
-            channel="gyro and acc",
+        legs = pred.regressors[named[0]].shape[2]
+        out.update({k: e[k] for k in ("value", "std", "interval", "p_value", "gain", "blocks")})
+        out.update(
+            named=True,
             unit="rad/N",
+            columns=[f"{n}[leg {i}]" for n in named for i in range(legs)],
+            channel="gyro and acc",
             channel_gain={
                 "gyro": float(1 - ha[:3].sum() / hb[:3].sum()),
                 "acc": float(1 - ha[3:].sum() / hb[3:].sum()),
             },
         )
-        out.append(e)
-        if e["named"]:
-            d = X @ np.asarray(e["value"])
-            pred.ref = replace(
-                ref,
-                omega=ref.omega + d[:, :3],
-                acc_world=ref.acc_world + np.einsum("tij,tj->ti", ref.R, d[:, 3:]),
-            )
-            ref = pred.ref
-    return out
+        full = np.concatenate([pred.regressors[n] for n in named], axis=2)
+        d = full @ np.asarray(e["value"])
+        ref = pred.ref
+        pred.ref = replace(
+            ref,
+            omega=ref.omega + d[:, :3],
+            acc_world=ref.acc_world + np.einsum("tij,tj->ti", ref.R, d[:, 3:]),
+        )
+    return [out]
 
 
 def _settle(
@@ -458,6 +471,10 @@ def _settle(
     if soft is None:
         return rigid, effect
     r0, use, block = _rigid_residual(rigid, opts)
+    effect["rigid_rms"] = {
+        "gyro": float(np.sqrt(np.mean(r0[use][:, :3] ** 2))),
+        "acc": float(np.sqrt(np.mean(r0[use][:, 3:] ** 2))),
+    }
     r1, _, _ = _rigid_residual(soft, opts)
     gains = {
         ch: float(1 - np.sum(r1[use][:, s] ** 2) / np.sum(r0[use][:, s] ** 2))

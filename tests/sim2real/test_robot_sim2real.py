@@ -115,17 +115,25 @@ def test_icub_names_effects_with_intervals(icub_result: dict) -> None:
 
 @needs_logs
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: the extension removes ~0.15 of the rigid gyro residual")
+@pytest.mark.xfail(strict=True, reason="measured: the extension removes 0.21 of the rigid gyro residual")
 def test_icub_gyro_gain(icub_result: dict) -> None:
     assert icub_result["predictions"]["encoders"]["held_out"]["channel_gain"]["gyro"] >= MIN_GAIN
 
 
 @needs_logs
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: encoders ~4 ms and a 4 deg tilt, mocap ~0 on both")
-def test_icub_predictions_agree(icub_result: dict) -> None:
-    agreement = icub_result["agreement"]
-    assert agreement["time_offset"]["agree"] and agreement["mounting_rotation"]["agree"]
+def test_icub_predictions_agree_on_the_time_offset(icub_result: dict) -> None:
+    """Encoders and Vicon, each the IMU's offset in its own final model: 95 % intervals overlap."""
+    assert icub_result["agreement"]["time_offset"]["agree"]
+
+
+@needs_logs
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True, reason="measured: about y and z the encoders give +0.6/+1.1 deg, the Vicon -0.3/-0.9 deg"
+)
+def test_icub_predictions_agree_on_the_mount_rotation(icub_result: dict) -> None:
+    assert icub_result["agreement"]["mounting_rotation"]["agree"]
 
 
 @needs_logs
