@@ -19,7 +19,7 @@ from bodyschema.floating_base import (
     quantization_floor,
     stance_twist,
 )
-from bodyschema.floating_effects import linear_effect
+from bodyschema.floating_effects import forward_select, linear_effect
 from bodyschema.imu_effects import specific_force
 from bodyschema.rigid_motion import lowpass
 
@@ -171,3 +171,12 @@ def test_quantization_floor_matches_simulated_quantization() -> None:
     d1 = derivative(t, x)[100:-100].std()
     f = quantization_floor(quantum, rate, fc, 1.0, 1)
     assert d1 == pytest.approx(f["gyro_std"], rel=0.05)
+
+
+def test_forward_select_names_the_present_effects_only() -> None:
+    """Three candidate regressors, two in the residual: both named, the third not."""
+    rng = np.random.default_rng(11)
+    cands = {k: rng.normal(size=(3000, 3, 2)) for k in ("a", "b", "c")}
+    r = cands["a"] @ np.array([0.4, 0.0]) + cands["c"] @ np.array([0.0, -0.2]) + rng.normal(0, 0.3, (3000, 3))
+    named, rounds = forward_select(r, cands, np.arange(3000) // 100)
+    assert sorted(named) == ["a", "c"] and len(rounds) == 3
