@@ -338,7 +338,13 @@ def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None 
     for k, imu in enumerate(imus):
 
         def imu_model(j: int | None, k: int = k) -> float:
-            return base_ratio(k) if j is None else ratio([k], tree.source(k, j, tree.parent[j]))
+            if j is None:
+                return base_ratio(k)
+            if j == tree.imu_joint[k]:
+                return ratio([k], tree.source(k, j, tree.parent[j]))
+            # a rival joint under any parent: which joint carries k must not hang on where the
+            # chosen tree put that joint (two joints on one sine swap places with their IMUs)
+            return min(ratio([k], tree.source(k, j, p)) for p in [None, *range(len(joints))] if p != j)
 
         rivals = {j: imu_model(j) for j in [None, *range(len(joints))]}
         parts[f"imu:{imu}"] = _decide(
@@ -357,10 +363,27 @@ def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None 
         parts[f"joint:{name}"] = _decide(
             f"joint:{name}", tree.parent[j], rivals, opts.fit_ratio, n_obs, tree, joints, joint=j
         )
+    _links_decided(parts, tree, joints, imus)
     v_ref = float(np.median(2 * data.sigma**2 + data.qd_var + data.model_var))
     weak = tuple(n for i, n in enumerate(joints) if data.excitation[i] ** 2 / 3 < opts.fit_ratio * v_ref)
     exc = {n: float(x) for n, x in zip(joints, data.excitation, strict=True)}
     return HeldOutTest(parts, weak, data.fc, n_obs, exc)
+
+
+def _links_decided(parts: dict[str, HeldOutPart], tree: _Tree, joints: list[str], imus: list[str]) -> None:
+    """A joint's parent is tested on the IMUs of its link and of its parent's link: it stands only
+    where those IMUs' own placement does (otherwise the link tested may be another joint's)."""
+    for j, name in enumerate(joints):
+        key = f"joint:{name}"
+        if not parts[key].decided:
+            continue
+        ks = tree.on.get(j, []) + ([] if tree.parent[j] is None else tree.on.get(tree.parent[j], []))
+        open_ = [parts[f"imu:{imus[k]}"] for k in ks if not parts[f"imu:{imus[k]}"].decided]
+        if open_:
+            move = tuple(sorted({name, *(m for p in open_ for m in p.move)}))
+            parts[key] = replace(
+                parts[key], decided=False, confidence=min(parts[key].confidence, 0.5), move=move
+            )
 
 
 def _models(tree: _Tree, ks: list[int], j: int, parent: int | None) -> tuple[int, tuple[int, ...]] | None:
