@@ -156,7 +156,8 @@ def _has_feet(model: str) -> bool:
 
 def _robot(rec: Recording, args: argparse.Namespace) -> int:
     """A floating-base robot's base IMU against its rigid model (:func:`sim2real.robots.robot_sim2real`)."""
-    from sim2real.robots import RobotOptions, format_robot, robot_sim2real
+    from sim2real.robots import RobotOptions, robot_sim2real
+    from sim2real.robots_report import format_robot
 
     imu = rec.imu_names.index(args.imu) if args.imu else 0
     opts = RobotOptions(cutoff=args.cutoff, n_blocks=args.blocks, alpha=args.alpha, min_gain=args.min_gain)
