@@ -187,7 +187,13 @@ def read_robot(path: str | Path, joint_names: tuple[str, ...]) -> RobotModel:
             axes.append(np.asarray(j.axis, float) / np.linalg.norm(j.axis))
             cols.append(c)
             pending = np.eye(4)
-        chains[foot] = SerialChain(np.array(origins), np.array(axes), tuple(cols), pending)
+        chains[foot] = SerialChain(
+            np.array(origins).reshape(-1, 4, 4), np.array(axes).reshape(-1, 3), tuple(cols), pending
+        )
+    if not any(c.columns for c in chains.values()):
+        raise ValueError(
+            f"{path.name}: none of the legs' joints ({sorted(set(unmatched))[:4]}...) is in the recording"
+        )
     mass = sum(lk.inertial.mass for lk in u.robot.links if lk.inertial is not None and lk.inertial.mass)
     return RobotModel(
         u.robot.name,

@@ -161,3 +161,16 @@ def test_icub_without_pose_or_wrenches_runs_on_encoders(
     out = json.loads(capsys.readouterr().out)
     assert set(out["predictions"]) == {"encoders"}
     assert any("mocap" in c for c in out["could_not"])
+
+
+@needs_logs
+def test_a_urdf_of_another_robot_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    from simulators.recording_io import save_recording
+
+    path = tmp_path / "go1.npz"
+    save_recording(_go1(), path)
+    assert main(["sim2real", str(path), "--model", str(ICUB / "iCubGenova04.urdf")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none of the legs' joints" in err[0]
