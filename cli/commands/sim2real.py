@@ -10,6 +10,12 @@ through all its IMUs at once: the encoder-to-IMU time offset, per joint zero off
 dead bands, each with its value and interval, or its detection limit where it is not named
 (:mod:`bodyschema.discrepancy.encoders`; ``--json``: the report as JSON).
 
+``--model ROBOT.urdf`` on a walking robot's log (joint positions, foot forces, no reference motion; a
+URDF with ``*_sole`` or ``*_foot`` links) predicts the base IMU by the rigid model over the stance feet,
+and from motion capture of the base where the log has it, and names what the rigid model gets wrong
+(:func:`sim2real.robots.robot_sim2real`; docs/robots.md). ``--cutoff`` then defaults to the band the
+encoders' quantization allows.
+
 ``--gravity-case`` (robot recordings, ``q`` with gravity) also trains the paper's sensor networks without
 gravity (Eq. 11) and with it (Eq. 24), and adds their residuals, the cause the analysis names for the
 Eq. 11 residual and each form's topology accuracy (``gravity_case`` in the JSON; ``gravity_case.*`` in
