@@ -31,6 +31,12 @@ class MonitorControl(Protocol):
         """Whether the monitoring loop is alive (reported by ``/health``)."""
         ...
 
+    @property
+    def died(self) -> bool:
+        """Whether the monitoring loop was started and its thread has ended: ``/readyz`` then answers
+        503. A worker driven cycle by cycle (tests, offline tools) never started one."""
+        ...
+
     def request(self, robot: str, method: str) -> None:
         """Queue an estimation of ``robot`` with ``method`` for the next cycle."""
         ...

@@ -283,7 +283,7 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
         store.alerts(robot, active=True),
         store.alerts(robot, state="pending"),
         store.latest_topology(robot, method="network"),
-        info.waiting if (info := store.robot(robot)) is not None else {},
+        store.waiting(robot).get(robot, {}),
     )
 
 

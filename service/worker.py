@@ -218,6 +218,7 @@ class Worker(AlertPath):
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
+        self._started = False
         self._restore()
 
     # ------------------------------------------------------------------------------- control
@@ -226,6 +227,7 @@ class Worker(AlertPath):
         if self._thread is not None and self._thread.is_alive():
             return
         self._stop.clear()
+        self._started = True
         self._thread = threading.Thread(target=self._loop, name="bodyhealth-worker", daemon=True)
         self._thread.start()
 
@@ -240,6 +242,12 @@ class Worker(AlertPath):
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def died(self) -> bool:
+        """The loop was started and its thread is gone (ended, or stopped): not ready. A worker that
+        never started one (driven cycle by cycle) is judged by its heartbeat alone."""
+        return self._started and not self.running
 
     def request(self, robot: str, method: str) -> None:
         """Run ``method`` for ``robot`` in the next cycle (on demand retrain), and wake the thread."""

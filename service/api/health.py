@@ -121,10 +121,10 @@ def _check_worker(
         checks["worker_lag"] = progress()
     if worker is not None:
         checks["worker_thread"] = worker.running
-        if not worker.running:
+        if getattr(worker, "died", not worker.running):
             reasons.append("worker thread not running")
             return
-        if not checks["worker"] and age is not None:
+        if not checks["worker"] and age is not None and worker.running:
             degraded.append(f"worker slow: heartbeat {age:.0f} s old (allowed {max_age:.0f} s)")
             return
     if not checks["worker"] and checks["database"]:

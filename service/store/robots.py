@@ -203,10 +203,14 @@ class RobotsMixin(StoreBase):
             rid = robot_id(s, name)
             s.execute(update(Robot).where(Robot.id == rid).values(waiting=dict(waiting)))
 
-    def waiting(self) -> dict[str, dict[str, Any]]:
-        """Every robot's :meth:`set_waiting` record, by name (robots without one left out); one query."""
+    def waiting(self, name: str | None = None) -> dict[str, dict[str, Any]]:
+        """Every robot's :meth:`set_waiting` record (or only ``name``'s), by name (robots without one
+        left out); one query of that column alone."""
         with self._session() as s:
-            rows = s.execute(select(Robot.name, Robot.waiting).where(Robot.waiting.is_not(None))).all()
+            query = select(Robot.name, Robot.waiting).where(Robot.waiting.is_not(None))
+            if name is not None:
+                query = query.where(Robot.name == name)
+            rows = s.execute(query).all()
             return {name: dict(w) for name, w in rows if w}
 
     # --------------------------------------------------------------------------- registering
