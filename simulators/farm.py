@@ -35,11 +35,12 @@ from __future__ import annotations
 import copy
 import time
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from bodyschema.excitation_plan import PlanOptions
 from bodyschema.findings import Diff
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
@@ -191,6 +192,30 @@ class Farm:
     def apply_damage(self, robot: str, kind: str, **kwargs: Any) -> Diff:
         """Damage ``robot`` now; parts left out are picked by the robot's seeded damage generator."""
         return self._sims[self._known(robot)].apply_damage(kind, **kwargs)
+
+    def excite(
+        self,
+        robot: str,
+        joints: Sequence[str] | None = None,
+        seconds: float = 30.0,
+        groups: Sequence[Sequence[str]] | None = None,
+        options: PlanOptions | None = None,
+    ) -> dict[str, Any]:
+        """Plan an excitation of ``joints`` (None: all) for ``robot`` from its pose now, within its
+        model's limits (:mod:`simulators.limits`), and have it follow the plan from now on for the
+        plan's ``seconds``, then its own excitation again. Returns the plan's JSON without samples,
+        with ``start`` (farm time, s) added."""
+        from bodyschema.excitation_plan import plan_excitation
+        from simulators.limits import robot_limits
+        from simulators.planned_motion import PlannedMotion
+
+        sim = self._sims[self._known(robot)]
+        sim.sync()  # act at the last returned sample, not at the end of any read-ahead
+        plan = plan_excitation(robot_limits(sim.robot), sim.robot.q(), seconds, joints, groups, options)
+        base = sim.excitation.base if isinstance(sim.excitation, PlannedMotion) else sim.excitation
+        sim.excitation = PlannedMotion(plan, start=sim.time, base=base).adopt(sim.robot)
+        sim._ctrl_cache = (0, np.empty((0, sim.robot.model.nu)))  # commands are a new function of time
+        return {**plan.to_json(samples=False), "start": sim.time}
 
     def stream(
         self, chunk: float = 0.1, speed: float | None = 1.0, seconds: float | None = None
