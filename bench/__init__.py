@@ -50,6 +50,7 @@ BENCHMARKS: tuple[str, ...] = (
     "drift",
     "lever_budget",
     "alerts",
+    "excitation",
     "docs",
 )
 

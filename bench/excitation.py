@@ -13,8 +13,9 @@ Each runs on the simulated robot (the ``robot`` sensing preset: 1 kHz physics, 1
 MPU-6050 filter, 250 Hz 14-bit encoders, clock skew and drift) and the recording's growing prefixes
 (from 2 s, 1 s apart at first, then every ``--step`` s: :func:`prefixes`) go through the fast
 estimator; the time to verdict is the first prefix whose tree is unique and right, and, from there,
-the first whose every IMU's axis and lever arm converged (:func:`bodyschema.kinematics.
-estimate_kinematics`). A tree that is unique and wrong at any prefix is counted (``wrong``). Writes ``excitation.json``, ``excitation.md`` and ``excitation.png``.
+the first whose every IMU's axis and lever arm converged
+(:func:`bodyschema.kinematics.estimate_kinematics`). A tree that is unique and wrong at any prefix is
+counted (``wrong``). Writes ``excitation.json``, ``excitation.md`` and ``excitation.png``.
 """
 
 from __future__ import annotations

@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "simulate",
     "topology",
     "kinematics",
+    "excite",
     "diff",
     "inject",
     "serve",

@@ -38,7 +38,17 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api import alerts, diagnostics, health, kinematics, robots, simulate, status, topology
+from service.api import (
+    alerts,
+    diagnostics,
+    excitation,
+    health,
+    kinematics,
+    robots,
+    simulate,
+    status,
+    topology,
+)
 from service.api.cache import ClearOnWrite, ReadCache
 from service.api.errors import DATABASE_ERRORS, database_unavailable, invalid_request, unparsable_body
 from service.api.security import (
@@ -71,6 +81,7 @@ API_ROUTERS = (
     kinematics.router,
     alerts.router,
     simulate.router,
+    excitation.router,
 )
 
 
