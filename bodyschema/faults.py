@@ -164,7 +164,8 @@ def _imu(rec: Recording, fault: Fault, start: float) -> tuple[Recording, float |
     k = _column(rec.imu_names, fault.get("imu"), "IMU")
     acc, gyro = rec.acc.copy(), rec.gyro.copy()
     if fault.kind == "imu_rotated":
-        R = axis_rotations(np.array(_AXES[fault.get("axis", "x") or "x"]), np.radians([fault.number("deg")]))[0]
+        axis = np.array(_AXES[fault.get("axis", "x") or "x"])
+        R = axis_rotations(axis, np.radians([fault.number("deg")]))[0]
         on = rec.t >= start
         acc[on, k] = acc[on, k] @ R.T
         gyro[on, k] = gyro[on, k] @ R.T
