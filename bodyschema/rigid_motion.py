@@ -35,6 +35,7 @@ from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from bodyschema.imu_effects import specific_force
+from bodyschema.recording import GRAVITY
 
 __all__ = [
     "ReferenceMotion",
@@ -44,10 +45,19 @@ __all__ = [
     "integrate_angular_velocity",
     "linear_acceleration",
     "lowpass",
+    "perp_basis",
+    "project_rotation",
     "quat_to_matrix",
     "reference_motion",
+    "rotation_about",
+    "rotvec",
+    "skew",
     "smooth_random_motion",
+    "tilted",
 ]
+
+#: Gravity as the world frame of a reference motion sees it (z up), as a default argument.
+_GRAVITY = tuple(GRAVITY.tolist())
 
 
 def _check_t(t: ArrayLike, n: int) -> np.ndarray:
@@ -167,7 +177,7 @@ def reference_motion(
     t: ArrayLike,
     quat: ArrayLike,
     pos: ArrayLike,
-    gravity: ArrayLike = (0.0, 0.0, -9.81),
+    gravity: ArrayLike = _GRAVITY,
     cutoff: float | None = None,
 ) -> ReferenceMotion:
     """Angular velocity and acceleration of a tracked rigid body, optionally low-passed at ``cutoff`` Hz.
@@ -188,7 +198,7 @@ def ideal_imu(
     t: ArrayLike,
     quat: ArrayLike,
     pos: ArrayLike,
-    gravity: ArrayLike = (0.0, 0.0, -9.81),
+    gravity: ArrayLike = _GRAVITY,
     cutoff: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(gyro, acc)``, each (T, 3): what an ideal IMU at the body origin, aligned with the body, reads."""
@@ -271,6 +281,53 @@ def smooth_random_motion(
     quat = quat_fine[::oversample]
     pos = np.einsum("cj,tcj->tj", ap, np.sin(2 * np.pi * fp * t[:, None, None] + pp))
     pos = pos + np.array([0.0, 0.0, 1.0])
-    gravity = np.array([0.0, 0.0, -9.81])
+    gravity = GRAVITY.copy()
     acc = specific_force(quat_to_matrix(quat), acc_at(t), gravity)
     return {"t": t, "quat": quat, "pos": pos, "gyro": omega_at(t), "acc": acc, "gravity": gravity}
+
+
+# ------------------------------------------------------------------------------------ rotations
+def skew(v: np.ndarray) -> np.ndarray:
+    """``[v]×`` for (..., 3) vectors: (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    x, y, w = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def rotation_about(u: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotations by ``angle`` (T,) about the unit axis ``u``, (T, 3, 3).
+
+    >>> np.round(rotation_about(np.array([0.0, 0, 1]), np.array([np.pi / 2]))[0] @ [1, 0, 0], 6).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
+    uu = np.outer(u, u)
+    return c * np.eye(3) + (1.0 - c) * uu + s * skew(u)
+
+
+def project_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest ``M`` (Frobenius), by SVD; of each matrix of a stack (..., 3, 3)."""
+    U, _, Vt = np.linalg.svd(M)
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
+
+
+def perp_basis(u: np.ndarray) -> np.ndarray:
+    """(3, 2): two orthonormal vectors perpendicular to ``u``."""
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(u, e1)], axis=1)
+
+
+def rotvec(x: np.ndarray) -> np.ndarray:
+    """The rotation by the rotation vector ``x`` (3,)."""
+    angle = float(np.linalg.norm(x))
+    return np.eye(3) if angle < 1e-15 else rotation_about(x / angle, np.array([angle]))[0]
+
+
+def tilted(u: np.ndarray, U: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """``u`` leaned by the small angles ``theta`` (2,) along the perpendicular basis ``U`` (3, 2)."""
+    v = u + U @ theta
+    return v / np.linalg.norm(v)
