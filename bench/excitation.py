@@ -42,9 +42,16 @@ DEFAULT_ROBOTS = "paper-2,ur5e,quadruped,dual-arm,humanoid"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robots", default=DEFAULT_ROBOTS, help="comma-separated catalog robots ('' none)")
-    parser.add_argument("--trees", type=int, default=20, help="random trees (5-25 joints)")
+    parser.add_argument("--trees", type=int, default=20, help="random trees")
+    parser.add_argument("--joints", default="5-25", help="joints of a random tree, drawn from MIN-MAX")
     parser.add_argument("--seconds", type=float, default=60.0, help="longest motion evaluated, s")
     parser.add_argument("--step", type=float, default=5.0, help="prefix step, s")
+    parser.add_argument(
+        "--geometry-step",
+        type=float,
+        default=10.0,
+        help="prefix step of the geometry (kinematics) verdict, s",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the trees, the motions and the noise")
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
@@ -117,8 +124,16 @@ def _decided(topo: Any) -> bool:
     return not undetermined_reasons(topo) and not unplaced_reasons(topo)
 
 
-def run_one(spec: tuple[str, int, int], motion: str, seconds: float, step: float, seed: int) -> dict:
-    """One robot and motion: simulate, then the verdicts on growing prefixes."""
+def run_one(
+    spec: tuple[str, int, int],
+    motion: str,
+    seconds: float,
+    step: float,
+    seed: int,
+    geometry_step: float = 10.0,
+) -> dict:
+    """One robot and motion: simulate, then the verdicts on growing prefixes (the geometry, the costly
+    one, once the tree is right and then only every ``geometry_step`` s)."""
     from bodyschema.estimate import estimate_topology
     from bodyschema.excitation_plan import check_limits
     from bodyschema.kinematics import estimate_kinematics
@@ -160,7 +175,8 @@ def run_one(spec: tuple[str, int, int], motion: str, seconds: float, step: float
             row: dict[str, Any] = {"s": float(p), "decided": decided, "right": bool(right)}
             if decided and right and out["topology_s"] is None:
                 out["topology_s"] = float(p)
-            if out["topology_s"] is not None:
+            due = abs(p / geometry_step - round(p / geometry_step)) < 1e-9 or p >= seconds - 1e-9
+            if out["topology_s"] is not None and due:
                 kin = estimate_kinematics(sub, topo)
                 conv = [k.converged for k in kin.imus.values() if k.joint is not None]
                 row["converged"] = f"{sum(conv)}/{len(conv)}"
@@ -210,14 +226,14 @@ def _markdown(runs: list[dict], s: dict[str, Any], args: argparse.Namespace, cpu
     lines = [
         "# Excitation: time to verdict",
         "",
-        f"`bodyhealth bench excitation --robots {robots} --trees {args.trees} "
+        f"`bodyhealth bench excitation --robots {robots} --trees {args.trees} --joints {args.joints} "
         f"--seconds {args.seconds:g} --step {args.step:g} --seed {args.seed}` on {machine_note()}; "
         f"{cpu / 60:.1f} CPU minutes. `robot` sensing preset; limits 1 rad/s, 4 rad/s², the models' ranges.",
         "",
         "Seconds of motion until the tree is unique and right (topology) and until every IMU's axis and "
         "lever arm converged (geometry), at prefixes of 2, 3, 4, 5, 6, 8, 10, 12, 15, 20 s and then "
-        f"every {args.step:g} s; `>{args.seconds:g}`: not within the motion evaluated (counted as that "
-        "bound in the ratios, which are then lower bounds).",
+        f"every {args.step:g} s (the geometry every {args.geometry_step:g} s); `>{args.seconds:g}`: not "
+        "within the motion evaluated (counted as that bound in the ratios, which are then lower bounds).",
         "",
         "| robot | joints | planned (method) | random | one at a time | planning CPU s |",
         "|---|---|---|---|---|---|",
@@ -274,10 +290,11 @@ def run(args: argparse.Namespace) -> Path:
     cpu = time.process_time()
     rng = np.random.default_rng(args.seed)
     specs = [(r, 0, 0) for r in args.robots.split(",") if r]
-    specs += [("random", int(args.seed * 1000 + i), int(rng.integers(5, 26))) for i in range(args.trees)]
+    lo, hi = (int(x) for x in args.joints.split("-"))
+    specs += [("random", int(args.seed * 1000 + i), int(rng.integers(lo, hi + 1))) for i in range(args.trees)]
     if not specs:
         raise ValueError("no robots: give --robots or --trees")
-    jobs = [(sp, m, args.seconds, args.step, args.seed) for sp in specs for m in MOTIONS]
+    jobs = [(sp, m, args.seconds, args.step, args.seed, args.geometry_step) for sp in specs for m in MOTIONS]
     runs = map_jobs(run_one, jobs, args.workers, "bench excitation", "run")
     cpu = time.process_time() - cpu
     s = _summary(runs, args.seconds)
