@@ -100,7 +100,7 @@ def window_tree(rec: Any, tree: Any = None, last_lag: float = 0.0) -> Any:
 
     from bodyschema.estimate import estimate_topology
     from bodyschema.fast import FastOptions
-    from bodyschema.health import drop_impacts
+    from bodyschema.impacts import drop_impacts
     from bodyschema.timing import lag_hinted, lag_search_centre
 
     hint = lag_search_centre(last_lag, FastOptions.max_lag)

@@ -191,7 +191,7 @@ def _cold(robot: str, recs: list[Any], window: float, seed: int) -> tuple[list[A
     """A cold training of each recording, as the task runs it (one thread): the weights the fleet
     starts from, and what a robot's first retrain costs."""
     from bodyschema.estimate import fit_topology
-    from bodyschema.health import drop_impacts
+    from bodyschema.impacts import drop_impacts
     from bodyschema.threads import set_torch_threads
 
     set_torch_threads(1)

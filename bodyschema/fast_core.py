@@ -47,6 +47,8 @@ from typing import Any
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
+from bodyschema.hinge import hinge_features
+
 __all__ = [
     "PATH_SETTINGS",
     "FastFit",
@@ -211,17 +213,7 @@ def _hop_features(wh: np.ndarray | None, c: np.ndarray, s: np.ndarray, qd: np.nd
     Rows: ``ω_h``, ``ω_h cos q``, ``ω_h sin q`` (when there is a parent gyro ``wh`` (3, T)), then
     ``cos q``, ``sin q`` (the parent's bias, rotated) and ``q̇``.
     """
-    B, T = c.shape
-    off = 0 if wh is None else 9
-    F = np.empty((B, off + 3, T))
-    if wh is not None:
-        F[:, 0:3] = wh
-        np.multiply(wh, c[:, None, :], out=F[:, 3:6])
-        np.multiply(wh, s[:, None, :], out=F[:, 6:9])
-    F[:, off] = c
-    F[:, off + 1] = s
-    F[:, off + 2] = qd
-    return F
+    return hinge_features(wh, c, s, qd, ("cos", "sin", "qd"))
 
 
 def _hop_features_banded(

@@ -15,8 +15,8 @@ dependency". This module looks at the raw signals to make those calls:
   (link turns, encoder does not agree) from a locked joint (neither turns).
 
 A multi-rate window (encoders on their own stamps, docs/recording-format.md) is judged per stream:
-IMUs on their own samples; joints on :func:`one_clock`, the encoder stream moved onto the IMU's time
-by the lag the estimator found (``current.timing``) with velocities from the band-limited
+IMUs on their own samples; joints on :func:`bodyschema.alignment.one_clock`, the encoder stream moved
+onto the IMU's time by the lag the estimator found (``current.timing``) with velocities from the band-limited
 differentiator of :mod:`bodyschema.timing` (central differences of 14-bit positions are mostly
 quantization noise, and an uncorrected lag of a few ms reads as motion the encoder does not explain).
 
@@ -50,8 +50,10 @@ from typing import Any
 
 import numpy as np
 
+from bodyschema.alignment import one_clock
+from bodyschema.hinge import hinge_design
+from bodyschema.lstsq import scaled_lstsq
 from bodyschema.recording import Recording
-from bodyschema.timing import aligned_recording, timed_view
 from bodyschema.topology import Topology
 
 __all__ = [
@@ -65,12 +67,10 @@ __all__ = [
     "JointHealth",
     "SignalHealth",
     "baseline_fingerprints",
-    "drop_impacts",
     "fingerprints",
     "imu_fingerprints",
     "imu_health",
     "loose_imus",
-    "one_clock",
     "relative_motion",
     "signal_health",
 ]
@@ -272,58 +272,12 @@ def _trailing(flags: np.ndarray) -> int:
 
 
 # -------------------------------------------------------------------------------------------- joints
-def one_clock(rec: Recording, current: Topology | None = None) -> Recording:
-    """``rec`` with encoders and IMUs on one clock, velocities derived (what the joint checks compare).
-
-    A single-clock ``rec`` comes back derived. A multi-rate one is aligned with
-    :func:`bodyschema.timing.aligned_recording` using the lag, drift and reference time the estimator
-    reported in ``current.timing`` (none: no lag); when the streams overlap too little for that, the
-    encoder positions are interpolated at the IMU stamps (:meth:`Recording.synced`).
-    """
-    rec = timed_view(rec)  # positions only, on one clock: aligned like two clocks (t_q = t)
-    if rec.t_q is None:
-        return rec.derived()
-    timing = current.timing if current is not None else {}
-    try:
-        return aligned_recording(
-            rec,
-            lag=float(timing.get("lag_ms", 0.0)) * 1e-3,
-            drift=float(timing.get("drift_ppm", 0.0)) * 1e-6,
-            lag_time=float(timing.get("at_s", 0.0)),
-        )
-    except ValueError:
-        return rec.synced().derived()
-
-
 def _lstsq_residual(X: np.ndarray, Y: np.ndarray) -> float:
-    """Sum of squared residuals of the least-squares fit Y ≈ X B (columns scaled for conditioning)."""
-    scale = np.sqrt(np.mean(X**2, axis=0))
-    scale[scale < 1e-12] = 1.0
-    Xs = X / scale
-    # Normal equations on the small (p x p) Gram matrix, pseudo-inverted for rank deficiency (a frozen
-    # encoder makes columns collinear): far cheaper than an SVD of the tall (T x p) matrix, and with
-    # scaled columns well enough conditioned for a residual.
-    coef = np.linalg.pinv(Xs.T @ Xs, rcond=1e-10, hermitian=True) @ (Xs.T @ Y)
-    res = Y - Xs @ coef
+    """Sum of squared residuals of the least-squares fit Y ≈ X B (a frozen encoder makes columns
+    collinear: :func:`bodyschema.lstsq.scaled_lstsq` takes the minimum-norm solution)."""
+    fit = scaled_lstsq(X, Y)
+    res = Y - fit.Xs @ fit.beta
     return float(np.sum(res**2))
-
-
-def _design(parent_gyro: np.ndarray | None, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-    """Regressors of the exact revolute-joint gyro model (see :func:`relative_motion`)."""
-    ones = np.ones((q.shape[0], 1))
-    if parent_gyro is None:
-        return np.c_[qd, ones]
-    c, s = np.cos(q)[:, None], np.sin(q)[:, None]
-    return np.c_[parent_gyro, parent_gyro * c, parent_gyro * s, qd, ones]
-
-
-def _fit(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients (unscaled) of Y ≈ X B via the scaled normal equations."""
-    scale = np.sqrt(np.mean(X**2, axis=0))
-    scale[scale < 1e-12] = 1.0
-    Xs = X / scale
-    coef = np.linalg.pinv(Xs.T @ Xs, rcond=1e-10, hermitian=True) @ (Xs.T @ Y)
-    return coef / scale[:, None]
 
 
 @dataclass(frozen=True)
@@ -365,8 +319,8 @@ def fingerprints(
         for c in child:
             Y = rec.gyro[:, present[c], :]
             for p in parent or [None]:
-                X = _design(None if p is None else rec.gyro[:, present[p], :], d.q[:, k], d.qd[:, k])
-                coef = _fit(X, Y)
+                X = hinge_design(None if p is None else rec.gyro[:, present[p], :], d.q[:, k], d.qd[:, k])
+                coef = scaled_lstsq(X, Y).coef
                 res = float(np.mean((Y - X @ coef) ** 2))
                 if best is None or res < best[0]:
                     best = (res, JointFingerprint(j, c, p, coef))
@@ -399,11 +353,11 @@ def _link_residuals(
     """Residual variance of each IMU of ``imus`` (one link, on ``joint``) under the one-joint model."""
     assert d.q is not None and d.qd is not None
     k = d.joint_names.index(joint)
-    X = _design(None if ref is None else d.gyro[:, present[ref], :], d.q[:, k], d.qd[:, k])
+    X = hinge_design(None if ref is None else d.gyro[:, present[ref], :], d.q[:, k], d.qd[:, k])
     out = {}
     for i in imus:
         Y = d.gyro[:, present[i], :]
-        out[i] = float(np.mean((Y - X @ _fit(X, Y)) ** 2))
+        out[i] = float(np.mean((Y - X @ scaled_lstsq(X, Y).coef) ** 2))
     return out
 
 
@@ -604,12 +558,9 @@ def relative_motion(
     ones = np.ones((T, 1))
     if parent_gyro is None:
         rigid = ones
-        full = np.c_[qd, ones]
     else:
         rigid = np.c_[parent_gyro, ones]
-        full = np.c_[
-            parent_gyro, parent_gyro * np.cos(q)[:, None], parent_gyro * np.sin(q)[:, None], qd, ones
-        ]
+    full = hinge_design(parent_gyro, q, qd)
     ss_rigid = _lstsq_residual(rigid, child_gyro)
     ss_full = _lstsq_residual(full, child_gyro)
     rms = float(np.sqrt(ss_rigid / T))
@@ -747,8 +698,8 @@ def _still_since(rec: Recording, th: HealthThresholds) -> np.ndarray:
 
 
 def _on_imu_clock(times: np.ndarray, rec: Recording, current: Topology | None) -> np.ndarray:
-    """Encoder-clock ``times`` on the IMU's clock, as :func:`one_clock` maps the encoder stream: the
-    IMU reports what the encoders saw at ``t`` at ``t + lag + drift (t - at)``."""
+    """Encoder-clock ``times`` on the IMU's clock, as :func:`bodyschema.alignment.one_clock` maps the
+    encoder stream: the IMU reports what the encoders saw at ``t`` at ``t + lag + drift (t - at)``."""
     if rec.t_q is None or current is None:
         return times
     timing = current.timing or {}
@@ -814,43 +765,6 @@ def _still_lately(
     return None
 
 
-def drop_impacts(rec: Recording, factor: float = 24.0) -> Recording:
-    """``rec`` with velocities derived, minus the samples around encoder impacts.
-
-    Where a joint hits a stop or a contact its velocity jumps within one sample; the central
-    difference then reports a velocity the gyros never saw, and a method that regresses gyros on
-    encoder velocities reads those few samples as a contradiction. A sample (and its neighbours) is
-    dropped when any joint's acceleration exceeds ``factor`` × that joint's median absolute
-    acceleration. ``qd``/``qdd`` are derived on the full window first, so the kept samples carry the
-    right values. Returns ``rec`` itself (derived) when nothing is dropped.
-
-    A multi-rate ``rec`` comes back as it is: its estimators band-limit the encoder positions
-    themselves, and a central-difference acceleration of quantized positions would mark noise.
-
-    >>> import numpy as np
-    >>> from bodyschema.recording import Recording
-    >>> t = np.arange(400) * 0.01
-    >>> q = np.sin(t)[:, None]; q[200:] += 0.5          # a jump: an impact
-    >>> rec = Recording(t=t, joint_names=("j",), q=q, imu_names=(), acc=np.zeros((400, 0, 3)),
-    ...                 gyro=np.zeros((400, 0, 3)))
-    >>> drop_impacts(rec).n_samples < 400, drop_impacts(rec).qd is not None
-    (True, True)
-    """
-    if rec.t_q is not None:
-        return rec
-    d = rec.derived()
-    if d.qdd is None or d.n_samples < 5:
-        return d
-    a = np.abs(d.qdd)
-    med = np.median(a, axis=0)
-    scale = np.where(med > 1e-9, med, np.inf)
-    bad = np.any(a > factor * scale, axis=1)
-    if not bad.any():
-        return d
-    bad = bad | np.roll(bad, 1) | np.roll(bad, -1)
-    return d.select(~bad)
-
-
 def _shifted(
     fp: JointFingerprint,
     rec: Recording,
@@ -872,10 +786,10 @@ def _shifted(
     ):
         return False  # the pair moved: a placement finding, not an encoder one
     assert d.q is not None and d.qd is not None
-    X = _design(None if fp.ref is None else rec.gyro[:, present[fp.ref], :], d.q[:, k], d.qd[:, k])
+    X = hinge_design(None if fp.ref is None else rec.gyro[:, present[fp.ref], :], d.q[:, k], d.qd[:, k])
     Y = rec.gyro[:, present[fp.child], :]
     if X.shape[1] != fp.coef.shape[0]:
         return False
     old = float(np.sqrt(np.mean((Y - X @ fp.coef) ** 2)))
-    new = float(np.sqrt(np.mean((Y - X @ _fit(X, Y)) ** 2)))
+    new = float(np.sqrt(np.mean((Y - X @ scaled_lstsq(X, Y).coef) ** 2)))
     return old > max(th.shift_ratio * new, th.shift_rad_s)

@@ -161,7 +161,7 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     from dataclasses import replace
 
     from bodyschema.estimate import fit_topology
-    from bodyschema.health import drop_impacts
+    from bodyschema.impacts import drop_impacts
     from bodyschema.timing import encoders_moved, lag_moved
     from service.store import Store
     from service.store.weights import pack_weights

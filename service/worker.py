@@ -69,9 +69,9 @@ from bodyschema.health import (
     BaselineFingerprints,
     SignalHealth,
     baseline_fingerprints,
-    drop_impacts,
     signal_health,
 )
+from bodyschema.impacts import drop_impacts
 from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording, RecordingError
 from bodyschema.timing import lag_hinted, lag_search_centre, measured_lag

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodyschema.hinge import hinge_design
 from bodyschema.kinematics.least_squares import per_axis, variances
 from bodyschema.kinematics.signals import Signals
 from bodyschema.rigid_motion import project_rotation
@@ -60,12 +61,9 @@ def axis_fit(sig: Signals, j: int, c: int, omega_p: np.ndarray | None, measured:
     r = sig.rec
     q = r.q[:, j]  # type: ignore[index]
     qd = r.qd[:, j]  # type: ignore[index]
-    if omega_p is None:
-        X = np.c_[qd, np.ones_like(qd)]
-    else:
-        X = np.c_[omega_p, omega_p * np.cos(q)[:, None], omega_p * np.sin(q)[:, None], qd, np.ones_like(qd)]
-        if measured:
-            X = np.c_[X, np.cos(q), np.sin(q)]
+    # the parent gyro's bias turns with the joint: a measured parent needs cos q and sin q intercepts
+    tail = ("qd", "one", "cos", "sin") if measured and omega_p is not None else ("qd", "one")
+    X = hinge_design(omega_p, q, qd, tail)
     Yb = sig.band_limit(r.gyro[:, c])
     Xb = sig.band_limit(X)
     if measured:

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodyschema.lstsq import scaled_lstsq
+
 __all__ = [
     "Fit",
     "hac_fit",
@@ -51,17 +53,10 @@ def solve(
     """The least squares of :func:`hac_fit` without its covariance: scaled design, column scales, inverse
     normal matrix, scaled coefficients and residuals (T, m). Flat matrix products keep it on BLAS."""
     T, m, p = X.shape
-    flat = X.reshape(T * m, p)
-    scale = np.sqrt(np.mean(flat * flat, axis=0))
-    scale[scale < 1e-12] = 1.0
-    Xs = flat / scale
-    G = Xs.T @ Xs
-    if ridge is not None:
-        G = G + np.diag(ridge / scale**2)
-    Gi = np.linalg.pinv(G, rcond=1e-10, hermitian=True)
-    beta = Gi @ (Xs.T @ Y.reshape(T * m))
-    e = (Y.reshape(T * m) - Xs @ beta).reshape(T, m)
-    return Xs.reshape(T, m, p), scale, Gi, beta, e
+    y = Y.reshape(T * m)
+    fit = scaled_lstsq(X.reshape(T * m, p), y, ridge)
+    e = (y - fit.Xs @ fit.beta).reshape(T, m)
+    return fit.Xs.reshape(T, m, p), fit.scale, fit.Gi, fit.beta, e
 
 
 def residuals(X: np.ndarray, Y: np.ndarray, ridge: np.ndarray | None = None) -> np.ndarray:

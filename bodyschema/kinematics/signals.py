@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodyschema.alignment import one_clock
 from bodyschema.kinematics.results import KinematicsOptions
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import skew
@@ -47,8 +48,6 @@ class Signals:
 
 
 def prepare_signals(rec: Recording, topo: Topology, opts: KinematicsOptions) -> Signals:
-    from bodyschema.health import one_clock
-
     al = one_clock(rec, topo)
     if al.q is None or al.n_samples < 64:
         raise ValueError("too little data for kinematics (needs encoder positions and 64 samples)")

@@ -8,7 +8,8 @@ import pytest
 
 from bodyschema.diff import diff_bodies
 from bodyschema.estimate import estimate_topology
-from bodyschema.health import drop_impacts, signal_health
+from bodyschema.health import signal_health
+from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from simulators.simulation import Simulation

@@ -12,7 +12,8 @@ import json
 import numpy as np
 import pytest
 
-from bodyschema.health import HealthThresholds, drop_impacts, imu_health, relative_motion, signal_health
+from bodyschema.health import HealthThresholds, imu_health, relative_motion, signal_health
+from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 

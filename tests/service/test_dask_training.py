@@ -31,7 +31,7 @@ from distributed import Client, LocalCluster
 from fastapi.testclient import TestClient
 
 from bodyschema.estimate import estimate_topology, fit_topology
-from bodyschema.health import drop_impacts
+from bodyschema.impacts import drop_impacts
 from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
 from service.daemon import Daemon

@@ -444,7 +444,8 @@ def test_the_cpu_bound_steps_run_where_compute_says(
 ) -> None:
     """The service hands impact removal, signal health and fingerprints to the estimator's child
     (off the API's interpreter lock); the worker calls them through ``compute`` and uses its answers."""
-    from bodyschema.health import baseline_fingerprints, drop_impacts, signal_health
+    from bodyschema.health import baseline_fingerprints, signal_health
+    from bodyschema.impacts import drop_impacts
 
     feed(store, synth(rng, seconds=12))
     calls: list[str] = []
