@@ -43,7 +43,6 @@ from simulators.builder import load_spec, robot_joint_names
 __all__ = [
     "DEFAULT_ACCELERATION",
     "DEFAULT_VELOCITY",
-    "limits_from_file",
     "load_limits",
     "model_limits",
     "robot_limits",
@@ -103,9 +102,8 @@ def _urdf_limits(path: str) -> dict[str, dict[str, float]]:
     return out
 
 
-def model_limits(model: str) -> JointLimits:
-    """The limits a model states (URDF ``<limit>``; MJCF ``range`` and velocity ``ctrlrange``; a catalog
-    robot's ranges), the defaults where it states none; joints in the simulators' order."""
+def _stated(model: str) -> tuple[list[str], list[dict[str, float]]]:
+    """Joint names in the simulators' order and, per joint, only the limits the model states."""
     m = _compiled(model)
     names = robot_joint_names(m)
     vel = _velocity_actuators(m)
@@ -113,67 +111,77 @@ def model_limits(model: str) -> JointLimits:
     rows = []
     for n in names:
         j = m.joint(n).id
-        lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (-math.inf, math.inf)
-        row = {"lower": float(lo), "upper": float(hi), "velocity": vel.get(j, DEFAULT_VELOCITY)}
-        row["acceleration"] = DEFAULT_ACCELERATION
+        row: dict[str, float] = {}
+        if m.jnt_limited[j]:
+            row["lower"], row["upper"] = (float(x) for x in m.jnt_range[j])
+        if j in vel:
+            row["velocity"] = vel[j]
         row.update(urdf.get(n, {}))
         rows.append(row)
-    return _limits(names, rows)
+    return names, rows
 
 
-def _limits(names: list[str], rows: list[Mapping[str, float]]) -> JointLimits:
-    cols = {f: np.array([r[f] for r in rows], dtype=np.float64) for f in _FIELDS}
+def _limits(names: list[str], rows: list[Mapping[str, float]], defaults: Mapping[str, Any]) -> JointLimits:
+    """Rows completed with ``defaults`` (then the built-in ones, open ranges) as :class:`JointLimits`."""
+    base = {
+        "lower": -math.inf,
+        "upper": math.inf,
+        "velocity": float(defaults.get("velocity", DEFAULT_VELOCITY)),
+        "acceleration": float(defaults.get("acceleration", DEFAULT_ACCELERATION)),
+    }
+    full = [{**base, **r} for r in rows]
+    cols = {f: np.array([r[f] for r in full], dtype=np.float64) for f in _FIELDS}
     return JointLimits(tuple(names), cols["lower"], cols["upper"], cols["velocity"], cols["acceleration"])
 
 
-def limits_from_file(path: str, base: JointLimits | None = None) -> JointLimits:
-    """``base`` (or no joints) with the TOML file's values (module docstring) laid over it."""
+def model_limits(model: str) -> JointLimits:
+    """The limits a model states (URDF ``<limit>``; MJCF ``range`` and velocity ``ctrlrange``; a catalog
+    robot's ranges), the built-in defaults where it states none; joints in the simulators' order."""
+    names, rows = _stated(model)
+    return _limits(names, rows, {})
+
+
+def _read_toml(path: str) -> tuple[dict[str, Any], dict[str, Any]]:
     try:
         with open(path, "rb") as fh:
             doc: dict[str, Any] = tomllib.load(fh)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{path}: not valid TOML ({err})") from err
-    defaults = doc.get("defaults", {})
-    table = doc.get("joints", {})
+    defaults, table = doc.get("defaults", {}), doc.get("joints", {})
     if not isinstance(table, dict) or not isinstance(defaults, dict):
         raise ValueError(f"{path}: [joints] and [defaults] must be tables")
-    names = list(base.names) if base is not None else list(table)
-    unknown = sorted(set(table) - set(names))
-    if unknown:
-        raise ValueError(f"{path}: limits for unknown joint(s) {', '.join(unknown)}")
-    rows = []
-    for i, n in enumerate(names):
-        row: dict[str, float] = {
-            "lower": -math.inf,
-            "upper": math.inf,
-            "velocity": float(defaults.get("velocity", DEFAULT_VELOCITY)),
-            "acceleration": float(defaults.get("acceleration", DEFAULT_ACCELERATION)),
-        }
-        if base is not None:
-            row = {f: float(getattr(base, f)[i]) for f in _FIELDS}
-            for f in ("velocity", "acceleration"):
-                if f in defaults and row[f] == (
-                    DEFAULT_VELOCITY if f == "velocity" else DEFAULT_ACCELERATION
-                ):
-                    row[f] = float(defaults[f])
-        entry = table.get(n, {})
-        bad = sorted(set(entry) - set(_FIELDS))
+    for n, entry in table.items():
+        bad = sorted(set(entry) - set(_FIELDS)) if isinstance(entry, dict) else ["(not a table)"]
         if bad:
             raise ValueError(
                 f"{path}: joint {n}: unknown key(s) {', '.join(bad)}; expected {', '.join(_FIELDS)}"
             )
-        row.update({k: float(v) for k, v in entry.items()})
-        rows.append(row)
-    return _limits(names, rows)
+    bad_defaults = sorted(set(defaults) - {"velocity", "acceleration"})
+    if bad_defaults:
+        raise ValueError(f"{path}: [defaults] takes velocity and acceleration, not {', '.join(bad_defaults)}")
+    return defaults, table
 
 
 def load_limits(model: str | None, limits_file: str | None) -> JointLimits:
-    """The limits for ``bodyhealth excite``: the model's, the file's laid over them (either may be
-    missing, not both)."""
+    """The limits for ``bodyhealth excite``: what the model states, the file's joint entries laid over
+    them, the file's ``[defaults]`` for what neither states (module docstring). Either source may be
+    missing, not both; without a model the file's joints are the joints."""
     if model is None and limits_file is None:
         raise ValueError("give a model or a limits file")
-    base = model_limits(model) if model is not None else None
-    return limits_from_file(limits_file, base) if limits_file is not None else base  # type: ignore[return-value]
+    names, rows = _stated(model) if model is not None else ([], [])
+    defaults: dict[str, Any] = {}
+    if limits_file is not None:
+        defaults, table = _read_toml(limits_file)
+        if model is None:
+            names, rows = list(table), [{} for _ in table]
+        unknown = sorted(set(table) - set(names))
+        if unknown:
+            raise ValueError(f"{limits_file}: limits for unknown joint(s) {', '.join(unknown)}")
+        rows = [
+            {**r, **{k: float(v) for k, v in table.get(n, {}).items()}}
+            for n, r in zip(names, rows, strict=True)
+        ]
+    return _limits(names, rows, defaults)
 
 
 def robot_limits(robot: Any) -> JointLimits:
@@ -192,4 +200,4 @@ def robot_limits(robot: Any) -> JointLimits:
                 "acceleration": DEFAULT_ACCELERATION,
             }
         )
-    return _limits(list(robot.joint_names), rows)
+    return _limits(list(robot.joint_names), rows, {})

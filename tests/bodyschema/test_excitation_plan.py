@@ -18,7 +18,7 @@ from bodyschema.excitation_plan import (
     plan_excitation,
     regressor_cost,
 )
-from simulators.limits import DEFAULT_ACCELERATION, limits_from_file, load_limits, model_limits
+from simulators.limits import DEFAULT_ACCELERATION, load_limits, model_limits
 
 INERTIA = '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>'
 URDF = f"""<robot name="arm">
@@ -107,11 +107,14 @@ def test_limits_file_overrides_the_model(tmp_path: Path) -> None:
     assert lim.acceleration.tolist() == [2.5, 2.5, 2.5] and lim.velocity[0] == 0.5
     plan = plan_excitation(lim, np.zeros(3), 20.0)
     _assert_within(plan, lim)
-    alone = limits_from_file(str(toml))
-    assert alone.names == ("b",) and alone.velocity[0] == 0.3
+    alone = load_limits(None, str(toml))
+    assert alone.names == ("b",) and alone.velocity[0] == 0.3 and alone.acceleration[0] == 2.5
     (tmp_path / "bad.toml").write_text("[joints.zz]\nlower = 0\n")
     with pytest.raises(ValueError, match="unknown joint"):
-        limits_from_file(str(tmp_path / "bad.toml"), lim)
+        load_limits(str(urdf), str(tmp_path / "bad.toml"))
+    (tmp_path / "typo.toml").write_text("[joints.a]\nvelocty = 1\n")
+    with pytest.raises(ValueError, match="unknown key"):
+        load_limits(str(urdf), str(tmp_path / "typo.toml"))
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 26])
