@@ -24,14 +24,14 @@ import ipaddress
 import json
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
-from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic import Field, SecretStr, TypeAdapter, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from bodyschema.lever_pool import PoolOptions
 
-__all__ = ["LOCAL_HOSTS", "Settings", "get_settings", "is_loopback", "reset_settings"]
+__all__ = ["LOCAL_HOSTS", "Settings", "get_settings", "is_loopback", "overridden", "reset_settings"]
 
 #: Host names every app answers to (``Host`` header), whatever the configuration adds.
 LOCAL_HOSTS: tuple[str, ...] = ("localhost", "127.0.0.1", "::1", "[::1]", "testserver")
@@ -417,6 +417,28 @@ class Settings(BaseSettings):
 def get_settings() -> Settings:
     """The process-wide settings, read from the environment on first use."""
     return Settings()
+
+
+def overridden(settings: Settings, name: str, value: Any) -> Any:
+    """Field ``name`` of ``settings``, unless a caller's ``value`` overrides it (None: no override).
+
+    An explicit 0 or False is an override like any other, never read as "unset" (as ``value or
+    default`` would); it is checked against the field's own bounds, and one out of them raises
+    ``ValueError`` naming the field.
+
+    >>> overridden(Settings(), "retention_seconds", None) == Settings().retention_seconds
+    True
+    >>> overridden(Settings(), "network_on_change", False)
+    False
+    """
+    if value is None:
+        return getattr(settings, name)
+    info = Settings.model_fields[name]
+    kind = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+    try:
+        return TypeAdapter(kind).validate_python(value)
+    except ValidationError as err:
+        raise ValueError(f"{name} = {value!r}: {err.errors()[0]['msg'].lower()}") from None
 
 
 def reset_settings() -> None:

@@ -76,7 +76,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from service.frames import FrameBatch, FrameError
 from service.ingest.base import Counters, Source
-from service.settings import Settings, get_settings
+from service.settings import Settings, get_settings, overridden
 from service.store import RobotLimitReached, Store, open_store
 from service.store.identity import DatabaseFileChanged
 
@@ -189,7 +189,7 @@ class Pipeline:
         names = [src.name for src in self.sources]
         if len(set(names)) != len(names):
             raise ValueError(f"source names must be unique, got {names}")
-        self.queue_max_batches = int(queue_max_batches or s.queue_max_batches)
+        self.queue_max_batches = int(overridden(s, "queue_max_batches", queue_max_batches))
         self.put_timeout = float(s.queue_put_timeout_seconds if put_timeout is None else put_timeout)
         self.read_timeout = float(read_timeout)
         self.coalesce_max_samples = int(coalesce_max_samples)

@@ -47,7 +47,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.db import migrate
 from service.db.engine import SQLITE_BUSY_TIMEOUT_MS, make_engine, normalize_url
-from service.settings import Settings, get_settings
+from service.settings import Settings, get_settings, overridden
 from service.store.identity import FileIdentity, sqlite_file
 
 #: The key of :attr:`Session.info <sqlalchemy.orm.Session.info>` that holds the store's robot ids.
@@ -112,9 +112,9 @@ class StoreBase:
     ) -> None:
         s = settings or get_settings()
         self.url = normalize_url(url or s.database_url)
-        self.retention_seconds = float(retention_seconds or s.retention_seconds)
-        self.imu_silent_seconds = float(imu_silent_seconds or s.imu_silent_seconds)
-        self.chunk_max_samples = int(chunk_max_samples or s.chunk_max_samples)
+        self.retention_seconds = float(overridden(s, "retention_seconds", retention_seconds))
+        self.imu_silent_seconds = float(overridden(s, "imu_silent_seconds", imu_silent_seconds))
+        self.chunk_max_samples = int(overridden(s, "chunk_max_samples", chunk_max_samples))
         self.clock_reset_seconds = float(s.clock_reset_seconds)
         self.max_robots = int(s.max_robots)
         self.topology_history_keep = int(s.topology_history_keep)

@@ -97,3 +97,35 @@ def test_dask_settings_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> 
     monkeypatch.setenv("BODYHEALTH_DASK_WORKERS", "0")
     with pytest.raises(ValueError, match="dask_workers"):
         Settings()
+
+
+def test_an_explicit_zero_or_false_override_is_honoured() -> None:
+    """A caller's 0 or False overrides the setting (``value or default`` would read it as unset)."""
+    from service.settings import overridden
+
+    s = Settings(confirm_timeout_seconds=30.0, network_on_change=True, imu_silent_seconds=2.0)
+    assert overridden(s, "confirm_timeout_seconds", 0) == 0.0
+    assert overridden(s, "network_on_change", False) is False
+    assert overridden(s, "imu_silent_seconds", None) == 2.0
+    assert overridden(s, "imu_silent_seconds", 0.25) == 0.25
+
+
+def test_an_override_out_of_the_fields_bounds_is_refused_in_one_line(tmp_path) -> None:
+    """The store's and the pipeline's overrides are checked as the settings are: an explicit 0 where the
+    field must be positive is an error naming it, never the setting silently used instead."""
+    from service.ingest.pipeline import Pipeline
+    from service.store import Store
+
+    url = f"sqlite:///{tmp_path / 'o.db'}"
+    with pytest.raises(ValueError, match=r"^retention_seconds = 0: input should be greater than 0$"):
+        Store(url, retention_seconds=0)
+    store = Store(url, imu_silent_seconds=0.25, chunk_max_samples=1)
+    try:
+        assert (store.imu_silent_seconds, store.chunk_max_samples) == (0.25, 1)
+        with pytest.raises(
+            ValueError, match=r"^queue_max_batches = 0: input should be greater than or equal to 1$"
+        ):
+            Pipeline(store, [], queue_max_batches=0)
+        assert Pipeline(store, [], queue_max_batches=1).queue_max_batches == 1
+    finally:
+        store.close()
