@@ -450,8 +450,7 @@ def loose_tolerance(n_samples: int, rate_hz: float, band_hz: float | None, false
     Assumed, not modelled: the residual is dominated by what the link's motion leaves (shared by the
     siblings) or the siblings' own noise is alike. When the shared part changes between windows and
     the siblings' own noise differs by a factor ``r``, a firm IMU's share can drift by up to ``r``
-    (measured on paper-1 and the UR5e, robot preset: within 1.7 % over four 30 s windows each, where a
-    tethered IMU grows 1.6-2.1x).
+    (far below a tethered IMU's growth on the damage suite: docs/service.md).
 
     >>> round(loose_tolerance(3000, 100.0, None, 1e-9), 3)   # 30 s at 100 Hz, white residual
     1.196

@@ -44,15 +44,8 @@ def fuse(
     they do not, it stays near the gyro's with the prior's uncertainty.
 
     The model error (``acc_model_error_deg`` RMS, split over the two directions) is what the
-    sandwich covariance cannot know. It was measured on simulated trees (``bodyhealth bench kinematics
-    --seed 0``, 5 to 15 joints, MPU-6050 errors, ``robot`` sensing) as the RMS error of the
-    accelerometers' own lean (before this fusion) over the axes it decides (its variance below the
-    gyro's), beyond its reported variance, ``sqrt(mean(err² - var))``: 0.13, 0.19 and 0.14° from 15, 30
-    and 60 s of data (0.14, 0.05 and about 0 on seed 1; 0.12, 0.13 and 0.10 on seed 3). An error that
-    does not shrink with the recording's length is the model's, not the noise's. With it, 95 to 100 %
-    of the axes of seeds 0 to 3 are within two stds from every length. (It was 0.2° while the child
-    model's gain columns read the parent's noisy accelerometer, :func:`lever_child`, whose
-    errors-in-variables bias made 0.33, 0.28 and 0.22° on seed 0.)
+    sandwich covariance cannot know: an error of the accelerometers' lean that does not shrink with the
+    recording's length, measured on simulated trees (docs/kinematics.md, "Findings").
     """
     U = perp_basis(u)
     Cg = _gyro_lean_cov(u, U, opts) + noise_var * np.eye(2)

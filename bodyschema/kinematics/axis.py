@@ -192,10 +192,8 @@ def gyro_reading(sig: Signals, j: int, c: int, p: int | None) -> GyroReading:
     The child's gyro is regressed on the parent's gyro ``p`` as it reads (None: a root joint), not on
     the parent's motion rebuilt from the encoders down the tree: that keeps every quantity of the
     reading a function of these two gyros' sensitivity matrices, which a recording of the same IMUs
-    repeats, and of noise. Through a rebuilt chain every ancestor's answer enters, and its errors
-    depend on the motion: the axes of the IMUs four joints deep in the paper-1 tree moved by up to 0.7°
-    (7 std) between 30 s windows of a healthy robot that way, and by up to 14° through the
-    accelerometer-frame chain.
+    repeats, and of noise. Through a rebuilt chain every ancestor's answer would enter, with errors
+    that move with the motion (docs/kinematics.md, "Findings").
     """
     if p is None:
         return GyroReading(axis_fit(sig, j, c, None, measured=True))

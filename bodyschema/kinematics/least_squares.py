@@ -112,10 +112,9 @@ def refine(
     are fitted for ``x`` (variable projection), and the residuals of those parameters' priors
     (:func:`prior_residuals`). The objective is the sum of both's squares: the priors' residuals belong
     in it, as the linear fit itself weighs them. Without them a search could trade the data's
-    residual for a coefficient the prior rules out (under a vertical root axis the parent's bias took
-    9.5 m/s², its whole gravity, to turn the child's frame 70°). The covariance is the Newey-West
-    sandwich of the Jacobian at the solution, as in :func:`hac_fit`, with the priors in its bread and only
-    the data in its meat. ``coef`` is the solution, ``resid`` its residuals.
+    residual for a coefficient the prior rules out (docs/kinematics.md, "Findings"). The covariance is
+    the Newey-West sandwich of the Jacobian at the solution, as in :func:`hac_fit`, with the priors in
+    its bread and only the data in its meat. ``coef`` is the solution, ``resid`` its residuals.
     """
     from scipy.optimize import least_squares
 

@@ -292,15 +292,9 @@ def _turn_about_parent(
     columns, and its noise from the residual. So the two wells half a turn apart are both refined (a
     coarse grid, then a bounded search) and the one the gains' datasheet prior favours kept:
     ``judged(R)``, the fit's residual sum of squares plus the prior's penalty on its gains, each fitted
-    with that prior. On a quadruped's hips (30 s windows) the flipped well's costs 15 to 140 against
-    2 to 6 for the other, whose residual alone was up to 3.5 times the flipped well's. Judged by the
-    largest gain of the fit without the prior, a gain the data do not tell decided (1 to 120, in
-    either well): the parent's along its own axis, which its bias takes as well where its force along
-    that axis hardly changes. The flipped well was then kept in 29 of 48 windows of the hips' IMUs,
-    harmless to the linear fit, whose gains absorb the flip, but for ``rotation_from_parent`` (162°
-    off) and for the gains' product with the rest of the force the child feels
-    (:func:`_felt_beyond`), a first-order term: at gains of about -0.8 it put a lever arm 80 mm
-    (17 std) off and raised a false ``imu_shifted``."""
+    with that prior. The largest gain alone would not do: the parent's gain along its own axis, which
+    the data do not tell, would decide, and a kept flipped well turns ``rotation_from_parent`` and the
+    gains' product (:func:`_felt_beyond`) by half a turn (docs/kinematics.md, "Findings")."""
     from scipy.optimize import minimize_scalar
 
     turn = lambda phi: rotation_about(w, np.array([phi]))[0] @ R0  # noqa: E731
