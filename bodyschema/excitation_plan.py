@@ -349,6 +349,51 @@ def _optimise(search: _Search, te: np.ndarray, total: float, opts: PlanOptions, 
     return best
 
 
+Shape = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _choose(
+    t: np.ndarray,
+    seconds: float,
+    grp: list[np.ndarray],
+    start: np.ndarray,
+    sub: JointLimits,
+    opts: PlanOptions,
+) -> tuple[Shape, str, float | None, float, int]:
+    """The motion's shape (d, v, a), method, decision prefix, condition number and evaluations spent:
+    the Fourier series on the shortest prefix window reaching the target, unless one pass of
+    single-joint segments is shorter."""
+    n = len(start)
+    stagger_s = n * opts.segment  # one pass over the joints, one segment each
+    te = np.arange(0, seconds, 1 / opts.eval_rate)
+    h = opts.harmonics
+    search = _Search(
+        _slots(n, opts), np.ones((n, h)), np.zeros((n, h)), grp, np.random.default_rng(opts.seed)
+    )
+    decide, cond = None, math.inf
+    windows = [w for w in np.arange(opts.window_step, seconds + 1e-9, opts.window_step) if w < stagger_s]
+    per = max(opts.max_evaluations // max(len(windows), 1), 8)
+    for win in windows if n > 1 else []:
+        cond = _optimise(search, te[te < win], seconds, opts, per)
+        if cond <= opts.target_cond:
+            decide = float(win)
+            break
+    if decide is None and stagger_s <= seconds:
+        room = np.where(sub.upper - start >= start - sub.lower, 1.0, -1.0)
+        shape = staggered_motion(t, n, opts.segment, room, seconds)
+        return shape, "staggered", float(stagger_s), 1.0, search.evaluations
+    d, v, a = _fourier(t, search.freq, search.weight, search.phase)
+    w, dw, ddw = _window(t, seconds, opts.ramp)
+    shape = (
+        w[:, None] * d,
+        w[:, None] * v + dw[:, None] * d,
+        w[:, None] * a + 2 * dw[:, None] * v + ddw[:, None] * d,
+    )
+    if decide is None:
+        cond = search.cost(te, seconds, opts.ramp)
+    return shape, "fourier", decide, cond, search.evaluations
+
+
 def plan_excitation(
     limits: JointLimits,
     q0: np.ndarray,
@@ -387,39 +432,7 @@ def plan_excitation(
     sub = JointLimits(sub.names, lo, hi, sub.velocity, sub.acceleration)
     col = {n: i for i, n in enumerate(names)}
     grp = maximal_groups([[col[j] for j in g if j in col] for g in (groups or [names])])
-    n = len(names)
-    stagger_s = n * opts.segment  # one pass over the joints, one segment each
-    te = np.arange(0, seconds, 1 / opts.eval_rate)
-    search = _Search(
-        _slots(n, opts),
-        np.ones((n, opts.harmonics)),
-        np.zeros((n, opts.harmonics)),
-        grp,
-        np.random.default_rng(opts.seed),
-    )
-    decide, cond = None, math.inf
-    windows = [w for w in np.arange(opts.window_step, seconds + 1e-9, opts.window_step) if w < stagger_s]
-    per = max(opts.max_evaluations // max(len(windows), 1), 8)
-    for win in windows if n > 1 else []:
-        cond = _optimise(search, te[te < win], seconds, opts, per)
-        if cond <= opts.target_cond:
-            decide = float(win)
-            break
-    if decide is None and stagger_s <= seconds:
-        room = np.where(hi - start >= start - lo, 1.0, -1.0)
-        shape = staggered_motion(t, n, opts.segment, room, seconds)
-        method, decide, cond = "staggered", float(stagger_s), 1.0
-    else:
-        d, v, a = _fourier(t, search.freq, search.weight, search.phase)
-        w, dw, ddw = _window(t, seconds, opts.ramp)
-        shape = (
-            w[:, None] * d,
-            w[:, None] * v + dw[:, None] * d,
-            w[:, None] * a + 2 * dw[:, None] * v + ddw[:, None] * d,
-        )
-        method = "fourier"
-        if decide is None:
-            cond = search.cost(te, seconds, opts.ramp)
+    shape, method, decide, cond, spent = _choose(t, seconds, grp, start, sub, opts)
     k = fit_to_limits(t, shape, start, sub, opts.margin)
     q[:, idx] = start + k * shape[0]
     rms = np.sqrt(np.mean((k * shape[1]) ** 2, axis=0))
@@ -432,7 +445,7 @@ def plan_excitation(
         method,
         decide,
         float(cond),
-        search.evaluations,
+        spent,
         rms_velocity={nm: float(r) for nm, r in zip(names, rms, strict=True)},
     )
 
