@@ -1,11 +1,8 @@
 """Slides of an IMU on its link, from lever arms pooled over many estimates.
 
 One window's lever arm (:mod:`bodyschema.kinematics`) scatters between healthy windows by more than a
-slide worth reporting: on a UR5e (``robot`` sensing preset, MPU-6050, 30 s windows, the axes the
-gyros read) by about 3.2 mm radially and 2.5 mm tangentially for an IMU 0.21 m from its axis and by
-3.6 and 5.4 mm for the wrist's, 30 mm from its own (1.1 and 1.3 mm about axes in the accelerometers'
-frame, :mod:`bodyschema.kinematics`), about as its reported std says, with errors that move with the
-motion. The error is the motion's, so it
+slide worth reporting, about as its reported std says, with errors that move with the motion
+(docs/kinematics.md, "Geometry drift", has the measured scatter). The error is the motion's, so it
 averages out over windows of other motion, and a slide is permanent: the lever arms of ``n_base``
 estimates under the baseline (:class:`LeverPool`) are compared with those of the newest estimates.
 
@@ -18,54 +15,26 @@ windows' errors are correlated when the motion changes slowly: an AR(1) with the
 ρ)``; 1 for one estimate, a prediction), and the degrees of freedom shrink to ``n_b / κ - 1``. The
 lever arm lies in the plane perpendicular to its joint's axis, and so does every slide it can show
 (one along the axis moves nothing a recording sees): the test is in that plane, the baseline's axis
-given, ``p = 2``. The change of the mean ``d = r̄_recent - r̄_base`` of ``k`` recent estimates there
-has covariance ``Σ = S (v(n_b) + v(k))`` (a small ridge added), and Hotelling's ``T² = dᵀ Σ⁻¹ d``
-follows ``ν p / (ν - p + 1) F(p, ν - p + 1)``. A slide is reported when ``T²`` exceeds that
-distribution's quantile (below) and ``|d|`` exceeds ``floor_m``:
-``alpha`` is the false alarm rate of one comparison on a healthy robot, the floor a change too small
-to matter. The third dimension, along the axis, holds no slide and only the lean of each window's
-axis (about 0.1 mm at 0.2 m): kept, it raised the quantile by a fifth (44 against 36 at ``ν = 30``,
-``alpha = 1e-5``) for nothing. Without an axis (an IMU the baseline holds none for) the test is in
-three dimensions, ``p = 3``.
+given, ``p = 2`` (``p = 3`` without an axis). The change of the mean ``d = r̄_recent - r̄_base`` of
+``k`` recent estimates there has covariance ``Σ = S (v(n_b) + v(k))`` (a small ridge added), and
+Hotelling's ``T² = dᵀ Σ⁻¹ d`` follows ``ν p / (ν - p + 1) F(p, ν - p + 1)``. A slide is reported when
+``T²`` exceeds that distribution's quantile and ``|d|`` exceeds ``floor_m``: ``alpha`` is the false
+alarm rate of one comparison on a healthy robot, the floor a change too small to matter.
 
-**A step, looked for at every age.** A slide is a step: the estimates after it share it, those
-before do not. The newest ``k`` estimates are compared with the baseline's pool for every ``k`` from 2
-to ``n_recent``: a large slide shows in the first windows after it, a small one once enough windows
-after it are averaged, undiluted by the windows before it (a fixed mean of ``n_recent`` holds only ``k
-/ n_recent`` of a slide ``k`` windows old). Each look leaves out the one of its ``k`` estimates
-farthest from the pool's mean: one window's outlier is no slide (on a healthy UR5e in the service, one
-window's lever arm came out far beyond the pool's scatter and raised a false alert through the looks
-at the newest one and two), while a slide moves every estimate after it. The look at the
-full recent pool, the surest for the smallest slides, is tested at ``alpha / 2``; the ``n_recent - 2``
-shorter looks share the other half (Bonferroni), so a comparison's false alarm rate stays at most
-``alpha`` (leaving out the farthest only lowers it); the surest look is reported. Judged window by
-window after a slide across 2 mm of scatter (the tests' model, seeds 0-299, the default pools), 5 mm
-is found after 9 windows at the median and 10 mm after 3, against 17 and 9 for the full pool's look
-alone at ``alpha``; at the 90th percentile 14 and 4 against 21 and 11. With ``n_recent = 1`` the one
-look is the newest estimate as it is: a prediction, whose covariance is one window's own.
+**A step, looked for at every age.** A slide is a step: the newest ``k`` estimates are compared with
+the baseline's pool for every ``k`` from 2 to ``n_recent``, so a large slide shows in the first
+windows after it and a small one once enough windows after it are averaged. Each look leaves out the
+one of its ``k`` estimates farthest from the pool's mean (one window's outlier is no slide). The look
+at the full recent pool is tested at ``alpha / 2``, the shorter looks share the other half
+(Bonferroni), so a comparison's false alarm rate stays at most ``alpha``. With ``n_recent = 1`` the
+one look is the newest estimate as it is: a prediction, whose covariance is one window's own.
 
-**How many estimates.** The smallest slide found is set by the std of the change of two means,
-``S (v(n_b) + v(k))``, and by the limit, which falls towards the χ² quantile as ``ν`` grows; both ask
-for a large baseline pool. On a UR5e the upper-arm IMUs' lever arms scatter about 3.2 mm radially and
-2.5 mm tangentially per 30 s window (``bodyhealth bench drift``), so a 5 mm radial slide is about
-1.6 window stds. In that model (independent windows, seeds 0-99, 100 windows judged after the slide),
-pools of 40 and 20 estimates leave a quarter of such slides unfound for good, a baseline mean off by
-chance holding them back; pools of 80 and 40 (the defaults) find every one, after 25 windows at the
-median and 36 at the 90th percentile. A larger baseline buys little more (120 and 40: 21 and 32)
-and takes an hour to fill. The price is time: the baseline's pool fills 40 minutes after the
-geometry baseline at the service's pace (one estimate per 30 s), and no slide is judged before.
-
-Comparing two estimates by their stated stds (:func:`~bodyschema.kinematic_drift.kinematic_findings`)
-instead takes each window's error to be its noise; on some links the window's motion moves the fit by
-several times that (paper-3's fourth link on the ``robot`` preset, several IMUs of the link at once:
-docs/kinematics.md), and the pool's scatter holds it.
-The stored drift makes no such comparison of lever arms.
-
-What it can see depends on the IMU: a slide must be about six to seven times ``Σ``'s std along it,
-and ``Σ`` grows with the scatter of the IMU's lever arm and with how long its errors follow the motion
-from one window to the next (the AR(1) correlation and the fewer degrees of freedom both cost). On a UR5e,
-``bodyhealth bench drift`` (docs/bench/drift.md) measures how many windows slides of 5 to 20 mm of an
-upper-arm IMU and of a wrist IMU take to be found.
+**How many estimates.** The smallest slide found is set by ``S (v(n_b) + v(k))`` and by the limit,
+which falls towards the χ² quantile as ``ν`` grows; both ask for a large baseline pool, whose price is
+time (the default pools, and how long slides take to be found: docs/kinematics.md, "Geometry drift",
+and ``bodyhealth bench drift``). Comparing two estimates by their stated stds
+(:func:`~bodyschema.kinematic_drift.kinematic_findings`) instead takes each window's error to be its
+noise, which on some links the motion exceeds several times; the pool's scatter holds it.
 
 Example
 -------
