@@ -406,7 +406,13 @@ function renderStatus(card, st) {
     if (st.timing && st.timing.skew_ms !== null && st.timing.skew_ms !== undefined) {
       const lag = st.timing.lag_ms === null || st.timing.lag_ms === undefined ? ""
         : ` (IMU lag ${st.timing.lag_ms.toFixed(1)} ms)`;
-      extra.push(el("span", { class: "skew" }, `IMU-to-encoder skew ${st.timing.skew_ms.toFixed(1)} ms${lag}`));
+      // the skew of a drifting clock pair grows with time: say when it holds, and the drift
+      const at = st.timing.at_s === null || st.timing.at_s === undefined ? ""
+        : ` at device time ${st.timing.at_s.toFixed(0)} s`;
+      const drift = st.timing.drift_ppm === null || st.timing.drift_ppm === undefined ? ""
+        : `, drift ${st.timing.drift_ppm.toFixed(0)} ppm`;
+      extra.push(el("span", { class: "skew" },
+        `IMU-to-encoder skew ${st.timing.skew_ms.toFixed(1)} ms${at}${lag}${drift}`));
     }
     if (st.training) {
       const t = st.training;
@@ -482,7 +488,8 @@ function renderSummary(robots) {
 function renderAlerts(alerts) {
   const body = document.querySelector("#alerts tbody");
   const rows = alerts.map((a) => {
-    const tr = el("tr", { class: "alert", "data-alert": String(a.id), "data-kind": a.kind, "data-part": a.part });
+    const tr = el("tr", { class: "alert", "data-alert": String(a.id), "data-kind": a.kind, "data-part": a.part,
+      "data-state": a.state });
     const f = a.finding || {};
     const moved = a.kind === "imu_moved" || a.kind === "joint_reparented";
     const detail = moved ? `${f.from ?? "base"} → ${f.to ?? "base"}`

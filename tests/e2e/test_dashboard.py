@@ -268,7 +268,12 @@ def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
         form.locator("select").select_option("imu_dead")
         form.locator("input[name='part']").fill("imu30")
         form.locator("button").click()
+        # pending at the first cycle that sees it, active after alert_hysteresis_m cycles (2 here, 2 s
+        # apart on an idle machine): the same budget as for the first sighting
         page.wait_for_selector("#alerts tr[data-kind='imu_dead'][data-part='imu:imu30']", timeout=120_000)
+        page.wait_for_selector(
+            "#alerts tr[data-kind='imu_dead'][data-part='imu:imu30'][data-state='active']", timeout=120_000
+        )
         page.wait_for_selector(
             "article[data-robot='paper-3-1'] rect.imu-node.changed[data-imu='imu30']", timeout=10_000
         )

@@ -120,7 +120,9 @@ def test_status_shown_per_robot(browser: Any, served: tuple[str, Store], tmp_pat
     assert sparse.locator(".decide").inner_text() == (
         "to decide, move each on its own with the others still: j1, j2, j3"
     )
-    assert sparse.locator(".skew").inner_text() == "IMU-to-encoder skew 12.5 ms (IMU lag 14.3 ms)"
+    assert sparse.locator(".skew").inner_text() == (
+        "IMU-to-encoder skew 12.5 ms at device time 0 s (IMU lag 14.3 ms), drift 0 ppm"
+    )
     # the reasons, without repeating the joints to move
     (reason,) = sparse.locator(".reasons li").all_inner_texts()
     assert reason.startswith("2 trees fit the data; they differ in joint j2 (parent j1 or j3)")
