@@ -56,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
     from simulators.recording_io import load_recording
 
     rec = load_recording(args.recording)
+    from cli.commands.floating import is_floating, topology_floating
+
+    if is_floating(rec):
+        return topology_floating(args, rec)
     kw: dict[str, Any] = {}
     if args.method != "fast":
         kw["seed"] = args.seed
