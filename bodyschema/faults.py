@@ -114,7 +114,11 @@ def parse_fault(spec: str) -> Fault:
         raise FaultError(f"{kind}: a key is given twice")
     if kind == "imu_rotated" and dict(params).get("axis", "x") not in _AXES:
         raise FaultError(f"{kind}: axis must be x, y or z")
-    return Fault(kind, tuple(params))
+    fault = Fault(kind, tuple(params))
+    for key in ("deg", "seconds", "at"):
+        if key in keys and not (key == "at" and dict(params)[key] == "random"):
+            fault.number(key)  # refuses a value that is not a finite number, now rather than later
+    return fault
 
 
 def _start(rec: Recording, fault: Fault, rng: np.random.Generator) -> float:
