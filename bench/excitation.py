@@ -274,12 +274,18 @@ def _plot(s: dict[str, Any], path: Path, seconds: float) -> None:
         (axes[1], "geometry_s", "geometry converged"),
     ):
         for i, (motion, color) in enumerate(zip(MOTIONS, ("tab:green", "tab:red", "tab:blue"), strict=True)):
-            vals = [row[1 + i][key] or seconds for row in s["rows"]]
-            ax.bar(x + (i - 1) * 0.27, vals, width=0.27, color=color, label=motion)
+            vals = [row[1 + i][key] for row in s["rows"]]
+            bars = ax.bar(
+                x + (i - 1) * 0.27, [v or seconds for v in vals], width=0.27, color=color, label=motion
+            )
+            for bar, v in zip(bars, vals, strict=True):
+                if v is None:  # not reached within the motion: hatched, at the bound
+                    bar.set_hatch("//")
+                    bar.set_alpha(0.4)
         ax.axhline(seconds, color="grey", lw=0.8, ls="--")
         ax.set_xticks(x, [row[0] for row in s["rows"]], rotation=60, fontsize=7)
         ax.set_ylabel("seconds of motion")
-        ax.set_title(title, fontsize=9)
+        ax.set_title(f"{title} (hatched: not within {seconds:g} s)", fontsize=9)
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
