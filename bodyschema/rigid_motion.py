@@ -10,6 +10,9 @@ reference *and* the measured signals alike so both see the same band.
 
 Also here: :func:`integrate_angular_velocity` and :func:`smooth_random_motion`, the inverse
 direction, used to build synthetic recordings with a known answer.
+The rotation helpers of the kinematics fits (:func:`skew`, :func:`rotation_about`,
+:func:`project_rotation`, :func:`perp_basis`, :func:`rotvec`, :func:`tilted`) live here too: one place
+for the rotations of a rigid body, whoever reads them.
 
 Example
 -------
