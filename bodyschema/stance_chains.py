@@ -102,7 +102,7 @@ class ChainOptions:
     gyro_density: float = float(GYRO_DENSITY)
     quantum: float | None = None
     max_limbs: int = 2
-    max_fit_samples: int = 250
+    max_fit_samples: int = 150
 
 
 @dataclass(frozen=True)
@@ -240,7 +240,7 @@ def chain_rates(axes: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_chain(q: np.ndarray, qd: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fit_chain(q: np.ndarray, qd: np.ndarray, w: np.ndarray, nfev: int = 6) -> tuple[np.ndarray, np.ndarray]:
     """Axes (J, 3) and gyro bias (3,) of ``w ≈ -chain_rates(axes, q, qd) + bias`` by least squares,
     started from the constant-axis linear fit."""
     X = np.c_[qd, np.ones(len(qd))]
@@ -252,7 +252,7 @@ def fit_chain(q: np.ndarray, qd: np.ndarray, w: np.ndarray) -> tuple[np.ndarray,
     def res(p: np.ndarray) -> np.ndarray:
         return (p[-3:] - chain_rates(p[:-3].reshape(J, 3), q, qd) - w).ravel()
 
-    sol = least_squares(res, np.r_[A0.ravel(), B[-1]], max_nfev=6)
+    sol = least_squares(res, np.r_[A0.ravel(), B[-1]], max_nfev=nfev)
     axes = sol.x[:-3].reshape(J, 3)
     return axes / np.linalg.norm(axes, axis=1, keepdims=True), sol.x[-3:]
 
