@@ -1,0 +1,118 @@
+"""Health on the measured floating-base robots: untouched windows give no finding, injected faults are
+found with the right kind first (baseline: the log's first half; windows: 10 s of its second half)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodyschema.faults import inject, parse_fault
+from bodyschema.floating_health import floating_baseline, floating_diff
+
+_ROOT = Path(__file__).resolve().parents[2]
+ROBOTS = Path(os.environ.get("BODYHEALTH_ROBOTS_DIR") or _ROOT.parent / "shared" / "data" / "robots")
+LOGS = {
+    "icub": (ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat", "icub-walking.toml", "mat"),
+    "go1": (ROBOTS / "go1-trot" / "go1.csv", "go1-trot.toml", "csv"),
+}
+
+pytestmark = pytest.mark.slow
+
+
+def _split(name: str):
+    from sim2real.robot_logs import import_log
+
+    path, mp, fmt = LOGS[name]
+    if not path.is_file():
+        pytest.skip(f"robot log missing: {path}")
+    rec = import_log(path, _ROOT / "examples" / "import" / mp, fmt)[0]
+    half = rec.t[0] + rec.duration / 2
+    starts = np.arange(half, rec.t[-1] - 10 + 1e-9, 10.0)
+    return rec, floating_baseline(rec.window(rec.t[0], half)), [rec.window(s, s + 10) for s in starts]
+
+
+@pytest.fixture(scope="module")
+def icub():
+    return _split("icub")
+
+
+@pytest.fixture(scope="module")
+def go1():
+    return _split("go1")
+
+
+def _first(base, win, spec: str):
+    d = floating_diff(base, inject(win, parse_fault(spec)))
+    assert d.findings, f"{spec}: nothing found"
+    return d.findings[0]
+
+
+@pytest.mark.parametrize("robot", ["icub", "go1"])
+def test_untouched_halves_and_windows_give_no_finding(robot, request):
+    rec, base, _ = request.getfixturevalue(robot)
+    half = rec.t[0] + rec.duration / 2
+    assert floating_diff(base, rec.window(half, rec.t[-1] + 1)).to_json() == {
+        "changed": False,
+        "findings": [],
+    }
+    starts = np.arange(rec.t[0], rec.t[-1] - 10 + 1e-9, 10.0)  # every 10 s window, the baseline's too
+    assert len(starts) >= 2
+    for s in starts:
+        assert floating_diff(base, rec.window(s, s + 10)).findings == (), s
+
+
+@pytest.mark.parametrize(
+    ("robot", "joints"), [("icub", ("r_hip_roll", "l_knee")), ("go1", ("RL_thigh", "FR_calf"))]
+)
+def test_frozen_encoder_named_first(robot, joints, request):
+    _, base, wins = request.getfixturevalue(robot)
+    for j in joints:
+        f = _first(base, wins[0], f"encoder_frozen:joint={j},at=2")
+        assert (f.kind, f.joint) == ("encoder_fault", j)
+
+
+def test_sign_flip_over_a_whole_window_found_on_the_stance_chain(icub):
+    _, base, wins = icub
+    for j in ("r_hip_roll", "r_knee"):
+        f = _first(base, wins[0], f"encoder_sign:joint={j}")
+        assert (f.kind, f.joint) == ("encoder_fault", j)
+
+
+@pytest.mark.parametrize(
+    ("robot", "joints"), [("icub", ("r_knee", "l_knee")), ("go1", ("RL_calf", "FR_calf"))]
+)
+def test_sign_flip_mid_window_found_as_a_jump(robot, joints, request):
+    _, base, wins = request.getfixturevalue(robot)
+    for j in joints:
+        f = _first(base, wins[0], f"encoder_sign:joint={j},at=3")
+        assert (f.kind, f.joint) == ("encoder_fault", j)
+
+
+@pytest.mark.parametrize("robot", ["icub", "go1"])
+def test_silent_imu_found_as_dead(robot, request):
+    rec, base, wins = request.getfixturevalue(robot)
+    imu = rec.imu_names[0]
+    for w in wins[:2]:
+        f = _first(base, w, f"imu_silent:imu={imu},seconds=2,at=3")
+        assert (f.kind, f.imu) == ("imu_dead", imu)
+
+
+@pytest.mark.xfail(
+    strict=True, reason="a 2 deg offset moves the stance chain's prediction less than its model error"
+)
+def test_offset_found(icub):
+    _, base, wins = icub
+    f = _first(base, wins[0], "encoder_offset:joint=r_hip_roll,deg=2")
+    assert (f.kind, f.joint) == ("encoder_fault", "r_hip_roll")
+
+
+@pytest.mark.xfail(
+    strict=True, reason="a 2 deg mount turn changes the gyro by less than the stance chain's model error"
+)
+def test_rotated_imu_found(icub):
+    rec, base, wins = icub
+    f = _first(base, wins[0], f"imu_rotated:imu={rec.imu_names[0]},deg=2")
+    assert f.kind == "imu_rotated"
