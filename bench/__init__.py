@@ -51,6 +51,7 @@ BENCHMARKS: tuple[str, ...] = (
     "lever_budget",
     "alerts",
     "excitation",
+    "robots",
     "docs",
 )
 

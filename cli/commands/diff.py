@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from cli.commands.floating import diff_floating, is_floating
 
     if is_floating(base_rec, cur_rec):
-        return diff_floating(args, base_rec, cur_rec)
+        return diff_floating(args, base_rec, cur_rec, format_diff, EXIT_UNDETERMINED)
     base = estimate_topology(base_rec, method=args.method, timer=time.process_time)
     cur = estimate_topology(cur_rec, method=args.method, timer=time.process_time)
     health = signal_health(cur_rec, base, expected_imus=base_rec.imu_names)

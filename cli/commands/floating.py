@@ -12,7 +12,8 @@ import argparse
 import json
 import sys
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from bodyschema.recording import Recording
@@ -27,10 +28,16 @@ def is_floating(*recs: Recording) -> bool:
     return all(floating_base_rule(r)[0] for r in recs)
 
 
-def diff_floating(args: argparse.Namespace, base: Recording, cur: Recording) -> int:
-    """``bodyhealth diff`` on two floating-base recordings."""
+def diff_floating(
+    args: argparse.Namespace,
+    base: Recording,
+    cur: Recording,
+    format_diff: Callable[[dict[str, Any]], str],
+    exit_undetermined: int,
+) -> int:
+    """``bodyhealth diff`` on two floating-base recordings (``format_diff`` and the undetermined exit
+    code come from the diff command, which calls this)."""
     from bodyschema.floating_health import floating_diff
-    from cli.commands.diff import EXIT_UNDETERMINED, format_diff
 
     t0 = time.process_time()
     try:
@@ -47,7 +54,7 @@ def diff_floating(args: argparse.Namespace, base: Recording, cur: Recording) -> 
         print(format_diff(out))
     if not args.exit_code:
         return 0
-    return {True: 1, False: 0, None: EXIT_UNDETERMINED}[diff.changed]
+    return {True: 1, False: 0, None: exit_undetermined}[diff.changed]
 
 
 def topology_floating(args: argparse.Namespace, rec: Recording) -> int:
