@@ -174,6 +174,8 @@ def test_bad_options_are_one_clear_error() -> None:
 #: 7.5 s. Five minutes leaves that work several times over on two shared cores; a run that still
 #: misses it must say so in its results (asserted below), not pass silently.
 BASELINE_LIMIT = 300.0
+#: The harness's request timeout (:class:`bench.alerts_service.Api`).
+REQUEST_TIMEOUT_S = 60.0
 
 
 @pytest.mark.slow
@@ -200,7 +202,8 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
         assert data["summary"]["baseline_s"]["missed"] == 1 and not data["summary"]["baseline_s"]["met"]
         assert all(d["t_s"] is None for d in run["damages"])
         return
-    assert 0 < run["baseline_s"] <= BASELINE_LIMIT + 2 * data["options"]["poll_seconds"]
+    # a poll sent before the limit may be answered up to the client's timeout after it
+    assert 0 < run["baseline_s"] <= run["baseline_limit_s"] + REQUEST_TIMEOUT_S
     assert data["summary"]["baseline_s"]["max"] == run["baseline_s"]
     assert sum(run["approvals"]["quiet"]["statuses"].values()) == 1
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
