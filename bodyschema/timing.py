@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -52,6 +53,7 @@ from bodyschema.topology import Topology
 __all__ = [
     "DLPF_ACC",
     "DLPF_GYRO",
+    "LagHint",
     "aligned_recording",
     "choose_band",
     "derivative_noise",
@@ -316,8 +318,6 @@ def encoders_moved(rec: Recording, seconds: float) -> Recording:
     >>> encoders_moved(rec, 0.25).t_q.tolist(), lag_moved({"lag_ms": 3.0, "skew_ms": 1.0}, 0.25)
     ([0.25, 1.25, 2.25, 3.25], {'lag_ms': 253.0, 'skew_ms': 251.0})
     """
-    from dataclasses import replace
-
     rec = timed_view(rec) if seconds != 0.0 else rec  # positions only, on one clock: t_q = t
     if rec.t_q is None or seconds == 0.0:
         return rec
@@ -327,7 +327,7 @@ def encoders_moved(rec: Recording, seconds: float) -> Recording:
 def lag_search_centre(last_lag: float, max_lag: float = 0.1) -> float:
     """How far to move the encoder stamps (:func:`encoders_moved`) given the lag last measured between
     the two clocks (s): all of it once it lies more than half the search range ``max_lag`` from zero,
-    else nothing (the search as it is).
+    else nothing (the search as it is). :meth:`LagHint.centre` with the estimator's range.
 
     >>> lag_search_centre(0.013), lag_search_centre(-0.08)
     (0.0, -0.08)
@@ -345,12 +345,67 @@ def lag_moved(timing: dict[str, float], seconds: float) -> dict[str, float]:
     return out
 
 
+@dataclass(frozen=True)
+class LagHint:
+    """Where a monitor that follows one robot from window to window centres the next window's lag
+    search, and the one place that moves a window's encoder stamps and puts the move back.
+
+    The estimators search the lag within ±``max_lag`` (:class:`bodyschema.fast.FastOptions`); two
+    free-running clocks drift past that within an hour. :meth:`centre` turns the lag last measured
+    into a hint, :meth:`apply` moves a window's encoder stamps by it (returning the hint actually
+    applied: none to a single-clock window with measured velocities, which has no lag to search) and
+    :meth:`put_back` adds that move to the timing an estimate on the moved window reports. The worker,
+    the training queue and the cluster's retrain task all go through it.
+
+    >>> import numpy as np
+    >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
+    ...                 acc=np.zeros((4, 0, 3)), gyro=np.zeros((4, 0, 3)), t_q=np.arange(4.0))
+    >>> hint = LagHint.centre(0.12)
+    >>> moved, applied = hint.apply(rec)
+    >>> moved.t_q.tolist(), applied.put_back(Topology({"j": None}, {}, timing={"lag_ms": 10.0})).timing
+    ([0.12, 1.12, 2.12, 3.12], {'lag_ms': 130.0})
+    >>> LagHint.centre(0.013)
+    LagHint(seconds=0.0)
+    """
+
+    #: how far the encoder stamps are moved, s (0: the search as it is)
+    seconds: float = 0.0
+
+    @classmethod
+    def centre(cls, last_lag: float | None, max_lag: float | None = None) -> LagHint:
+        """The hint for a lag last measured at ``last_lag`` s (None: none measured): all of it once it
+        lies more than half the search range ``max_lag`` (default the fast estimator's) from zero."""
+        if max_lag is None:
+            from bodyschema.fast_core import FastOptions  # fast_core imports this module
+
+            max_lag = FastOptions.max_lag
+        return cls(lag_search_centre(last_lag or 0.0, max_lag))
+
+    def apply(self, rec: Recording) -> tuple[Recording, LagHint]:
+        """``rec`` with its encoder stamps moved by the hint, and the hint applied (zero where nothing
+        moved: a zero hint, or a single-clock ``rec`` with measured velocities)."""
+        if not self.seconds or timed_view(rec).t_q is None:
+            return rec, LagHint()
+        return encoders_moved(rec, self.seconds), self
+
+    def put_back(self, topo: Topology) -> Topology:
+        """``topo``, learned on a window :meth:`apply` moved by this hint, with its timing as the
+        original stamps see it."""
+        if not self.seconds or not topo.timing:
+            return topo
+        return replace(topo, timing=lag_moved(topo.timing, self.seconds))
+
+    def estimate(self, estimate: Callable[[Recording], Topology], rec: Recording) -> Topology:
+        """``estimate(rec)`` on ``rec`` moved by the hint, the move put back into its timing."""
+        moved, applied = self.apply(rec)
+        return applied.put_back(estimate(moved))
+
+
 def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: float) -> Topology:
     """``estimate(rec)`` with ``rec``'s encoder stamps moved by the lag ``hint`` (s,
-    :func:`lag_search_centre`) and the move put back into the timing it reports: a lag that drifted
-    past the search range stays in it. How a monitor that follows one robot from window to window
-    estimates its tree; ``hint`` 0 (or a single-clock ``rec`` with measured velocities) is the estimate
-    as it is.
+    :func:`lag_search_centre`) and the move put back into the timing it reports (:class:`LagHint`):
+    a lag that drifted past the search range stays in it. ``hint`` 0 (or a single-clock ``rec`` with
+    measured velocities) is the estimate as it is.
 
     >>> import numpy as np
     >>> rec = Recording(t=np.arange(4.0), joint_names=("j",), q=np.zeros((4, 1)), imu_names=(),
@@ -360,17 +415,12 @@ def lag_hinted(estimate: Callable[[Recording], Topology], rec: Recording, hint: 
     >>> search(rec).timing["lag_ms"], round(lag_hinted(search, rec, 0.12).timing["lag_ms"], 6)
     (100.0, 130.0)
     """
-    from dataclasses import replace
-
-    if not hint or timed_view(rec).t_q is None:
-        return estimate(rec)
-    topo = estimate(encoders_moved(rec, hint))
-    return replace(topo, timing=lag_moved(topo.timing, hint)) if topo.timing else topo
+    return LagHint(hint).estimate(estimate, rec)
 
 
 def measured_lag(topo: Topology) -> float | None:
     """The encoder-to-IMU lag (s) a tree was found with (its ``timing``), None where none was measured:
-    what a monitor centres the next window's search on (:func:`lag_search_centre`)."""
+    what a monitor centres the next window's search on (:meth:`LagHint.centre`)."""
     return 1e-3 * float(topo.timing["lag_ms"]) if "lag_ms" in topo.timing else None
 
 
@@ -383,8 +433,6 @@ def timed_view(rec: Recording) -> Recording:
     derived, and only the timed path's band and error model allow for a derived velocity's error
     (:func:`bodyschema.fast.fit_path`). The skew between the streams is still estimated.
     """
-    from dataclasses import replace
-
     if rec.t_q is None and rec.qd is None and rec.q is not None:
         return replace(rec, t_q=rec.t.copy(), qdd=None)
     return rec
@@ -401,8 +449,6 @@ def aligned_recording(rec: Recording, lag: float, drift: float = 0.0, lag_time: 
     :func:`bodyschema.fast.fast_fit`. Grid points in long IMU gaps and within
     :func:`edge_margin` of the ends are dropped. A single-clock ``rec`` is returned as it is.
     """
-    from dataclasses import replace
-
     if rec.t_q is None or rec.q is None:
         return rec
     t, t_q = rec.t, rec.t_q

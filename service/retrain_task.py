@@ -71,7 +71,7 @@ class RetrainJob:
     #: the training thread runs under Linux's idle scheduling class (:func:`lower_priority`)
     idle: bool = False
     #: the encoder stamps are moved by this lag (s) first, and the move put back into the timing
-    #: reported (:func:`bodyschema.timing.encoders_moved`; 0: not moved)
+    #: reported (:class:`bodyschema.timing.LagHint`; 0: not moved)
     lag_hint: float = 0.0
 
 
@@ -158,11 +158,9 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     baseline, on the same IMUs and joints (:mod:`service.store.weights`), when ``job.warm_start``;
     the weights trained come back in the result, for the service to store.
     """
-    from dataclasses import replace
-
     from bodyschema.estimate import fit_topology
     from bodyschema.impacts import drop_impacts
-    from bodyschema.timing import encoders_moved, lag_moved
+    from bodyschema.timing import LagHint
     from service.store import Store
     from service.store.weights import pack_weights
 
@@ -185,11 +183,9 @@ def run_retrain(job: RetrainJob) -> RetrainResult:
     kw = dict(job.options)
     if job.method in WARM_METHODS:
         kw["warm_start"] = stored.weights if stored is not None else None
-    learn = encoders_moved(drop_impacts(rec), job.lag_hint)
+    learn, moved = LagHint(job.lag_hint).apply(drop_impacts(rec))
     fit = fit_topology(learn, method=job.method, timer=time.process_time, seed=job.seed, **kw)
-    topo = fit.topology
-    if job.lag_hint and topo.timing:
-        topo = replace(topo, timing=lag_moved(topo.timing, job.lag_hint))
+    topo = moved.put_back(fit.topology)
     training = topo.training or {}
     converged = training.get("converged")
     return RetrainResult(

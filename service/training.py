@@ -50,6 +50,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from bodyschema.timing import LagHint
 from bodyschema.topology import Topology
 from service.cluster import TrainingCluster, embedded_workers
 from service.metrics import Metrics
@@ -539,15 +540,6 @@ class RemoteRetrains:
         self.metrics.retrain_failures.labels(method=method).inc()
         log.warning("retrain failed: %s", why, extra={"robot": robot, "method": method, "key": key})
 
-    def _lag_hint(self, robot: str) -> float:
-        """The lag of the robot's newest fast topology (s) when it lies more than half the lag search's
-        range from zero, as the worker centres its own estimates (:meth:`service.worker.Worker._lag_hint`);
-        else 0."""
-        from bodyschema.fast import FastOptions
-        from bodyschema.timing import lag_search_centre
-
-        return lag_search_centre(self.store.last_lag(robot), FastOptions.max_lag)
-
     def _job(self, robot: str, method: str) -> RetrainJob | None:
         try:
             info = self.store.robot(robot)
@@ -561,7 +553,8 @@ class RemoteRetrains:
             return None
         base = self.store.baseline(robot) if self.options.warm_start else None
         return RetrainJob(
-            lag_hint=self._lag_hint(robot),
+            # the search centred as the worker centres its own (bodyschema.timing.LagHint)
+            lag_hint=LagHint.centre(self.store.last_lag(robot)).seconds,
             database_url=self.database_url,
             robot=robot,
             method=method,

@@ -115,3 +115,30 @@ def test_encoder_arrays_must_match_their_own_stamps():
             acc=np.zeros((100, 1, 3)),
             gyro=np.zeros((100, 1, 3)),
         )
+
+
+def test_a_lag_hint_moves_the_encoders_and_puts_the_move_back_only_where_it_moved_them():
+    """The monitor's one alignment step (bodyschema.timing.LagHint): a hint beyond half the search
+    range moves a multi-rate window's encoder stamps, and the timing learned there is put back on the
+    original stamps; a single-clock window with measured velocities has no lag to move, so nothing is
+    put back either (an estimator's own timing of it stays as it reported it)."""
+    from dataclasses import replace
+
+    from bodyschema.timing import LagHint
+    from bodyschema.topology import Topology
+
+    assert LagHint.centre(0.049) == LagHint(0.0) and LagHint.centre(None) == LagHint(0.0)
+    assert LagHint.centre(-0.051) == LagHint(-0.051)
+    assert LagHint.centre(0.03, max_lag=0.05) == LagHint(0.03)
+    topo = Topology({"a": None, "b": "a"}, {"i0": "a"}, timing={"lag_ms": 12.0, "skew_ms": 7.0})
+    rec = _multirate()
+    moved, applied = LagHint(0.12).apply(rec)
+    assert applied == LagHint(0.12)
+    np.testing.assert_allclose(moved.t_q, rec.t_q + 0.12)
+    assert applied.put_back(topo).timing == {"lag_ms": 132.0, "skew_ms": 127.0}
+    single = replace(rec, t_q=None, t=rec.t, q=rec.q[: len(rec.t)], qd=np.zeros((len(rec.t), 2)))
+    same, none = LagHint(0.12).apply(single)
+    assert same is single and none == LagHint(0.0) and none.put_back(topo) is topo
+    seen: list[Recording] = []
+    assert LagHint(0.12).estimate(lambda r: seen.append(r) or topo, rec).timing["lag_ms"] == 132.0
+    np.testing.assert_allclose(seen[0].t_q, rec.t_q + 0.12)
