@@ -353,9 +353,13 @@ class _Run:
     def inject(self) -> None:
         specs = [parse_damage(s) for s in self.o.damages]
         self.wait_geometry(self.geometry_robots())
+        late = self.left(self.o.alert_limit) < self.o.poll_seconds  # no time left to see an alert
         for robot, kind, params in specs:
-            if self.baselines.get(robot) is None:
-                self.injections.append(Injection(robot, kind, params, detail="not injected: no baseline"))
+            skip = (
+                "the run's bound came" if late else "no baseline" if self.baselines.get(robot) is None else ""
+            )
+            if skip:
+                self.injections.append(Injection(robot, kind, params, detail=f"not injected: {skip}"))
                 continue
             t = self.now()
             try:
