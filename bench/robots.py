@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from bench import REPO_ROOT, RESULTS_DIR, machine_note, write_results
+from bench import REPO_ROOT, RESULTS_DIR, fmt, machine_note, write_results
 
 __all__ = ["add_arguments", "run"]
 
@@ -154,14 +154,27 @@ def _markdown(res: dict[str, Any]) -> str:
                 f"| {f['rank'] or '—'} | {fs} | {f['cpu_s']} |"
             )
         if "sim2real" in r:
-            s = r["sim2real"]
-            lines += [
-                "",
-                "Rigid model (sim2real/robots.py): "
-                + (s.get("error") or f"{s['cpu_s']} CPU s, its held-out gains in robots.json"),
-            ]
+            lines += ["", *_sim2real_lines(r["sim2real"])]
         lines.append("")
     return "\n".join(lines) + "\n"
+
+
+def _sim2real_lines(s: dict[str, Any]) -> list[str]:
+    """The rigid model's residual before and after its named causes, per prediction."""
+    if "error" in s:
+        return [f"Rigid model (sim2real/robots.py): {s['error']}"]
+    out = [
+        f"Rigid model (sim2real/robots.py, {s['cpu_s']} CPU s), residual before -> after its causes:",
+        "",
+    ]
+    for name, p in s["result"].get("predictions", {}).items():
+        b, a = p.get("residual_before", {}), p.get("residual_after", {})
+        causes = ", ".join(c.get("effect", "?") for c in p.get("causes", [])) or "none"
+        out.append(
+            f"* {name}: gyro {fmt(b.get('gyro_rms'), '.4f')} -> {fmt(a.get('gyro_rms'), '.4f')} rad/s, "
+            f"acc {fmt(b.get('acc_rms'), '.3f')} -> {fmt(a.get('acc_rms'), '.3f')} m/s² ({causes})"
+        )
+    return out
 
 
 def _plot(res: dict[str, Any]):
