@@ -19,14 +19,14 @@ One cycle, for every robot the store knows:
    (hysteresis) → alerts in the store. An IMU moved to another link while the window straddles
    the move fits neither link and reads as ``imu_detached``; such a finding is judged again on the
    part of the window after the cycle that first saw the IMU displaced (all of it after the change,
-   see :meth:`Worker._after_onset`), so a move raises ``imu_moved`` and a detachment
+   see :func:`service.monitor.onset.after_onset`), so a move raises ``imu_moved`` and a detachment
    ``imu_detached``, and never the one before the other. With the sensor networks on, a structural
    finding (:data:`~bodyschema.diff.STRUCTURAL_KINDS`) of the fast screen is only counted once the
    newest network topology, learned from a window that ended at or after the cycle that first saw it,
    also shows a structural change of that part; until then its kind is held (neither raised nor
    cleared) and a network retrain is asked for; a network topology that shows no change there drops
-   it (:meth:`Worker._confirmed`). Every ``kinematics_interval_cycles`` cycles (staggered per robot),
-   when the diff holds no finding, the robot's geometry is estimated
+   it (:func:`service.monitor.confirmation.confirm`). Every ``kinematics_interval_cycles`` cycles
+   (staggered per robot), when the diff holds no finding, the robot's geometry is estimated
    (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
    with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates' axes, turns and dead
@@ -34,13 +34,17 @@ One cycle, for every robot the store knows:
    of the newest ``k`` for every ``k`` up to ``kinematics_pool_recent``, down to slides smaller than
    one window's scatter) and their ``imu_rotated``,
    ``imu_shifted``, ``axis_changed`` and ``backlash`` findings join the diff; in the cycles between,
-   those kinds are held (:meth:`Worker._drift`);
+   those kinds are held (:mod:`service.monitor.drift`);
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The sensor-network methods run in another process when the worker is given a
 :class:`~service.training.RemoteRetrains` (the service's default: a Dask cluster, docs/service.md
 "Training on Dask"): the cycle only marks them wanted, submits them, and stores the results of those
 that finished since the last cycle; it never waits for one. Without it they run here, in the cycle.
+
+The steps live in :mod:`service.monitor` (one module each) and in :mod:`service.worker_alerts`; what the
+worker remembers per robot is one :class:`~service.monitor.state.RobotState`, whose ``reset`` says what a
+new baseline, a new device-clock epoch and a restart forget. This module is the loop and the wiring.
 
 The worker runs in its own thread so the API and the ingest pipeline never wait for it; a failing robot
 is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one cycle synchronously
@@ -49,36 +53,29 @@ is logged and counted, and the others go on. :meth:`Worker.run_cycle` runs one c
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
 import math
 import threading
 import time
-import zlib
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from bodyschema.diff import diff_bodies, is_ambiguous
-from bodyschema.fast import FastOptions
-from bodyschema.findings import Diff, Finding
-from bodyschema.health import (
-    BaselineFingerprints,
-    SignalHealth,
-    baseline_fingerprints,
-    signal_health,
-)
+from bodyschema.findings import Finding
+from bodyschema.health import BaselineFingerprints, baseline_fingerprints, signal_health
 from bodyschema.impacts import drop_impacts
-from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
-from bodyschema.recording import Recording, RecordingError
-from bodyschema.timing import lag_hinted, lag_search_centre, measured_lag
+from bodyschema.recording import Recording
+from bodyschema.timing import LagHint, measured_lag
 from bodyschema.topology import Topology
 from service.alert_path import Waits, queue_entries, with_finish
 from service.alerts import AlertTracker
 from service.metrics import Metrics
+from service.monitor.baseline import BaselineAdoption
+from service.monitor.confirmation import NetworkAsks
+from service.monitor.drift import FRAME_KEY, GeometryDrift
+from service.monitor.onset import estimate_after
+from service.monitor.state import RobotState
 from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
 from service.training import RemoteRetrains
@@ -98,10 +95,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 HEARTBEAT_COMPONENT = "worker"
-
-#: The key of a kept geometry's JSON that says whether its axes are the accelerometers' frame's
-#: (``kinematics_accelerometer_frame``); absent in rows kept before it was recorded, whose were the gyros'.
-FRAME_KEY = "accelerometer_frame"
 
 #: ``(recording, method) -> Topology``; the default is :func:`bodyschema.estimate.estimate_topology`.
 Estimator = Callable[[Recording, str], Topology]
@@ -168,48 +161,11 @@ class Worker(AlertPath):
         self.min_samples = min_samples
         self.tracker = AlertTracker(m=self.settings.alert_hysteresis_m)
         self.cycles = 0
-        self._recent: dict[str, deque[Topology]] = {}
-        #: Per robot, each joint's encoder-to-gyro relation and each IMU's residual share on the
-        #: baseline (learned state, :class:`~bodyschema.health.BaselineFingerprints`): set when
-        #: a baseline is adopted, or, after a restart or an operator approval, from the first window
-        #: that matches the baseline.
-        self.fingerprints_: dict[str, BaselineFingerprints] = {}
-        self._requests: dict[str, set[str]] = {}
-        #: Per robot: the (kind, part) of the previous cycle's findings (see :meth:`_on_change`).
-        self._findings: dict[str, frozenset[tuple[str, str]]] = {}
-        #: Per (robot, kind, part): window end of the first cycle of the current run of cycles whose
-        #: fast screen showed that structural finding (see :meth:`_confirmed`).
-        self._first_seen: dict[tuple[str, str, str], float] = {}
-        #: Per robot: wall time (``clock``) of the last network retrain asked for by the worker itself
-        #: (confirmations, baselines); asked again only once a network topology newer than it is stored.
-        self._network_asked: dict[str, float] = {}
-        #: Per robot: window end of the cycle that first completed the current baseline streak while
-        #: the networks did not agree with it (see :meth:`_maybe_baseline`).
-        self._streak_since: dict[str, float] = {}
-        #: Per (robot, IMU): window end of the first cycle of the current run of cycles whose diff
-        #: placed the IMU elsewhere than the baseline (detached or moved); every sample after it was
-        #: recorded after the change.
-        self._onset: dict[tuple[str, str], float] = {}
-        #: Per robot: the ``last_frame_t`` the worker last saw, and the wall time (``clock``) it first
-        #: saw that value; see :meth:`_idle`.
-        self._activity: dict[str, tuple[float | None, float]] = {}
-        #: Per robot: the device clock epoch of the last cycle (see :meth:`_epoch_seen`).
-        self._epochs: dict[str, int] = {}
-        #: Per robot: the encoder-to-IMU lag (s) of its last fast topology (see :meth:`_lag_hint`).
-        self._lags: dict[str, float] = {}
-        #: Per robot: the id of the baseline its last cycle compared with (None: none yet); a new id
-        #: (an operator approved one) makes the worker forget what it tracked against the old one.
-        self._baseline_ids: dict[str, int | None] = {}
-        #: Robots whose alerts were read back after a restart and are judged again on their first
-        #: full window (:meth:`_restore`).
-        self._rejudge: set[str] = set()
-        #: Per robot: the current baseline streak's length in cycles, the window end of its first
-        #: cycle, and the wall time it started waiting for the networks (see :meth:`_maybe_baseline`).
-        self._streak_n: dict[str, int] = {}
-        self._streak_start: dict[str, float] = {}
-        self._streak_wall: dict[str, float] = {}
-        #: Per robot: what it waits on, as last written to the store (:meth:`_write_waits`).
-        self._waits_written: dict[str, dict[str, Any]] = {}
+        #: Per robot, everything the worker remembers between cycles (:mod:`service.monitor.state`).
+        self._states: dict[str, RobotState] = {}
+        self.asks = NetworkAsks(self.settings, clock, self._want_network)
+        self.adoption = BaselineAdoption(store, self.settings, clock, self.asks)
+        self.geometry = GeometryDrift(store, self.settings, self.metrics, self.compute, clock)
         #: ``time.monotonic()`` when the running cycle began (None between cycles) and the last ended.
         self._cycle_began: float | None = None
         self._cycle_ended: float | None = None
@@ -220,6 +176,29 @@ class Worker(AlertPath):
         self._thread: threading.Thread | None = None
         self._started = False
         self._restore()
+
+    def state(self, robot: str) -> RobotState:
+        """What the worker keeps for ``robot`` (a new state for a robot it has not seen)."""
+        st = self._states.get(robot)
+        if st is None:
+            st = self._states.setdefault(robot, RobotState())
+        return st
+
+    @property
+    def fingerprints_(self) -> dict[str, BaselineFingerprints]:
+        """Per robot, the fingerprints learned on its baseline (``RobotState.fingerprints``)."""
+        return {r: st.fingerprints for r, st in self._states.items() if st.fingerprints is not None}
+
+    @fingerprints_.setter
+    def fingerprints_(self, value: dict[str, BaselineFingerprints]) -> None:
+        for robot in {*self._states, *value}:
+            self.state(robot).fingerprints = value.get(robot)
+
+    @property
+    def _requests(self) -> dict[str, set[str]]:
+        """Per robot, the methods asked for and not yet run."""
+        with self._lock:
+            return {r: set(st.requests) for r, st in self._states.items() if st.requests}
 
     # ------------------------------------------------------------------------------- control
     def start(self) -> None:
@@ -249,10 +228,16 @@ class Worker(AlertPath):
         never started one (driven cycle by cycle) is judged by its heartbeat alone."""
         return self._started and not self.running
 
+    @property
+    def networks_on(self) -> bool:
+        """True when the sensor networks run on a schedule: they are then the authority for baselines
+        and structural alerts, and the fast method the screen."""
+        return self.asks.networks_on
+
     def request(self, robot: str, method: str) -> None:
         """Run ``method`` for ``robot`` in the next cycle (on demand retrain), and wake the thread."""
         with self._lock:
-            self._requests.setdefault(robot, set()).add(method)
+            self.state(robot).requests.add(method)
         self._wake.set()
 
     def progress(self) -> dict[str, float | None]:
@@ -307,7 +292,7 @@ class Worker(AlertPath):
         """
         base = self.store.approve_baseline(robot, topo, source="operator", wall_time=self.clock())
         self.tracker.forget(robot)
-        self.fingerprints_.pop(robot, None)
+        self.state(robot).reset("approval")
         self._wake.set()
         log.info("baseline approved", extra={"robot": robot, "source": "operator"})
         return base
@@ -320,23 +305,32 @@ class Worker(AlertPath):
                 pending = a.state == "pending"
                 f = [Finding.from_json(a.finding)]
                 self.tracker.restore(a.robot, f, pending=pending, since=a.raised_at, confirmed=a.confirmed)
-                self._rejudge.add(a.robot)
+                self.state(a.robot).reset("restart")
         except Exception:
             log.exception("could not restore open alerts")
 
-    def _baseline_seen(self, robot: str, base: TopologyRecord | None) -> None:
+    def _baseline_seen(self, robot: str, st: RobotState, base: TopologyRecord | None) -> None:
         """Forget what was tracked for ``robot`` against a baseline that is no longer current (an
         operator approved another since the last cycle): its alerts were resolved with it."""
         bid = None if base is None else base.id
-        if robot in self._baseline_ids and self._baseline_ids[robot] != bid:
+        if st.baseline_known and st.baseline_id != bid:
             self.tracker.forget(robot)
-            self.fingerprints_.pop(robot, None)
-            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
-            self._first_seen = {k: v for k, v in self._first_seen.items() if k[0] != robot}
-            self._findings.pop(robot, None)
-            self._rejudge.discard(robot)
+            st.reset("baseline")
             log.info("new baseline seen: tracking starts over", extra={"robot": robot, "baseline_id": bid})
-        self._baseline_ids[robot] = bid
+        st.baseline_id, st.baseline_known = bid, True
+
+    def _epoch_seen(self, robot: str, epoch: int) -> None:
+        """Forget the device times remembered for ``robot`` when its clock went back (a new epoch,
+        :mod:`service.store.frames`; what it forgets: :mod:`service.monitor.state`). Alerts stay; the
+        first full window of the new epoch confirms or resolves them."""
+        st = self.state(robot)
+        if st.epoch is not None and st.epoch != epoch:
+            st.reset("epoch")
+            self.tracker.rejudge(robot)
+            log.info(
+                "device clock went back: analysing the new epoch", extra={"robot": robot, "epoch": epoch}
+            )
+        st.epoch = epoch
 
     # -------------------------------------------------------------------------------- cycle
     def run_cycle(self) -> dict[str, CycleResult]:
@@ -364,12 +358,7 @@ class Worker(AlertPath):
                 except Exception:
                     self.metrics.cycle_errors.inc()
                     log.exception("worker cycle failed for robot", extra={"robot": info.name})
-            for info in robots:
-                try:
-                    n = len(self.store.alerts(info.name, active=True))
-                except UnknownRobot:
-                    continue
-                self.metrics.alerts_active.labels(robot=info.name).set(n)
+            self._count_alerts([info.name for info in robots])
             self._submit_retrains()
             self.store.heartbeat(HEARTBEAT_COMPONENT, self.clock())
             self._cycle_began, self._cycle_ended = None, time.monotonic()
@@ -380,6 +369,15 @@ class Worker(AlertPath):
             "worker cycle", extra={"cycle": self.cycles, "robots": len(out), "seconds": round(seconds, 3)}
         )
         return out
+
+    def _count_alerts(self, robots: list[str]) -> None:
+        """Each robot's active alerts into the metrics."""
+        for robot in robots:
+            try:
+                n = len(self.store.alerts(robot, active=True))
+            except UnknownRobot:
+                continue
+            self.metrics.alerts_active.labels(robot=robot).set(n)
 
     def _collect_retrains(self) -> None:
         """Store the cluster retrains that finished since the last cycle (never waits for one)."""
@@ -401,24 +399,13 @@ class Worker(AlertPath):
             self.metrics.cycle_errors.inc()
             log.exception("submitting retrains failed")
 
-    def _epoch_seen(self, robot: str, epoch: int) -> None:
-        """Forget the device times remembered for ``robot`` when its clock went back (a new epoch,
-        :mod:`service.store.frames`): an onset stamped on the old clock would lie in the new clock's
-        future and hold the IMU's finding forever. The fingerprints go too: a restarted robot's
-        encoders may count from other offsets, and no finding may come from comparing windows across
-        the restart; they are learned again from the first window that matches the baseline. Alerts
-        stay; the first full window of the new epoch confirms or resolves them."""
-        if self._epochs.get(robot, epoch) != epoch:
-            self._onset = {k: v for k, v in self._onset.items() if k[0] != robot}
-            self._first_seen = {k: v for k, v in self._first_seen.items() if k[0] != robot}
-            self._lags[robot] = 0.0
-            self.fingerprints_.pop(robot, None)
-            self.tracker.rejudge(robot)
-            self._rejudge.add(robot)
-            log.info(
-                "device clock went back: analysing the new epoch", extra={"robot": robot, "epoch": epoch}
-            )
-        self._epochs[robot] = epoch
+    def _want_network(self, robot: str) -> None:
+        """A network retrain of ``robot``: on the cluster when there is one, else in the next cycle."""
+        if self.remote is not None:
+            self.remote.want(robot, "network")
+        else:
+            with self._lock:
+                self.state(robot).requests.add("network")
 
     def _idle(self, robot: str, last_frame_t: float | None) -> bool:
         """True when ``robot``'s last frame has not moved for more than ``window_seconds`` of wall time
@@ -426,12 +413,13 @@ class Worker(AlertPath):
         costs a full estimate per cycle and learns nothing, so the robot waits, alerts as they stand,
         until frames arrive (its ``last_frame_t`` moves) or a retrain is requested."""
         now = self.clock()
-        seen = self._activity.get(robot)
+        st = self.state(robot)
+        seen = st.activity
         if seen is None or seen[0] != last_frame_t:
-            self._activity[robot] = (last_frame_t, now)
+            st.activity = (last_frame_t, now)
             return False
         with self._lock:
-            if self._requests.get(robot):
+            if st.requests:
                 return False
         return now - seen[1] > self.settings.window_seconds
 
@@ -441,10 +429,35 @@ class Worker(AlertPath):
         if n and self.cycles % n == 0:
             methods.append("network")
         with self._lock:
-            for m in sorted(self._requests.pop(robot, set())):
+            st = self.state(robot)
+            asked, st.requests = st.requests, set()
+            for m in sorted(asked):
                 if m not in methods:
                     methods.append(m)
         return methods
+
+    def _learn(self, robot: str, st: RobotState, learn: Recording, res: CycleResult) -> Topology | None:
+        """Step 3: every method of this cycle on ``learn`` (the cluster's only marked wanted), each
+        result stored; the fast topology, whose lag centres the next window's search."""
+        window_end = float(learn.t[-1])
+        if st.lag is None:  # after a restart: the newest stored fast topology's
+            st.lag = self.store.last_lag(robot)
+        hint = LagHint.centre(st.lag)
+        fast: Topology | None = None
+        for method in self._methods(robot):
+            if method != "fast" and self.remote is not None:
+                self.remote.want(robot, method)  # submitted at the end of the cycle, stored when done
+                continue
+            t0 = time.perf_counter()
+            topo = hint.estimate(lambda r, m=method: self.estimator(r, m), learn)
+            self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)
+            self.store.save_topology(robot, topo, self.clock(), window_end)
+            res.methods.append(method)
+            if method == "fast":
+                fast = topo
+        if fast is not None and (lag := measured_lag(fast)) is not None:
+            st.lag = lag
+        return fast
 
     def _robot_cycle(self, robot: str, expected_imus: list[str]) -> CycleResult:
         res = CycleResult(robot)
@@ -452,37 +465,23 @@ class Worker(AlertPath):
         if rec is None or rec.n_samples < self.min_samples or rec.q is None:
             res.skipped = "not enough data in the window"
             return res
+        st = self.state(robot)
         base = self.store.baseline(robot)
-        self._baseline_seen(robot, base)
-        layout = base.topology if base is not None else None
+        self._baseline_seen(robot, st, base)
         window_end = float(rec.t[-1])
-        fast: Topology | None = None
         # velocity jumps at stops read as contradictions to the estimators
         learn = self.compute(drop_impacts, rec)
-        hint = self._lag_hint(robot)
-        for method in self._methods(robot):
-            if method != "fast" and self.remote is not None:
-                self.remote.want(robot, method)  # submitted at the end of the cycle, stored when done
-                continue
-            t0 = time.perf_counter()
-            topo = self._estimate(learn, method, hint)
-            self.metrics.retrain_seconds.labels(method=method).observe(time.perf_counter() - t0)
-            self.store.save_topology(robot, topo, self.clock(), window_end)
-            res.methods.append(method)
-            if method == "fast":
-                fast = topo
+        fast = self._learn(robot, st, learn, res)
         if fast is None:
             return res
-        lag = measured_lag(fast)
-        if lag is not None:
-            self._lags[robot] = lag
+        fp = st.fingerprints
         res.health = self.compute(
             signal_health,
             rec,
-            layout,
+            base.topology if base is not None else None,
             expected_imus,
             current=fast,
-            fingerprints=fp.joints if (fp := self.fingerprints_.get(robot)) else None,
+            fingerprints=fp.joints if fp else None,
             imu_fingerprints=fp.imus if fp else None,
         )
         res.topology = fast
@@ -491,285 +490,19 @@ class Worker(AlertPath):
         waits = Waits(queue=with_finish(queue_entries(self.remote, robot), self.clock()))
         full = rec.duration >= 0.8 * self.settings.window_seconds
         if base is None:
-            res.baseline_set = full and self._maybe_baseline(robot, fast, res.health, window_end)
-            if not res.baseline_set and robot in self._streak_wall:
-                n, need = self._streak_n.get(robot, 0), self.settings.baseline_unconfirmed_cycles
-                later = f", adopted unconfirmed after {need} cycles" if need else ""
-                what = (
-                    f"baseline: the sensor networks' answer (the fast screen's body held {n} cycles{later})"
-                )
-                waits.add(what, self._streak_wall[robot])
+            res.baseline_set = full and self.adoption.offer(robot, st, fast, res.health, window_end)
+            if not res.baseline_set and (wait := self.adoption.waiting(st)) is not None:
+                waits.add(*wait)
             self._write_waits(robot, waits)
             return res
         res.diff = diff_bodies(base.topology, fast, res.health)
-        self._on_change(robot, res.diff)
-        if robot not in self.fingerprints_ and not res.diff.findings:
-            self.fingerprints_[robot] = self.compute(baseline_fingerprints, rec, base.topology, current=fast)
+        self.asks.on_change(robot, st, res.diff)
+        if st.fingerprints is None and not res.diff.findings:
+            st.fingerprints = self.compute(baseline_fingerprints, rec, base.topology, current=fast)
         self._judge_alerts(robot, res, (rec, learn), base, waits, full and not is_ambiguous(fast))
         self._write_waits(robot, waits)
         return res
 
-    def _lag_hint(self, robot: str) -> float:
-        """Where to centre the search for ``robot``'s encoder-to-IMU lag (s): the lag last measured, when
-        it lies more than half the search range (``FastOptions.max_lag``) from zero; else 0, the search
-        as it is. From the newest stored fast topology after a restart; 0 after the device clock went
-        back (:meth:`_epoch_seen`: the clocks may have restarted apart)."""
-        if robot not in self._lags:
-            self._lags[robot] = self.store.last_lag(robot)
-        return lag_search_centre(self._lags[robot], FastOptions.max_lag)
-
-    def _estimate(self, rec: Recording, method: str, hint: float) -> Topology:
-        """``self.estimator`` on ``rec``, its encoder stamps moved by the lag ``hint`` (s) and the move put
-        back into the timing reported (:func:`bodyschema.timing.encoders_moved`): a lag that drifted
-        past the search range stays in it."""
-        return lag_hinted(lambda r: self.estimator(r, method), rec, hint)
-
-    def _drift(
-        self, robot: str, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff, window_end: float
-    ) -> tuple[tuple[Finding, ...], bool] | None:
-        """Geometry drift of ``robot`` against the geometry learned on its baseline (module doc, 5), and
-        whether its lever arms were judged (the baseline's pool is full); None when this cycle does not
-        judge it (not its turn, the body differs from the baseline, or
-        no geometry is kept yet: then this one is kept, once an IMU's axis converged). A judged
-        estimate is kept as the robot's newest geometry, the one the API serves beside the baseline's;
-        its lever arms join the baseline's pool until that holds ``kinematics_pool_base`` estimates,
-        then the newest's pool of the last ``kinematics_pool_recent`` (both kept in the store, so a
-        restart neither forgets the baseline's lever arms nor compares them with the slid ones).
-
-        Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a fleet's
-        estimates spread over the cycles; on the raw window (the estimate band-limits its signals, and
-        the impact removal's gaps would break its filters), on the baseline's tree with this window's
-        encoder timing. The baseline's tree, not this cycle's fast one: the diff holding no finding
-        says the body is the baseline's, while a fault the geometry is there to find (a dead band's
-        encoder steps) can leave the fast screen unable to place a joint's IMUs at all.
-        """
-        n = self.settings.kinematics_interval_cycles
-        if not n or (self.cycles + zlib.crc32(robot.encode())) % n:
-            return None
-        if diff.findings:
-            return None  # another body: its geometry is not the baseline's
-        from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
-
-        t0 = time.perf_counter()
-        frame = self.settings.kinematics_accelerometer_frame
-        tree = dataclasses.replace(base.topology, timing=dict(fast.timing))
-        kin = self.compute(estimate_kinematics, rec, tree, KinematicsOptions(accelerometer_frame=frame))
-        self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
-        kept = self.store.kinematics_baseline(robot, base.id)
-        # a geometry kept in the other frame (or before the frame was recorded: the gyros') has lever
-        # arms fitted about other axes, a mm or so apart: compared with these it would read as a slide
-        if kept is None or bool(kept.data.get(FRAME_KEY, False)) != frame:
-            if any(k.axis_converged for k in kin.imus.values()):
-                data = {**kin.to_json(), POOL_KEY: LeverPool().add(kin).to_json(), FRAME_KEY: frame}
-                if kept is None:
-                    self.store.save_kinematics(
-                        robot, base.id, data, wall_time=self.clock(), window_end_t=window_end
-                    )
-                else:  # in the kept row's place, and as the newest, whose pool of the other frame goes
-                    self.store.update_kinematics(
-                        kept.id, data, wall_time=self.clock(), window_end_t=window_end
-                    )
-                    self.store.save_kinematics(
-                        robot,
-                        base.id,
-                        {**kin.to_json(), POOL_KEY: []},
-                        wall_time=self.clock(),
-                        window_end_t=window_end,
-                        latest=True,
-                    )
-                log.info(
-                    "geometry baseline kept" + ("" if kept is None else " again, in the frame now set"),
-                    extra={"robot": robot, "baseline_id": base.id},
-                )
-            return None
-        pools = self.settings.pool_options
-        first = dict(kept.data)
-        pool = LeverPool.from_json(first.get(POOL_KEY))
-        recent = LeverPool()
-        if pool.n < pools.n_base:  # the baseline's pool fills first; slides are judged once it is full
-            first[POOL_KEY] = pool.add(kin).to_json()
-            self.store.update_kinematics(kept.id, first)
-        else:
-            newest = self.store.kinematics_latest(robot, base.id)
-            if newest is not None and newest.id != kept.id:
-                recent = LeverPool.from_json(newest.data.get(POOL_KEY))
-            recent = recent.add(kin, keep=pools.n_recent)
-        latest = {**kin.to_json(), POOL_KEY: recent.to_json()}
-        self.store.save_kinematics(
-            robot, base.id, latest, wall_time=self.clock(), window_end_t=window_end, latest=True
-        )
-        return stored_drift(first, latest, base.topology, pools), recent.n > 0
-
-    @property
-    def networks_on(self) -> bool:
-        """True when the sensor networks run on a schedule: they are then the authority for baselines
-        and structural alerts, and the fast method the screen."""
-        return self.settings.network_interval_cycles > 0
-
-    def _ask_network(self, robot: str, net: TopologyRecord | None, since: float, why: str) -> None:
-        """Ask for a network retrain of ``robot``, unless the networks have already learned a window
-        that ended at or after ``since`` (device time; their answer stands until the schedule's next
-        retrain) or one the worker asked for is still to come (no network topology stored since).
-        ``net`` is the robot's newest network topology, as the caller read it."""
-        if net is not None and net.window_end_t is not None and net.window_end_t >= since:
-            return
-        asked = self._network_asked.get(robot)
-        if asked is not None and (net is None or net.wall_time < asked):
-            return
-        self._network_asked[robot] = self.clock()
-        log.info("network retrain asked: %s", why, extra={"robot": robot})
-        self._want_network(robot)
-
-    def _want_network(self, robot: str) -> None:
-        """A network retrain of ``robot``: on the cluster when there is one, else in the next cycle."""
-        if self.remote is not None:
-            self.remote.want(robot, "network")
-        else:
-            with self._lock:
-                self._requests.setdefault(robot, set()).add("network")
-
-    def _on_change(self, robot: str, diff: Diff) -> None:
-        """Ask for a network retrain of ``robot`` when the fast screen's diff holds a finding the
-        previous cycle's did not (``Settings.network_on_change``): the fast method is the screen, the
-        networks learn the body the finding is about. Once per new finding, not per cycle it lasts:
-        a retrain costs tens of CPU seconds, the screen one."""
-        seen = frozenset((f.kind, f.part) for f in diff.findings)
-        new = seen - self._findings.get(robot, frozenset())
-        self._findings[robot] = seen
-        if not new or not self.settings.network_on_change or not self.networks_on:
-            return
-        log.info(
-            "network retrain asked: the fast screen found a change",
-            extra={"robot": robot, "findings": sorted(f"{k} {p}" for k, p in new)},
-        )
-        self._want_network(robot)
-
-    def _after_onset(
-        self, robot: str, rec: Recording, diff: Diff, baseline: Topology
-    ) -> tuple[Diff, tuple[str, ...]]:
-        """Judge each ``imu_detached`` finding on the data recorded after its onset.
-
-        The onset of an IMU's displacement is the end of the first window (of the current run of
-        cycles) whose diff placed it elsewhere than the baseline: every later sample was recorded
-        after the change. A window that straddles an IMU's move holds both of its placements; the
-        joint-velocity model of either link fits only part of it, so the estimate on the whole window
-        follows no joint, the same answer a detached IMU gives. Only the part after the onset says
-        which it is, and the window's own estimate is trusted again once it starts after the onset.
-        Until then, per detached IMU, one fast estimate of the post-onset part (shared by IMUs with the
-        same onset, paid only while a detachment is reported and the window straddles it):
-
-        * no post-onset data yet, or an estimate that is not unique: the finding is held (neither
-          raised nor counted as gone);
-        * the IMU follows no joint there either: the detachment stands;
-        * it follows another joint: the finding becomes ``imu_moved`` to that joint;
-        * it follows its baseline joint again: the finding is held (the estimate of the next windows
-          decides whether anything changed at all).
-
-        Returns the diff to track and the kinds to hold.
-        """
-        window_end, window_start = float(rec.t[-1]), float(rec.t[0])
-        displaced = {f.imu for f in diff.findings if f.kind in ("imu_detached", "imu_moved") and f.imu}
-        for key in [k for k in self._onset if k[0] == robot and k[1] not in displaced]:
-            del self._onset[key]
-        for imu in displaced:
-            self._onset.setdefault((robot, imu), window_end)
-        findings: list[Finding] = []
-        held = False
-        estimates: dict[float, Topology | None] = {}
-        for f in diff.findings:
-            since = self._onset.get((robot, f.imu or ""), window_start)
-            if f.kind != "imu_detached" or since <= window_start:
-                findings.append(f)
-                continue
-            if since not in estimates:
-                estimates[since] = self._estimate_after(rec, since)
-            topo = estimates[since]
-            if topo is None or is_ambiguous(topo) or f.imu not in topo.imu_joint:
-                held = True
-                continue
-            now = topo.imu_joint[f.imu]
-            if now is None:
-                findings.append(f)
-            elif now != baseline.imu_joint.get(f.imu):
-                conf = float(topo.confidence.get(f"imu:{f.imu}", 1.0))
-                findings.append(Finding("imu_moved", imu=f.imu, from_=f.from_, to=now, confidence=conf))
-            else:
-                held = True
-        return Diff(findings=tuple(findings), reasons=diff.reasons), (
-            "imu_detached",
-            "imu_moved",
-        ) if held else ()
-
     def _estimate_after(self, rec: Recording, since: float) -> Topology | None:
         """The fast estimate of the part of ``rec`` after ``since`` (None: too little data there)."""
-        if float(rec.t[-1]) <= since:
-            return None
-        try:
-            after = rec.window(since, np.inf)
-        except RecordingError:  # the streams do not overlap yet
-            return None
-        if after.n_samples < self.min_samples or after.duration <= 0:
-            return None
-        return self.estimator(after, "fast")
-
-    def _break_streak(self, robot: str) -> None:
-        """End ``robot``'s baseline streak: its topologies, length, start, and when it first waited for
-        the networks."""
-        self._recent.get(robot, deque()).clear()
-        for kept in (self._streak_since, self._streak_n, self._streak_start, self._streak_wall):
-            kept.pop(robot, None)
-
-    def _maybe_baseline(self, robot: str, topo: Topology, health: SignalHealth, window_end: float) -> bool:
-        """Adopt ``topo`` once K consecutive cycles learned the same structure from healthy signals."""
-        k = self.settings.baseline_repeat_k
-        recent = self._recent.setdefault(robot, deque(maxlen=k))
-        # Only a trustworthy body becomes the reference: every IMU alive, one tree that fits (unique),
-        # every joint placed and moving in this window (a still joint cannot be told from a locked
-        # one later).
-        still = [j for j, h in health.joints.items() if not (h.encoder_moving or h.link_moving)]
-        if is_ambiguous(topo):
-            return False  # no information either way: the streak neither grows nor breaks
-        if health.dead_imus or topo.undetermined or still or not topo.joint_parent:
-            self._break_streak(robot)
-            return False
-        if recent and not (recent[-1].same_structure(topo) and recent[-1].undetermined == topo.undetermined):
-            self._break_streak(robot)
-        recent.append(topo)
-        self._streak_start.setdefault(robot, window_end)
-        self._streak_n[robot] = self._streak_n.get(robot, 0) + 1
-        if len(recent) < k:
-            return False
-        net, source = None, "auto"
-        if self.networks_on:
-            net = self.store.latest_topology(robot, method="network")
-            if net is None or is_ambiguous(net.topology) or not net.topology.same_structure(topo):
-                # the networks are the authority: the streak waits (it stays complete) for a network
-                # topology of the same body; asked for once per streak, then the schedule's retrains
-                since = self._streak_since.setdefault(robot, window_end)
-                self._streak_wall.setdefault(robot, self.clock())
-                self._ask_network(robot, net, since, "a baseline needs the sensor networks' agreement")
-                if not self._networks_late(robot, net):
-                    return False
-                # ... unless they are late: the fast body that held this long is adopted, marked so
-                net, source = None, "fast-unconfirmed"
-            else:
-                topo = net.topology
-        base_id = self.store.set_baseline(
-            robot, topo, source, wall_time=self.clock(), window_end_t=window_end
-        )
-        if net is not None:  # the weights that learned this baseline are its weights
-            self.store.adopt_network_weights(
-                robot, "network", window_end_t=net.window_end_t, baseline_id=base_id
-            )
-        self.fingerprints_.pop(robot, None)  # learned from the next window that matches it
-        self._baseline_ids[robot] = base_id  # the worker's own: nothing tracked to forget
-        n = self._streak_n.get(robot, k)
-        self._break_streak(robot)
-        log.log(
-            logging.INFO if source == "auto" else logging.WARNING,
-            "baseline learned"
-            if source == "auto"
-            else "baseline adopted unconfirmed: the sensor networks are late",
-            extra={"robot": robot, "source": source, "repeats": n},
-        )
-        return True
+        return estimate_after(rec, since, self.min_samples, lambda r: self.estimator(r, "fast"))

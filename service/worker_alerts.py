@@ -2,8 +2,9 @@
 tracker's transitions into the store, and what the worker waits on for each robot
 (:mod:`service.alert_path`).
 
-Kept apart from :mod:`service.worker` (the cycle, baselines and geometry) as a mixin of
-:class:`service.worker.Worker`, whose state it uses: the sections are the module doc's step 5 there.
+Kept apart from :mod:`service.worker` (the loop and the wiring) as a mixin of
+:class:`service.worker.Worker`, whose steps (:mod:`service.monitor`) and per-robot state it uses: the
+sections are the module doc's step 5 there.
 """
 
 from __future__ import annotations
@@ -12,17 +13,18 @@ import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
-import numpy as np
-
-from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
-from bodyschema.findings import KINEMATIC_KINDS, Diff, Finding
+from bodyschema.diff import STRUCTURAL_KINDS, is_ambiguous
+from bodyschema.findings import KINEMATIC_KINDS, Diff
 from bodyschema.health import SignalHealth
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.alert_path import Waits, baseline_verdict, confirm_timeout
 from service.alerts import AlertTracker, Evidence, Transition
+from service.monitor.confirmation import NetworkAsks, confirm
+from service.monitor.drift import GeometryDrift
+from service.monitor.onset import after_onset
+from service.monitor.state import RobotState
 from service.settings import Settings
 from service.store import Store, TopologyRecord
 
@@ -47,7 +49,7 @@ class CycleResult:
     pending: list[Transition] = field(default_factory=list)
     #: the cycle compared the robot's geometry with its baseline's (the drift findings are in ``diff``)
     drift_judged: bool = False
-    #: ... and its lever arms too: the baseline's pool was full (:meth:`Worker._drift`)
+    #: ... and its lever arms too: the baseline's pool was full (:mod:`service.monitor.drift`)
     slides_judged: bool = False
 
 
@@ -57,12 +59,18 @@ class AlertPath:
     store: Store
     settings: Settings
     tracker: AlertTracker
-    _first_seen: dict[tuple[str, str, str], float]
-    _rejudge: set[str]
-    _streak_n: dict[str, int]
-    _streak_start: dict[str, float]
-    _waits_written: dict[str, dict[str, Any]]
+    asks: NetworkAsks
+    geometry: GeometryDrift
+    cycles: int
     clock: Callable[[], float]
+
+    def state(self, robot: str) -> RobotState:
+        """What the worker keeps for ``robot`` (:meth:`service.worker.Worker.state`)."""
+        raise NotImplementedError
+
+    def _estimate_after(self, rec: Recording, since: float) -> Topology | None:
+        """The fast estimate of ``rec`` after ``since`` (:meth:`service.worker.Worker._estimate_after`)."""
+        raise NotImplementedError
 
     def _judge_alerts(
         self,
@@ -79,25 +87,14 @@ class AlertPath:
         (restored alerts are judged again on the first)."""
         rec, learn = windows
         assert res.diff is not None and res.topology is not None
-        fast, window_end = res.topology, float(rec.t[-1])
-        hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(fast) else ()
+        st = self.state(robot)
+        hold: tuple[str, ...] = STRUCTURAL_KINDS if is_ambiguous(res.topology) else ()
         if not hold:
-            res.diff, held = self._after_onset(robot, learn, res.diff, base.topology)
-            hold = held
-        evidence = Evidence(now=self.clock(), rejudge=full and robot in self._rejudge)
-        if self.networks_on:
-            net = self.store.latest_topology(robot, method="network")
-            changed = any(f.kind in STRUCTURAL_KINDS for f in res.diff.findings)
-            verdict, why = baseline_verdict(base, net, changed)
-            if verdict == "contradicted":  # the fast screen sees the baseline, the networks another body
-                waits.add(f"baseline: an operator's approval ({why})", base.wall_time)
-            elif verdict == "unconfirmed":
-                waits.add(
-                    "baseline: the sensor networks' answer on the fast-unconfirmed baseline", base.wall_time
-                )
-            res.diff, evidence = self._confirmed(robot, res.diff, base.topology, window_end, net, evidence)
-            evidence = dataclasses.replace(evidence, timeout=confirm_timeout(self.settings, waits.queue))
-        drift = self._drift(robot, rec, fast, base, res.diff, window_end)
+            res.diff, hold = after_onset(st, learn, res.diff, base.topology, self._estimate_after)
+        evidence = Evidence(now=self.clock(), rejudge=full and st.rejudge)
+        if self.asks.networks_on:
+            evidence = self._networks_word(robot, st, res, base, waits, evidence, float(rec.t[-1]))
+        drift = self.geometry.judge(robot, self.cycles, rec, res.topology, base, res.diff)
         if drift is None:
             hold = tuple(sorted({*hold, *KINEMATIC_KINDS}))
         else:
@@ -106,7 +103,7 @@ class AlertPath:
             res.diff = Diff(findings=(*res.diff.findings, *found), reasons=res.diff.reasons)
         changes = self.tracker.update(robot, res.diff.findings, hold=hold, evidence=evidence)
         if evidence.rejudge:
-            self._rejudge.discard(robot)
+            st.rejudge = False
         since = self.tracker.since(robot)
         active = {(k, p) for _, k, p in self.tracker.active(robot)}
         for kind, part in sorted(evidence.waiting - active):
@@ -120,6 +117,31 @@ class AlertPath:
         res.pending = [t for t in changes if t.state == "pending"]
         res.transitions = [t for t in changes if t.state != "pending"]
         self._store_alerts(robot, changes)
+
+    def _networks_word(
+        self,
+        robot: str,
+        st: RobotState,
+        res: CycleResult,
+        base: TopologyRecord,
+        waits: Waits,
+        evidence: Evidence,
+        window_end: float,
+    ) -> Evidence:
+        """The sensor networks' newest topology on the baseline (a wait when it is in doubt) and on
+        ``res.diff``'s structural findings (:func:`~service.monitor.confirmation.confirm`)."""
+        assert res.diff is not None
+        net = self.store.latest_topology(robot, method="network")
+        changed = any(f.kind in STRUCTURAL_KINDS for f in res.diff.findings)
+        verdict, why = baseline_verdict(base, net, changed)
+        if verdict == "contradicted":  # the fast screen sees the baseline, the networks another body
+            waits.add(f"baseline: an operator's approval ({why})", base.wall_time)
+        elif verdict == "unconfirmed":
+            waits.add(
+                "baseline: the sensor networks' answer on the fast-unconfirmed baseline", base.wall_time
+            )
+        res.diff, evidence = confirm(robot, st, res.diff, base.topology, window_end, net, evidence, self.asks)
+        return dataclasses.replace(evidence, timeout=confirm_timeout(self.settings, waits.queue))
 
     def _store_alerts(self, robot: str, changes: list[Transition]) -> None:
         """Write the tracker's transitions to the store, each logged."""
@@ -153,87 +175,8 @@ class AlertPath:
     def _write_waits(self, robot: str, waits: Waits) -> None:
         """Store what ``robot`` waits on when it changed since it was last written."""
         data = waits.to_json()
-        if self._waits_written.get(robot) == data:
+        st = self.state(robot)
+        if st.waits_written == data:
             return
         self.store.set_waiting(robot, {**data, "at": round(self.clock(), 3)})
-        self._waits_written[robot] = data
-
-    def _confirmed(
-        self,
-        robot: str,
-        diff: Diff,
-        baseline: Topology,
-        window_end: float,
-        net: TopologyRecord | None,
-        evidence: Evidence,
-    ) -> tuple[Diff, Evidence]:
-        """The diff and the tracker's evidence after the sensor networks' word on its structural
-        findings (module doc, 5); ``net`` is the robot's newest network topology.
-
-        A structural finding of the fast screen on a part is *confirmed* when ``net``, from a window
-        that ended at or after the end of the first window that showed the finding, also differs from
-        the baseline structurally on that part (the kind the screen gives is kept: its post-onset
-        judgement, :meth:`_after_onset`, tells a move from a detachment, which a network window
-        straddling the change cannot); *withdrawn* (dropped from the diff, its alert resolved with the
-        reason) when that topology shows the part as in the baseline; and *waiting* while there is no
-        such topology yet, with a retrain asked for: its alert is pending until the networks answer or
-        the confirmation timeout passes (:class:`~service.alerts.Evidence`).
-        """
-        structural = [f for f in diff.findings if f.kind in STRUCTURAL_KINDS]
-        seen = {(f.kind, f.part) for f in structural}
-        for key in [k for k in self._first_seen if k[0] == robot and (k[1], k[2]) not in seen]:
-            del self._first_seen[key]
-        if not structural:
-            return diff, evidence
-        net_parts: set[str] | None = None
-        if net is not None and not is_ambiguous(net.topology):
-            net_diff = diff_bodies(baseline, net.topology)
-            net_parts = {f.part for f in net_diff.findings if f.kind in STRUCTURAL_KINDS}
-        keep: list[Finding] = []
-        waiting: set[tuple[str, str]] = set()
-        confirmed: set[tuple[str, str]] = set()
-        withdrawn: dict[tuple[str, str], str] = {}
-        for f in diff.findings:
-            if f.kind not in STRUCTURAL_KINDS:
-                keep.append(f)
-                continue
-            since = self._first_seen.setdefault((robot, f.kind, f.part), window_end)
-            if net is None or net_parts is None or net.window_end_t is None or net.window_end_t < since:
-                keep.append(f)
-                waiting.add((f.kind, f.part))
-                self._ask_network(robot, net, since, f"to confirm {f.kind} {f.part}")
-            elif f.part in net_parts:
-                keep.append(f)
-                confirmed.add((f.kind, f.part))
-            else:
-                withdrawn[(f.kind, f.part)] = (
-                    f"the sensor networks' topology {net.id} (window ending at t = {net.window_end_t:.1f} s) "
-                    f"shows no change of {f.part}"
-                )
-                log.info(
-                    "finding withdrawn: the sensor networks see no change there",
-                    extra={"robot": robot, "kind": f.kind, "part": f.part, "network_topology": net.id},
-                )
-        return Diff(findings=tuple(keep), reasons=diff.reasons), dataclasses.replace(
-            evidence,
-            waiting=frozenset(waiting),
-            confirmed=frozenset(confirmed),
-            withdrawn=withdrawn,
-            why="the sensor networks",
-        )
-
-    def _networks_late(self, robot: str, net: TopologyRecord | None) -> bool:
-        """True when the fast screen's body held ``baseline_unconfirmed_cycles`` cycles and the sensor
-        networks have not answered on a window that ended after it first held (a network answer from
-        after it that disagrees is not late: it is the authority's word, and the streak waits)."""
-        need = self.settings.baseline_unconfirmed_cycles
-        if not need or self._streak_n.get(robot, 0) < need:
-            return False
-        start = self._streak_start.get(robot, np.inf)
-        answered = (
-            net is not None
-            and not is_ambiguous(net.topology)
-            and net.window_end_t is not None
-            and net.window_end_t >= start
-        )
-        return not answered
+        st.waits_written = data

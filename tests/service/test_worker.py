@@ -67,6 +67,18 @@ def feed(
     return float(rec.t[-1] + offset + 0.01)
 
 
+def ticking(start: float = 1000.0, step: float = 1e-3) -> Callable[[], float]:
+    """A wall clock that moves ``step`` s per reading: the worker's idle rule (no new frame for
+    ``window_seconds`` of wall time) then follows the cycles run, not how fast the machine runs them."""
+    now = [start]
+
+    def clock() -> float:
+        now[0] += step
+        return now[0]
+
+    return clock
+
+
 @pytest.fixture
 def settings() -> Settings:
     return Settings(
@@ -288,7 +300,7 @@ def test_with_networks_on_a_structural_finding_needs_the_networks_to_alert(
     feed(sqlite_store, rec.select(rec.t < 12.0))
     est = ByMethod(GOOD)
     est.by_method["network"] = GOOD
-    w = Worker(sqlite_store, _networks_on(settings), estimator=est)
+    w = Worker(sqlite_store, _networks_on(settings), estimator=est, clock=ticking())
     for _ in range(4):  # three make the streak, the fourth runs the networks it asked for
         w.run_cycle()
     assert sqlite_store.baseline("arm") is not None
@@ -321,14 +333,15 @@ def test_restart_keeps_active_alerts_without_raising_twice(
 ) -> None:
     feed(sqlite_store, synth(rng, seconds=12))
     est = Scripted(GOOD)
-    w = Worker(sqlite_store, settings, estimator=est)
+    clock = ticking()  # a slow cycle on a loaded machine must not make the robot read as idle
+    w = Worker(sqlite_store, settings, estimator=est, clock=clock)
     for _ in range(3):
         w.run_cycle()
     est.next = MOVED
     w.run_cycle()
     w.run_cycle()
     assert len(sqlite_store.alerts("arm", active=True)) == 1
-    w2 = Worker(sqlite_store, settings, estimator=est)
+    w2 = Worker(sqlite_store, settings, estimator=est, clock=clock)
     assert w2.run_cycle()["arm"].transitions == []
     assert len(sqlite_store.alerts("arm")) == 1
     est.next = GOOD
