@@ -22,9 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the start, default 0; 'random' draws it from --seed).",
     )
     p.add_argument("recording", type=Path, metavar="REC.npz")
-    p.add_argument(
-        "--fault", action="append", required=True, metavar="KIND:key=value,...", help="repeatable"
-    )
+    p.add_argument("--fault", action="append", required=True, metavar="KIND:key=value,...", help="repeatable")
     p.add_argument("-o", "--out", type=Path, required=True, metavar="OUT.npz")
     p.add_argument("--seed", type=int, default=0, help="seed for at=random (default 0)")
     p.set_defaults(func=run)
