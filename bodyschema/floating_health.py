@@ -42,6 +42,7 @@ from bodyschema.stance_chains import (
     ChainOptions,
     _phase_fits,
     chain_rates,
+    encoder_steps,
     foot_forces,
     stance_chains,
 )
@@ -87,15 +88,6 @@ class FloatingBaseline:
     chains: tuple[_Chain, ...]
 
 
-def _quantum(q: np.ndarray) -> np.ndarray:
-    out = np.empty(q.shape[1])
-    for j in range(q.shape[1]):
-        d = np.abs(np.diff(q[:, j]))
-        d = d[d > 1e-12]
-        out[j] = float(d.min()) if d.size else 0.0
-    return out
-
-
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) of every run of True."""
     f = np.r_[False, flags, False].astype(np.int8)
@@ -139,7 +131,7 @@ def floating_baseline(rec: Recording, opts: FloatingOptions | None = None) -> Fl
     opts = opts or FloatingOptions()
     if rec.t_q is not None:
         rec = rec.synced()
-    quantum = _quantum(rec.q)
+    quantum = encoder_steps(rec.q)
     qd, floor1, rate = _band_rates(rec, opts)
     moving = qd.std(axis=0) > 3 * floor1 * np.maximum(quantum, 1e-12)
     active = _body_moving(qd, floor1 * quantum, moving, opts.p_false)
@@ -201,7 +193,7 @@ def _dead_imus(cur: Recording, base: FloatingBaseline, opts: FloatingOptions) ->
 
 def _encoders(cur: Recording, base: FloatingBaseline, opts: FloatingOptions) -> list[Finding]:
     qd, floor1, rate = _band_rates(cur, opts)
-    quantum = np.where(base.quantum > 0, base.quantum, _quantum(cur.q))
+    quantum = np.where(base.quantum > 0, base.quantum, encoder_steps(cur.q))
     active = _body_moving(qd, floor1 * quantum, base.moving, opts.p_false)
     holds = _holds(cur.q, active, 1.0 / rate)
     jerk = np.abs(np.diff(cur.q, axis=0))

@@ -76,6 +76,7 @@ __all__ = [
     "StanceResult",
     "candidate_chains",
     "chain_rates",
+    "encoder_steps",
     "fit_chain",
     "floating_base_rule",
     "foot_forces",
@@ -270,8 +271,9 @@ def _band(rec: Recording, opts: ChainOptions) -> tuple[np.ndarray, np.ndarray, n
     return q, qd, w, rate
 
 
-def _quantum(q: np.ndarray, given: float | None) -> np.ndarray:
-    """Per joint encoder step: ``given``, else the smallest non-zero step the column shows."""
+def encoder_steps(q: np.ndarray, given: float | None = None) -> np.ndarray:
+    """Per joint encoder step: ``given``, else the smallest non-zero step the column shows (0 for a
+    column that never moves)."""
     if given is not None:
         return np.full(q.shape[1], given)
     out = np.empty(q.shape[1])
@@ -371,7 +373,7 @@ def stance_chains(rec: Recording, opts: ChainOptions | None = None) -> StanceRes
         return StanceResult(floating, rule, "none")
     band = _band(rec, opts)
     q, qd, _, rate = band
-    quantum = _quantum(q, opts.quantum)
+    quantum = encoder_steps(q, opts.quantum)
     qfloor = quantization_floor(1.0, rate, opts.cutoff_hz, 0.0, 1)["gyro_std"]
     gyro_floor = opts.gyro_density * np.sqrt(opts.cutoff_hz)
     moving = qd.std(axis=0) > 3 * qfloor * np.maximum(quantum, 1e-12)
