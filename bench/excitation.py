@@ -74,6 +74,7 @@ def motion_plan(robot: Any, motion: str, seconds: float, seed: int) -> tuple[Any
     from bodyschema.excitation_plan import (
         ExcitationPlan,
         PlanOptions,
+        finite_differences,
         fit_to_limits,
         plan_excitation,
         staggered_motion,
@@ -100,9 +101,11 @@ def motion_plan(robot: Any, motion: str, seconds: float, seed: int) -> tuple[Any
         fine = np.arange(round(seconds * 1000) + 1) / 1000
         w = np.clip(fine / opts.ramp, 0, 1)
         w = 0.5 - 0.5 * np.cos(np.pi * w)  # from rest, as the others
-        d = (exc.targets(fine)[1] - q0) * w[:, None]
-        v = np.gradient(d, 1e-3, axis=0)
-        shape = (d[::10], v[::10], np.gradient(v, 1e-3, axis=0)[::10])
+        d = ((exc.targets(fine)[1] - q0) * w[:, None])[::10]
+        # the motion clips at the joint ranges (kinks): scale by the written samples' own differences,
+        # exactly what the limits are checked on
+        v, a = finite_differences(d, opts.rate)
+        shape = (d, np.vstack([v, v[-1:]]), np.vstack([a[:1], a, a[-1:]]))
     sub = type(lim)(lim.names, lo, hi, lim.velocity, lim.acceleration)
     k = fit_to_limits(t, shape, q0, sub, opts.margin)
     q = q0 + k * shape[0]

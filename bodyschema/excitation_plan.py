@@ -191,7 +191,7 @@ def check_limits(plan: ExcitationPlan, limits: JointLimits, tol: float = 1e-9) -
     out = []
     for j, name in enumerate(plan.joint_names):
         q = plan.q[:, j]
-        if q.min(initial=0) < lim.lower[j] - tol or q.max(initial=0) > lim.upper[j] + tol:
+        if len(q) and (q.min() < lim.lower[j] - tol or q.max() > lim.upper[j] + tol):
             out.append(f"{name}: position outside [{lim.lower[j]}, {lim.upper[j]}]")
         if len(v) and np.abs(v[:, j]).max() > lim.velocity[j] * (1 + tol):
             out.append(f"{name}: velocity {np.abs(v[:, j]).max():.4g} > {lim.velocity[j]}")

@@ -200,3 +200,12 @@ def test_cli_recording_plans_only_the_undetermined_joint_and_outputs_read_back(t
     v, a = finite_differences(q, 100.0)
     assert (np.abs(v) <= ur.velocity).all() and (np.abs(a) <= ur.acceleration).all()
     assert main(["excite", "--model", "ur5e", "--seconds", "6", "-o", str(bag)]) == 1  # never overwrites
+
+
+def test_a_range_away_from_zero_is_checked_as_it_is() -> None:
+    # a knee bent -2.6..-0.2 rad: a plan inside it is within limits, one step past -0.2 is not
+    lim = JointLimits(("knee",), np.array([-2.6]), np.array([-0.2]), np.ones(1), np.full(1, 4.0))
+    plan = plan_excitation(lim, np.array([-0.3]), 10.0)
+    assert check_limits(plan, lim) == [] and plan.q.max() <= -0.2
+    over = type(plan)(plan.joint_names, plan.rate, plan.t, plan.q + 0.2, plan.excited, plan.method, None, 1.0)
+    assert check_limits(over, lim) and "position" in check_limits(over, lim)[0]
