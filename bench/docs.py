@@ -1092,6 +1092,25 @@ def _shapes(b: _Bench) -> str:
     )
 
 
+def _excitation(b: _Bench) -> str:
+    d = b.json("excitation.json")
+    assert isinstance(d, dict)
+    s, runs = d["summary"], d["runs"]
+    wrong = {
+        m: sum(r["wrong"] for r in runs if r["motion"] == m) for m in dict.fromkeys(r["motion"] for r in runs)
+    }
+    later = s["planned_later_than_one_at_a_time"]
+    return (
+        f"On {s['robots']} robots ({b.provenance('excitation')}): the planned motion reached the unique, "
+        f"right tree {fmt(s['median_topology_ratio'], '.2f')}x sooner than the default random motion "
+        f"(median) and converged geometry {fmt(s['median_geometry_ratio'], '.2f')}x sooner; it was later "
+        f"than one joint at a time on {len(later)} robot(s); unique but wrong trees at some prefix: "
+        + ", ".join(f"{m} {n}" for m, n in wrong.items())
+        + f"; {s['violations']} limit violations; planning took at most "
+        f"{fmt(s['plan_cpu_s_max'], '.2f')} CPU s."
+    )
+
+
 def _import_doc(b: _Bench) -> str:
     d: dict = b.json("import.json")  # type: ignore[assignment]
     labels = {"ros1": "ROS 1 (.bag)", "sqlite3": "ROS 2 sqlite3", "mcap": "ROS 2 MCAP"}
@@ -1497,6 +1516,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/topology.md", "realism", "realism.json", _realism),
     _f("README.md", "realism", "realism.json", _realism),
     _f("docs/topology.md", "shapes", "shapes.json", _shapes),
+    _f("docs/excitation.md", "excitation", "excitation.json", _excitation),
     _f("docs/recording-format.md", "import", "import.json", _import_doc),
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),

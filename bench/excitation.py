@@ -308,6 +308,7 @@ def run(args: argparse.Namespace) -> Path:
     cpu = time.process_time() - cpu
     s = _summary(runs, args.seconds)
     data = {
+        "machine": machine_note(),
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
         "summary": {k: v for k, v in s.items() if k != "rows"},
         "runs": runs,
