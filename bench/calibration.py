@@ -94,7 +94,7 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
                 start = time.process_time()
                 try:
                     topos[method] = estimate_topology(
-                        rec, method, **({"seed": 1} if method != "fast" else {})
+                        rec, method, **({"seed": 1, "heldout_check": True} if method != "fast" else {})
                     )
                 except ValueError as exc:  # refused data is an honest answer
                     topos[method] = None
@@ -172,8 +172,8 @@ def _markdown(summary: dict, command: str, rows: list[dict]) -> str:
     lines = [
         "# Calibration: exact, undetermined, confidently wrong, and what a confidence is worth",
         "",
-        f"`{command}` — {n} robots from the independent generator (bench/generator.py), "
-        f"{machine_note()}. Regenerate with that command.",
+        f"`{command}` — {n} robots from the independent generator (bench/generator.py). "
+        f"Machine: {machine_note()}. Regenerate with that command.",
         "",
         "| answer | form | exact | undetermined | confidently wrong |",
         "|---|---|---|---|---|",

@@ -1111,6 +1111,25 @@ def _excitation(b: _Bench) -> str:
     )
 
 
+def _calibration(b: _Bench) -> str:
+    d = b.json("calibration.json")
+    assert isinstance(d, dict)
+    parts = []
+    for answer, a in d["summary"].items():
+        if not isinstance(a, dict) or "forms" not in a:
+            continue
+        forms = a["forms"].values()
+        n = sum(f["exact"] + f["undetermined"] + f["wrong"] for f in forms)
+        top = [r for r in a["reliability"] if r["from"] >= 0.99]
+        sure = f"{sum(r['right'] for r in top)} of {sum(r['parts'] for r in top)}"
+        parts.append(
+            f"{answer}: exact {sum(f['exact'] for f in forms)} of {n}, undetermined "
+            f"{sum(f['undetermined'] for f in forms)}, confidently wrong {sum(f['wrong'] for f in forms)}; "
+            f"parts at confidence ≥ 0.99 right: {sure}"
+        )
+    return f"On {len(d['rows'])} robot-forms ({b.provenance('calibration')}): " + "; ".join(parts) + "."
+
+
 def _import_doc(b: _Bench) -> str:
     d: dict = b.json("import.json")  # type: ignore[assignment]
     labels = {"ros1": "ROS 1 (.bag)", "sqlite3": "ROS 2 sqlite3", "mcap": "ROS 2 MCAP"}
@@ -1517,6 +1536,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("README.md", "realism", "realism.json", _realism),
     _f("docs/topology.md", "shapes", "shapes.json", _shapes),
     _f("docs/excitation.md", "excitation", "excitation.json", _excitation),
+    _f("docs/topology.md", "calibration", "calibration.json", _calibration),
     _f("docs/recording-format.md", "import", "import.json", _import_doc),
     _f("docs/kinematics.md", "kinematics", "kinematics.json", _kinematics),
     _f("README.md", "kinematics", "kinematics.json", _kinematics),

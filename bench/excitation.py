@@ -230,8 +230,8 @@ def _markdown(runs: list[dict], s: dict[str, Any], args: argparse.Namespace, cpu
         "# Excitation: time to verdict",
         "",
         f"`bodyhealth bench excitation --robots {robots} --trees {args.trees} --joints {args.joints} "
-        f"--seconds {args.seconds:g} --step {args.step:g} --seed {args.seed}` on {machine_note()}; "
-        f"{cpu / 60:.1f} CPU minutes. `robot` sensing preset; limits 1 rad/s, 4 rad/s², the models' ranges.",
+        f"--seconds {args.seconds:g} --step {args.step:g} --seed {args.seed}`; {cpu / 60:.1f} CPU minutes. "
+        f"Machine: {machine_note()}. `robot` sensing preset; limits 1 rad/s, 4 rad/s², the models' ranges.",
         "",
         "Seconds of motion until the tree is unique and right (topology) and until every IMU's axis and "
         "lever arm converged (geometry), at prefixes of 2, 3, 4, 5, 6, 8, 10, 12, 15, 20 s and then "
