@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -12,9 +11,7 @@ import pytest
 
 from bodyschema.recording import Recording
 from bodyschema.stance_chains import chain_rates, floating_base_rule, limbs, stance_chains
-
-_ROOT = Path(__file__).resolve().parents[2]
-ROBOTS = Path(os.environ.get("BODYHEALTH_ROBOTS_DIR") or _ROOT.parent / "shared" / "data" / "robots")
+from tests.robot_data import MAPS, ROBOTS
 
 
 def _walker(seed: int = 0) -> Recording:
@@ -114,7 +111,7 @@ def _log(name: str):
     path, mp, fmt = paths[name]
     if not path.is_file():
         pytest.skip(f"robot log missing: {path}")
-    return import_log(path, _ROOT / "examples" / "import" / mp, fmt)[0]
+    return import_log(path, MAPS / mp, fmt)[0]
 
 
 @pytest.mark.slow

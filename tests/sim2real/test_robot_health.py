@@ -3,17 +3,13 @@ found with the right kind first (baseline: the log's first half; windows: 10 s o
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from bodyschema.faults import inject, parse_fault
 from bodyschema.floating_health import floating_baseline, floating_diff
+from tests.robot_data import MAPS, ROBOTS
 
-_ROOT = Path(__file__).resolve().parents[2]
-ROBOTS = Path(os.environ.get("BODYHEALTH_ROBOTS_DIR") or _ROOT.parent / "shared" / "data" / "robots")
 LOGS = {
     "icub": (ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat", "icub-walking.toml", "mat"),
     "go1": (ROBOTS / "go1-trot" / "go1.csv", "go1-trot.toml", "csv"),
@@ -28,7 +24,7 @@ def _split(name: str):
     path, mp, fmt = LOGS[name]
     if not path.is_file():
         pytest.skip(f"robot log missing: {path}")
-    rec = import_log(path, _ROOT / "examples" / "import" / mp, fmt)[0]
+    rec = import_log(path, MAPS / mp, fmt)[0]
     half = rec.t[0] + rec.duration / 2
     starts = np.arange(half, rec.t[-1] - 10 + 1e-9, 10.0)
     return rec, floating_baseline(rec.window(rec.t[0], half)), [rec.window(s, s + 10) for s in starts]

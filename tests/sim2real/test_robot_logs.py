@@ -10,7 +10,6 @@ import csv
 import itertools
 import json
 import math
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -24,13 +23,12 @@ from sim2real.robot_logs import import_log
 from sim2real.robot_logs_map import MapError, load_map
 from sim2real.robot_logs_quirks import QUANTUM_SCALE_TOL
 from simulators.recording_io import load_recording, save_recording
+from tests.robot_data import MAPS, ROBOTS
 
-_ROOT = Path(__file__).resolve().parents[2]
-ROBOTS = Path(os.environ.get("BODYHEALTH_ROBOTS_DIR") or _ROOT.parent / "shared" / "data" / "robots")
 GO1 = ROBOTS / "go1-trot" / "go1.csv"
 ICUB = ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat"
-GO1_MAP = _ROOT / "examples" / "import" / "go1-trot.toml"
-ICUB_MAP = _ROOT / "examples" / "import" / "icub-walking.toml"
+GO1_MAP = MAPS / "go1-trot.toml"
+ICUB_MAP = MAPS / "icub-walking.toml"
 
 needs_logs = pytest.mark.skipif(
     not (GO1.is_file() and ICUB.is_file()),

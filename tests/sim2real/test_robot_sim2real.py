@@ -11,7 +11,6 @@ model meets it, so the mark is removed then).
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,9 +20,8 @@ import pytest
 from cli.main import main
 from sim2real.robot_logs import import_log
 from sim2real.robots import robot_sim2real
+from tests.robot_data import MAPS, ROBOTS
 
-_ROOT = Path(__file__).resolve().parents[2]
-ROBOTS = Path(os.environ.get("BODYHEALTH_ROBOTS_DIR") or _ROOT.parent / "shared" / "data" / "robots")
 GO1 = ROBOTS / "go1-trot"
 ICUB = ROBOTS / "icub-walking"
 
@@ -37,12 +35,12 @@ MIN_GAIN = 0.3
 
 
 def _go1():
-    return import_log(GO1 / "go1.csv", _ROOT / "examples" / "import" / "go1-trot.toml", "csv")[0]
+    return import_log(GO1 / "go1.csv", MAPS / "go1-trot.toml", "csv")[0]
 
 
 def _icub():
     path = ICUB / "sync-walkingFrontAndBackGoodTrial.mat"
-    return import_log(path, _ROOT / "examples" / "import" / "icub-walking.toml", "mat")[0]
+    return import_log(path, MAPS / "icub-walking.toml", "mat")[0]
 
 
 def _intervals_hold(report: dict) -> None:
