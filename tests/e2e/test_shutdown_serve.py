@@ -30,6 +30,7 @@ from pathlib import Path
 import pytest
 
 from tests.e2e.processes import start_service
+from tests.waits import cpu_bound
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -44,7 +45,7 @@ READY_BOUND = 240.0
 
 def stop_bound() -> float:
     """:data:`STOP_BOUND` stretched by the CPU share a process gets now (module doc)."""
-    return STOP_BOUND * max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+    return cpu_bound(STOP_BOUND)
 
 
 def _wait_for_log(proc: subprocess.Popen[str], err: Path, msg: str, timeout: float) -> None:
