@@ -38,7 +38,6 @@ __all__ = [
     "baseline_verdict",
     "confirm_timeout",
     "queue_entries",
-    "with_finish",
 ]
 
 log = logging.getLogger(__name__)
@@ -55,26 +54,23 @@ class QueueSource(Protocol):
     def queue_status(self) -> list[Any]: ...
 
 
-def queue_entries(remote: object | None, robot: str | None = None) -> list[dict[str, Any]]:
-    """The training queue's entries (of ``robot`` when given) as JSON, each with ``expected_finish``
-    (wall time, from the entry's expected seconds to go, when known); ``[]`` without a queue."""
-    status = getattr(remote, "queue_status", None)
-    if status is None:
+def queue_entries(remote: QueueSource | None, robot: str, now: float) -> list[dict[str, Any]]:
+    """``robot``'s entries in the training queue as JSON, each with ``expected_finish`` (wall time
+    ``now`` plus the entry's expected seconds to go, None when unknown); ``[]`` without a queue."""
+    if remote is None:
         return []
     try:
-        entries = status()
+        entries = remote.queue_status()
     except Exception:  # the queue is advice for the status page; monitoring goes on without it
         log.exception("reading the training queue failed")
         return []
-    return [e.to_json() for e in entries if robot is None or e.robot == robot]
-
-
-def with_finish(entries: list[dict[str, Any]], now: float) -> list[dict[str, Any]]:
-    """``entries`` with ``expected_finish`` (wall time) where the seconds to go are known."""
     out = []
     for e in entries:
-        left = e.get("expected_seconds")
-        out.append({**e, "expected_finish": None if left is None else round(now + float(left), 3)})
+        if e.robot != robot:
+            continue
+        entry = e.to_json()
+        left = entry.get("expected_seconds")
+        out.append({**entry, "expected_finish": None if left is None else round(now + float(left), 3)})
     return out
 
 

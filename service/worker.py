@@ -68,7 +68,7 @@ from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording
 from bodyschema.timing import LagHint, measured_lag
 from bodyschema.topology import Topology
-from service.alert_path import Waits, queue_entries, with_finish
+from service.alert_path import Waits, queue_entries
 from service.alerts import AlertTracker
 from service.metrics import Metrics
 from service.monitor.baseline import BaselineAdoption
@@ -487,7 +487,7 @@ class Worker(AlertPath):
         res.topology = fast
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)
-        waits = Waits(queue=with_finish(queue_entries(self.remote, robot), self.clock()))
+        waits = Waits(queue=queue_entries(self.remote, robot, self.clock()))
         full = rec.duration >= 0.8 * self.settings.window_seconds
         if base is None:
             res.baseline_set = full and self.adoption.offer(robot, st, fast, res.health, window_end)
