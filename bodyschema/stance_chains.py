@@ -342,7 +342,9 @@ def _answer(
             fits=table, floor_ratio=fr,
         )  # fmt: skip
     single = any(set(smallest.columns) <= set(g) for g in limb_sets)
-    if single and all(set(smallest.columns) <= set(f.columns) for f in good):
+    # every chain that fits as well holds the smallest one: it is the chain, or a loop through it
+    nested = all(set(smallest.columns) <= set(f.columns) for f in good)
+    if single and nested:
         rivals = [f for f in fits if not set(smallest.columns) <= set(f.columns)]
         p = float(f_dist.sf((rivals[0].rms / smallest.rms) ** 2, dof, dof)) if rivals else 0.0
         return PhaseAnswer(
@@ -350,7 +352,7 @@ def _answer(
             floor_ratio=smallest.rms / max(floor[smallest.columns], 1e-12),
         )  # fmt: skip
     names = "; ".join(" ".join(f.joints) for f in good[:4])
-    if not single and all(set(smallest.columns) <= set(f.columns) for f in good):
+    if not single and nested:
         return PhaseAnswer(
             phase, frac, reason="the chain that fits best joins several limbs "
             f"({' '.join(smallest.joints)}): "
