@@ -90,6 +90,7 @@ class Options:
     max_run_seconds: float | None = None
     token: str | None = field(default=None, repr=False)
     out: Path = RESULTS_DIR
+    name: str = "alerts"
 
     def __post_init__(self) -> None:
         for name in ("runs", "poll_seconds", "speed", "startup_limit"):
@@ -148,6 +149,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-run-seconds", type=float, help="bound of one run (default: the limits added up)")
     p.add_argument("--token", help="API token: the service requires it, the bench sends it")
     p.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+    p.add_argument("--name", default="alerts", help="results file name (alerts-quiet for a quiet machine)")
 
 
 def _log(msg: str) -> None:
@@ -468,6 +470,7 @@ def run_once(opts: Options, index: int) -> dict[str, Any]:
         "load_after": os.getloadavg()[0],
         "busy_running_at_end": busy_alive,
         "exit_code": code,
+        "window_gone": r.service.tail(n=1 << 30).count("WindowGone"),
     }
     shutil.rmtree(data_dir, ignore_errors=True)
     return out
@@ -480,7 +483,7 @@ def _command(args: argparse.Namespace) -> str:
     defaults = vars(p.parse_args([]))
     words = ["bodyhealth", "bench", "alerts"]
     for k, v in vars(args).items():
-        if k not in defaults or k in ("token", "out", "func") or v == defaults[k]:
+        if k not in defaults or k in ("token", "out", "func", "name") or v == defaults[k]:
             continue
         flag = "--" + ("damage" if k == "damages" else k.replace("_", "-"))
         if isinstance(v, bool):
@@ -510,7 +513,7 @@ def run(args: argparse.Namespace) -> Path:
     finally:
         signal.signal(signal.SIGTERM, previous)
     short = opts.runs < FULL_RUNS or opts.healthy_seconds < FULL_HEALTHY_S
-    options = {k: v for k, v in asdict(opts).items() if k not in ("token", "out")}
+    options = {k: v for k, v in asdict(opts).items() if k not in ("token", "out", "name")}
     data = {
         "command": _command(args),
         "machine": machine_note(),
@@ -530,6 +533,6 @@ def run(args: argparse.Namespace) -> Path:
         "runs": runs,
         "summary": summarize(runs),
     }
-    path = write_results(opts.out, "alerts", data, markdown(data), lambda p: plot(p, data))
+    path = write_results(opts.out, opts.name, data, markdown(data), lambda p: plot(p, data))
     _log(f"results in {path}")
     return path

@@ -312,7 +312,8 @@ def _run_lines(r: Mapping[str, Any]) -> list[str]:
         f"## Run {r['run']}",
         "",
         f"Load average {fmt(r['load_before'], '.2f')} at the start, {fmt(r['load_after'], '.2f')} at the "
-        f"end; {r['polls']} alert polls ({r['poll_errors']} failed).",
+        f"end; {r['polls']} alert polls ({r['poll_errors']} failed); `WindowGone` in the service's log: "
+        f"{r.get('window_gone', '—')}.",
         "",
         "Baseline: "
         + ", ".join(_baseline_item(r, k, v) for k, v in r["baselines"].items())

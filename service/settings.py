@@ -149,11 +149,20 @@ class Settings(BaseSettings):
         "training gets no CPU",
     )
     baseline_unconfirmed_cycles: int = Field(
-        24,
+        8,
         ge=0,
         description="cycles the fast screen's body must hold, with no network answer from a window "
-        "that ended after it first held, before it is adopted as a baseline marked fast-unconfirmed "
-        "(24 at the default 5 s interval: 2 minutes); 0 = wait for the networks",
+        "that ended after it first held, before it is adopted as a baseline marked fast-unconfirmed; "
+        "0 = wait for the networks",
+    )
+    baseline_unconfirmed_seconds: float = Field(
+        60.0,
+        ge=0,
+        description="least wall time a complete streak waits for the sensor networks before its body is "
+        "adopted fast-unconfirmed (with baseline_unconfirmed_cycles, both must hold). Counted in wall "
+        "time, not cycles, so that a loaded machine's slow cycles do not stretch it: at the default 30 s "
+        "window and 3 repeats a robot has a baseline about 2 minutes after its first frame even when "
+        "training gets no CPU",
     )
     worker_min_rest_seconds: float = Field(
         1.0,

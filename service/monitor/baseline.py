@@ -2,7 +2,8 @@
 the same ``baseline_repeat_k`` cycles in a row from healthy signals. With the sensor networks on they
 are the authority: the baseline adopted is their newest topology, once it has the structure of the
 fast streak; until one does, the streak waits and a network retrain is asked for, and after
-``baseline_unconfirmed_cycles`` cycles without their answer the fast body is adopted, marked so.
+``baseline_unconfirmed_cycles`` cycles and ``baseline_unconfirmed_seconds`` of wall time without their
+answer the fast body is adopted, marked so.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ class BaselineAdoption:
                 self.asks.ask(
                     robot, state, net, streak.since, "a baseline needs the sensor networks' agreement"
                 )
-                if not self.networks_late(state, net):
+                if not self.networks_late(state, net, self.clock()):
                     return False
                 # ... unless they are late: the fast body that held this long is adopted, marked so
                 net, source = None, "fast-unconfirmed"
@@ -109,12 +110,16 @@ class BaselineAdoption:
             extra={"robot": robot, "source": source, "repeats": n},
         )
 
-    def networks_late(self, state: RobotState, net: TopologyRecord | None) -> bool:
-        """True when the fast screen's body held ``baseline_unconfirmed_cycles`` cycles and the sensor
-        networks have not answered on a window that ended after it first held (a network answer from
-        after it that disagrees is not late: it is the authority's word, and the streak waits)."""
+    def networks_late(self, state: RobotState, net: TopologyRecord | None, now: float) -> bool:
+        """True when the fast screen's body held ``baseline_unconfirmed_cycles`` cycles, its complete
+        streak waited ``baseline_unconfirmed_seconds`` (wall), and the sensor networks have not answered
+        on a window that ended after it first held (a network answer from after it that disagrees is
+        not late: it is the authority's word, and the streak waits)."""
         need = self.settings.baseline_unconfirmed_cycles
         if not need or state.streak.n < need:
+            return False
+        waited = 0.0 if state.streak.wall is None else now - state.streak.wall
+        if waited < self.settings.baseline_unconfirmed_seconds:
             return False
         start = np.inf if state.streak.start is None else state.streak.start
         answered = (
@@ -130,7 +135,8 @@ class BaselineAdoption:
         if state.streak.wall is None:
             return None
         n, need = state.streak.n, self.settings.baseline_unconfirmed_cycles
-        later = f", adopted unconfirmed after {need} cycles" if need else ""
+        secs = self.settings.baseline_unconfirmed_seconds
+        later = f", adopted unconfirmed after {need} cycles and {secs:g} s" if need else ""
         return (
             f"baseline: the sensor networks' answer (the fast screen's body held {n} cycles{later})",
             state.streak.wall,

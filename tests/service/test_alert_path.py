@@ -93,6 +93,7 @@ def settings() -> Settings:
         network_interval_cycles=1000,  # the networks on, never due on their schedule in a test
         kinematics_interval_cycles=0,
         baseline_unconfirmed_cycles=4,
+        baseline_unconfirmed_seconds=5.0,
         confirm_timeout_max_seconds=120.0,
     )
 
@@ -112,6 +113,25 @@ def _baselined(store: Store, settings: Settings, rng: np.random.Generator) -> tu
     assert base is not None and base.source == "fast-unconfirmed"
     assert robot_status(store, "arm").baseline_networks == "unconfirmed"
     return w, clock
+
+
+def test_unconfirmed_baseline_waits_wall_time_not_slow_cycles(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """On a loaded machine cycles are slow: the wait is counted in wall time, so 20 s cycles reach the
+    60 s wait after 3 cycles past the streak, and 5 s cycles need 12 (not the 4-cycle minimum)."""
+    for dt, cycles_after in ((20.0, 3), (5.0, 12)):
+        store = open_store("sqlite://")
+        s = settings.model_copy(update={"baseline_unconfirmed_seconds": 60.0})
+        clock = Clock(store, synth(rng, seconds=12))
+        w = Worker(store, s, estimator=ByMethod(GOOD), clock=clock, remote=StalledQueue(30.0))
+        for _ in range(3):
+            clock.step(dt)
+            assert not w.run_cycle()["arm"].baseline_set
+        for n in range(1, cycles_after + 1):
+            clock.step(dt)
+            assert w.run_cycle()["arm"].baseline_set == (n == cycles_after), (dt, n)
+        store.close()
 
 
 def test_pending_at_once_then_unconfirmed_after_the_timeout(
