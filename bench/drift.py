@@ -47,7 +47,7 @@ from bench import RESULTS_DIR, machine_note, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 
-__all__ = ["Watch", "add_arguments", "run", "service_text", "window_tree"]
+__all__ = ["Watch", "add_arguments", "elsewhere", "finding_change", "run", "service_text", "window_tree"]
 
 #: An empty argument, as a shell takes it.
 _EMPTY = "''"
@@ -495,7 +495,7 @@ def _networks(args: argparse.Namespace) -> int:
     return Settings().network_interval_cycles if args.networks is None else int(args.networks)
 
 
-def _change(detail: str) -> tuple[float, float] | None:
+def finding_change(detail: str) -> tuple[float, float] | None:
     """The change and its limit in a finding's detail ("... 1.99 deg (limit 0.23)")."""
     import re
 
@@ -503,7 +503,24 @@ def _change(detail: str) -> tuple[float, float] | None:
     return (float(m.group(1)), float(m.group(2))) if m else None
 
 
+_change = finding_change  # the name the drift bench's tests read it by
+
+
 def _markdown(d: dict) -> str:
+    """The drift bench's markdown: its catalog table, the pooled slides and the service part."""
+    lines = _catalog_lines(d)
+    p = d.get("pooled")
+    if p is not None:
+        lines += _pooled_lines(d, p)
+    s = d["service"]
+    if s is not None:
+        lines += _service_lines(d, s)
+    lines += ["", "![drift](drift.png)", ""]
+    return "\n".join(lines)
+
+
+def _catalog_lines(d: dict) -> list[str]:
+    """The heading, the setup and the table of the catalog robots' nominal and damaged windows."""
     lines = [
         "# Benchmark: geometry drift",
         "",
@@ -550,48 +567,53 @@ def _markdown(d: dict) -> str:
                 f"{r['cpu_s']:.0f}" if i == 0 else "",
             ]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    p = d.get("pooled")
-    if p is not None:
-        false = sum(len(n) for n in p["nominal_findings"])
+    return lines
+
+
+def _pooled_lines(d: dict, p: dict) -> list[str]:
+    """The pooled-slides part: its setup and one row per slide."""
+    false = sum(len(n) for n in p["nominal_findings"])
+    lines = [
+        "",
+        f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against the "
+        f"mean of the newest k, for every k up to {p['n_recent']}, each without its farthest "
+        "(Hotelling's T² in the plane "
+        f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison: half for the look "
+        f"at all {p['n_recent']}, half shared by the others), as the worker judges them. "
+        f"Healthy: {false} findings in {p['nominal_windows']} "
+        f"windows judged{elsewhere(d, 'pooled')}. Each slide judged for {p['windows_after']} windows "
+        "after it:",
+        "",
+        "| IMU | lever arm | its scatter per window (radial, tangential, along the axis) | slide | "
+        "windows to its finding | "
+        "finding | other findings |",
+        "|---|---:|---|---:|---:|---|---:|",
+    ]
+    for g in p["slides"]:
+        scatter = ", ".join(f"{x:g}" for x in g["scatter_mm"])
+        lines.append(
+            f"| {g['imu']} | {g['lever_arm_mm']:g} mm | {scatter} mm "
+            f"| {g['mm']:g} mm | {g['windows_to_finding'] or 'not found'} | {g['finding'] or ''} "
+            f"| {g['other_findings']} |"
+        )
+    return lines
+
+
+def _service_lines(d: dict, s: dict) -> list[str]:
+    """The service part: its summary, the alerts it raised and its drift findings."""
+    lines = ["", service_text(d)]
+    for a in s["alerts_raised"]:
+        lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
+    if s.get("drift_finding_details"):
+        lines += ["", "Drift findings of the service run (a finding raises an alert after M cycles):", ""]
         lines += [
-            "",
-            f"Pooled slides ({p['robot']}): the lever arms of the first {p['n_base']} windows against the "
-            f"mean of the newest k, for every k up to {p['n_recent']}, each without its farthest "
-            "(Hotelling's T² in the plane "
-            f"perpendicular to the axis, false-alarm rate {p['alpha']:g} per comparison: half for the look "
-            f"at all {p['n_recent']}, half shared by the others), as the worker judges them. "
-            f"Healthy: {false} findings in {p['nominal_windows']} "
-            f"windows judged{_elsewhere(d, 'pooled')}. Each slide judged for {p['windows_after']} windows "
-            "after it:",
-            "",
-            "| IMU | lever arm | its scatter per window (radial, tangential, along the axis) | slide | "
-            "windows to its finding | "
-            "finding | other findings |",
-            "|---|---:|---|---:|---:|---|---:|",
+            f"- {f['robot']}, cycle {f['cycle']}: {f['kind']} {f['part']}: {f['detail']}"
+            for f in s["drift_finding_details"]
         ]
-        for g in p["slides"]:
-            scatter = ", ".join(f"{x:g}" for x in g["scatter_mm"])
-            lines.append(
-                f"| {g['imu']} | {g['lever_arm_mm']:g} mm | {scatter} mm "
-                f"| {g['mm']:g} mm | {g['windows_to_finding'] or 'not found'} | {g['finding'] or ''} "
-                f"| {g['other_findings']} |"
-            )
-    s = d["service"]
-    if s is not None:
-        lines += ["", service_text(d)]
-        for a in s["alerts_raised"]:
-            lines.append(f"- {a['robot']}: {a['kind']} {a['part']} at cycle {a['cycle']}")
-        if s.get("drift_finding_details"):
-            lines += ["", "Drift findings of the service run (a finding raises an alert after M cycles):", ""]
-            lines += [
-                f"- {f['robot']}, cycle {f['cycle']}: {f['kind']} {f['part']}: {f['detail']}"
-                for f in s["drift_finding_details"]
-            ]
-    lines += ["", "![drift](drift.png)", ""]
-    return "\n".join(lines)
+    return lines
 
 
-def _elsewhere(d: dict, part: str) -> str:
+def elsewhere(d: dict, part: str) -> str:
     """' (run on MACHINE, ...)' where ``part`` of ``d`` ran on another machine than the catalog part."""
     there = d.get("machines", {}).get(part, d["machine"])
     return "" if there == d["machine"] else f" (run on {there}, taken with `--from`)"
@@ -606,7 +628,7 @@ def service_text(d: dict) -> str:
         f"({s['cycles']} cycles of {s['interval_s']:g} s, geometry every {s['kinematics_interval_cycles']} "
         f"cycles, {_pools_text(s)}, sensor {_networks_text(s)}): {_comparisons_text(s)}, "
         f"{s['drift_findings']} drift findings, {len(s['alerts_raised'])} alerts raised (on a healthy "
-        f"fleet, any would be false), {s['cpu_s']:.0f} CPU s{_processes(s)}{_elsewhere(d, 'service')}."
+        f"fleet, any would be false), {s['cpu_s']:.0f} CPU s{_processes(s)}{elsewhere(d, 'service')}."
     )
 
 
@@ -654,7 +676,7 @@ def _plot(catalog: list[dict], path: Path) -> None:
                 if g["kind"] != kind:
                     continue
                 hit = next((f for f in g["findings"] if f["part"] == g["part"]), None)
-                got = _change(hit["detail"]) if hit else None
+                got = finding_change(hit["detail"]) if hit else None
                 if got is not None:
                     xs.append(i + (k - 0.5) * 0.25)
                     ys.append(got[0])
