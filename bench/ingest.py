@@ -180,85 +180,103 @@ def _pty(kind: str, rec_path: Path, rec: Recording, tmp: Path, *extra: str) -> t
 def run(args: argparse.Namespace) -> Path:
     from service.ingest.can_layout import frame_ids
 
-    if args.robot == "synthetic":
-        rec = _recording(args.joints, args.imus, args.rate, args.seconds, args.seed)
-        what = "synthetic random-walk signals"
-    else:
-        from simulators import simulate
-
-        _log(f"simulating {args.robot} for {args.seconds:g} s")
-        rec = simulate(args.robot, args.seconds, args.seed, rate=args.rate)
-        what = f"simulated `{args.robot}`, seed {args.seed}"
+    rec, what = _source(args)
     n_j, n_i = rec.n_joints, rec.n_imus
     F = len(frame_ids(n_j, n_i))
     F_fd = len(frame_ids(n_j, n_i, "fd"))
     rate = args.rate
-    rows: list[dict] = []
-
-    def add(path: str, frames_per_sample: int, dt: float, cpu: float, n: int, note: str = "") -> None:
-        sps, cps = n / dt, n / max(cpu, 1e-9)
-        rows.append(
-            {
-                "path": path,
-                "samples": n,
-                "seconds": round(dt, 3),
-                "cpu_seconds": round(cpu, 3),
-                "frames_per_s": round(sps * frames_per_sample),
-                "samples_per_s": round(sps),
-                "x_real_time": round(sps / rate, 1),
-                "frames_per_cpu_s": round(cps * frames_per_sample),
-                "x_real_time_per_core": round(cps / rate, 1),
-                "note": note,
-            }
-        )
-        _log(
-            f"{path}: {sps * frames_per_sample:,.0f} frames/s ({sps / rate:.1f}x real time); per CPU-second "
-            f"{cps * frames_per_sample:,.0f} frames ({cps / rate:.1f}x)"
-        )
-
     _log(
         f"robot: {n_j} joints, {n_i} IMUs at {rate:g} Hz; {rec.n_samples} samples; "
         f"CAN {F} frames/sample (FD: {F_fd}), serial 1 frame/sample"
     )
-    add("serial decode (memory)", 1, *_serial_decode(rec))
-    add("CAN decode+regroup (memory)", F, *_can_decode(rec, "classic"))
-    add("CAN FD decode+regroup (memory)", F_fd, *_can_decode(rec, "fd"))
+    rows = _measure(rec, rate, F, F_fd)
+    args.out.mkdir(parents=True, exist_ok=True)
+    md = args.out / "ingest.md"
+    lines = _markdown_lines(args, rec, what, rows, F, F_fd)
+    md.write_text("\n".join(lines), encoding="utf-8")
+    (args.out / "ingest.json").write_text(
+        json.dumps(
+            {
+                "machine": machine_note(),
+                "rows": rows,
+                "joints": n_j,
+                "imus": n_i,
+                "rate": rate,
+                "can_frames_per_sample": F,
+            },
+            indent=1,
+        )
+    )
+    _plot(rows, args.out / "ingest.png")
+    print("\n".join(lines))
+    return md
+
+
+def _source(args: argparse.Namespace) -> tuple[Recording, str]:
+    """The recording to ingest (synthetic or simulated) and how the bench file describes it."""
+    if args.robot == "synthetic":
+        rec = _recording(args.joints, args.imus, args.rate, args.seconds, args.seed)
+        return rec, "synthetic random-walk signals"
+    from simulators import simulate
+
+    _log(f"simulating {args.robot} for {args.seconds:g} s")
+    rec = simulate(args.robot, args.seconds, args.seed, rate=args.rate)
+    return rec, f"simulated `{args.robot}`, seed {args.seed}"
+
+
+def _result(
+    path: str, rate: float, frames_per_sample: int, dt: float, cpu: float, n: int, note: str = ""
+) -> dict:
+    """One path's row: frames and samples per wall second and per CPU second, logged as it is made."""
+    sps, cps = n / dt, n / max(cpu, 1e-9)
+    _log(
+        f"{path}: {sps * frames_per_sample:,.0f} frames/s ({sps / rate:.1f}x real time); per CPU-second "
+        f"{cps * frames_per_sample:,.0f} frames ({cps / rate:.1f}x)"
+    )
+    return {
+        "path": path,
+        "samples": n,
+        "seconds": round(dt, 3),
+        "cpu_seconds": round(cpu, 3),
+        "frames_per_s": round(sps * frames_per_sample),
+        "samples_per_s": round(sps),
+        "x_real_time": round(sps / rate, 1),
+        "frames_per_cpu_s": round(cps * frames_per_sample),
+        "x_real_time_per_core": round(cps / rate, 1),
+        "note": note,
+    }
+
+
+def _measure(rec: Recording, rate: float, F: int, F_fd: int) -> list[dict]:
+    """Every path's row: the in-memory decoders, then the pty paths with the emulator in its own process."""
+    rows = [
+        _result("serial decode (memory)", rate, 1, *_serial_decode(rec)),
+        _result("CAN decode+regroup (memory)", rate, F, *_can_decode(rec, "classic")),
+        _result("CAN FD decode+regroup (memory)", rate, F_fd, *_can_decode(rec, "fd")),
+    ]
     with tempfile.TemporaryDirectory(prefix="bench-ingest-") as tmpdir:
         tmp = Path(tmpdir)
         from simulators.recording_io import save_recording
 
         save_recording(rec, tmp / "rec.npz")
         dt, cpu, n, c = _pty("serial", tmp / "rec.npz", rec, tmp)
-        add(
-            "serial pty (emulator process)",
-            1,
-            dt,
-            cpu,
-            n,
-            f"crc_errors={c.get('crc_errors', 0)}, gaps={c.get('sequence_gaps', 0)}",
-        )
+        note = f"crc_errors={c.get('crc_errors', 0)}, gaps={c.get('sequence_gaps', 0)}"
+        rows.append(_result("serial pty (emulator process)", rate, 1, dt, cpu, n, note))
         dt, cpu, n, c = _pty("can", tmp / "rec.npz", rec, tmp)
-        add(
-            "CAN slcan pty (emulator process)",
-            F,
-            dt,
-            cpu,
-            n,
-            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}",
-        )
+        note = f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}"
+        rows.append(_result("CAN slcan pty (emulator process)", rate, F, dt, cpu, n, note))
         dt, cpu, n, c = _pty("can", tmp / "rec.npz", rec, tmp, "--can-fd")
-        add(
-            "CAN FD slcan pty (emulator process)",
-            F_fd,
-            dt,
-            cpu,
-            n,
-            f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}",
-        )
+        note = f"frames_missing={c.get('frames_missing', 0)}, decode_errors={c.get('decode_errors', 0)}"
+        rows.append(_result("CAN FD slcan pty (emulator process)", rate, F_fd, dt, cpu, n, note))
+    return rows
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    md = args.out / "ingest.md"
-    lines = [
+
+def _markdown_lines(
+    args: argparse.Namespace, rec: Recording, what: str, rows: list[dict], F: int, F_fd: int
+) -> list[str]:
+    """The bench file's lines: the setup, one table row per path, and how to read the columns."""
+    n_j, n_i, rate = rec.n_joints, rec.n_imus, args.rate
+    return [
         "# bench ingest",
         "",
         f"Machine: {machine_note()}  ",
@@ -289,23 +307,6 @@ def run(args: argparse.Namespace) -> Path:
         "layout on one.",
         "",
     ]
-    md.write_text("\n".join(lines), encoding="utf-8")
-    (args.out / "ingest.json").write_text(
-        json.dumps(
-            {
-                "machine": machine_note(),
-                "rows": rows,
-                "joints": n_j,
-                "imus": n_i,
-                "rate": rate,
-                "can_frames_per_sample": F,
-            },
-            indent=1,
-        )
-    )
-    _plot(rows, args.out / "ingest.png")
-    print("\n".join(lines))
-    return md
 
 
 def _plot(rows: list[dict], path: Path) -> None:
