@@ -29,6 +29,7 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -198,91 +199,104 @@ def unique_element_sets(D: DependencyMatrix) -> dict[str, frozenset[str]]:
 
 def check(D: DependencyMatrix, conditions: tuple[int, ...]) -> ConditionReport:
     """Check any subset of the conditions 0-6 on ``D`` and say where each one fails."""
-    v = D.values
-    rel = _relations(v[None])
-    rows, cols = D.rows, D.cols
+    rel = _relations(D.values[None])
     failures: list[ConditionFailure] = []
     counts: dict[int, int] = {}
-
-    def add(cond: int, items: list[ConditionFailure]) -> None:
+    for cond in conditions:
+        if cond not in _FAILURES:
+            raise ValueError(f"unknown condition {cond}; conditions are numbered 0-6")
+        items = _FAILURES[cond](D, rel)
         if items:
             counts[cond] = len(items)
             failures.extend(items[:MAX_LISTED])
-
-    for cond in conditions:
-        if cond == 0:
-            if not D.is_square:
-                add(0, [ConditionFailure(0, f"shape is {D.shape}; P and P0 are defined on N x N matrices")])
-        elif cond == 1:
-            add(
-                1,
-                [
-                    ConditionFailure(1, f"row {rows[i]!r} is all 0", rows=(rows[i],))
-                    for i in np.flatnonzero(rel["rs"][0] == 0)
-                ],
-            )
-        elif cond == 2:
-            add(
-                2,
-                [
-                    ConditionFailure(2, f"column {cols[k]!r} is all 0", cols=(cols[k],))
-                    for k in np.flatnonzero(rel["cs"][0] == 0)
-                ],
-            )
-        elif cond == 3:
-            d = np.triu(rel["dup_rows"][0], 1)
-            add(
-                3,
-                [
-                    ConditionFailure(
-                        3, f"rows {rows[i]!r} and {rows[k]!r} are equal", rows=(rows[i], rows[k])
-                    )
-                    for i, k in zip(*np.nonzero(d), strict=True)
-                ],
-            )
-        elif cond == 4:
-            d = np.triu(rel["dup_cols"][0], 1)
-            add(
-                4,
-                [
-                    ConditionFailure(
-                        4, f"columns {cols[i]!r} and {cols[k]!r} are equal", cols=(cols[i], cols[k])
-                    )
-                    for i, k in zip(*np.nonzero(d), strict=True)
-                ],
-            )
-        elif cond == 5:
-            d = np.triu(rel["crossing"][0], 1)
-            items = []
-            for i, k in zip(*np.nonzero(d), strict=True):
-                common = tuple(r for r, a, b in zip(rows, v[:, i], v[:, k], strict=True) if a and b)
-                items.append(
-                    ConditionFailure(
-                        5,
-                        f"column sets of {cols[i]!r} and {cols[k]!r} overlap without nesting "
-                        f"(common rows {list(common)})",
-                        rows=common,
-                        cols=(cols[i], cols[k]),
-                    )
-                )
-            add(5, items)
-        elif cond == 6:
-            j = rel["j_sets"][0]
-            items = []
-            for k in np.flatnonzero(j.sum(axis=0) != 1):
-                members = tuple(r for r, x in zip(rows, j[:, k], strict=True) if x)
-                items.append(
-                    ConditionFailure(
-                        6,
-                        f"J_Sc of column {cols[k]!r} has {len(members)} rows {list(members)}",
-                        rows=members,
-                        cols=(cols[k],),
-                    )
-                )
-            add(6, items)
-        else:
-            raise ValueError(f"unknown condition {cond}; conditions are numbered 0-6")
     return ConditionReport(conditions=tuple(conditions), failures=tuple(failures), counts=counts)
+
+
+def _square(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    if D.is_square:
+        return []
+    return [ConditionFailure(0, f"shape is {D.shape}; P and P0 are defined on N x N matrices")]
+
+
+def _zero_rows(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    rows = D.rows
+    return [
+        ConditionFailure(1, f"row {rows[i]!r} is all 0", rows=(rows[i],))
+        for i in np.flatnonzero(rel["rs"][0] == 0)
+    ]
+
+
+def _zero_cols(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    cols = D.cols
+    return [
+        ConditionFailure(2, f"column {cols[k]!r} is all 0", cols=(cols[k],))
+        for k in np.flatnonzero(rel["cs"][0] == 0)
+    ]
+
+
+def _equal_rows(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    rows = D.rows
+    d = np.triu(rel["dup_rows"][0], 1)
+    return [
+        ConditionFailure(3, f"rows {rows[i]!r} and {rows[k]!r} are equal", rows=(rows[i], rows[k]))
+        for i, k in zip(*np.nonzero(d), strict=True)
+    ]
+
+
+def _equal_cols(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    cols = D.cols
+    d = np.triu(rel["dup_cols"][0], 1)
+    return [
+        ConditionFailure(4, f"columns {cols[i]!r} and {cols[k]!r} are equal", cols=(cols[i], cols[k]))
+        for i, k in zip(*np.nonzero(d), strict=True)
+    ]
+
+
+def _crossing(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    v, rows, cols = D.values, D.rows, D.cols
+    d = np.triu(rel["crossing"][0], 1)
+    items = []
+    for i, k in zip(*np.nonzero(d), strict=True):
+        common = tuple(r for r, a, b in zip(rows, v[:, i], v[:, k], strict=True) if a and b)
+        items.append(
+            ConditionFailure(
+                5,
+                f"column sets of {cols[i]!r} and {cols[k]!r} overlap without nesting "
+                f"(common rows {list(common)})",
+                rows=common,
+                cols=(cols[i], cols[k]),
+            )
+        )
+    return items
+
+
+def _unique_elements(D: DependencyMatrix, rel: dict) -> list[ConditionFailure]:
+    rows, cols = D.rows, D.cols
+    j = rel["j_sets"][0]
+    items = []
+    for k in np.flatnonzero(j.sum(axis=0) != 1):
+        members = tuple(r for r, x in zip(rows, j[:, k], strict=True) if x)
+        items.append(
+            ConditionFailure(
+                6,
+                f"J_Sc of column {cols[k]!r} has {len(members)} rows {list(members)}",
+                rows=members,
+                cols=(cols[k],),
+            )
+        )
+    return items
+
+
+#: Where each condition fails, by its number (0 is squareness).
+_FAILURES: dict[int, Callable[[DependencyMatrix, dict], list[ConditionFailure]]] = {
+    0: _square,
+    1: _zero_rows,
+    2: _zero_cols,
+    3: _equal_rows,
+    4: _equal_cols,
+    5: _crossing,
+    6: _unique_elements,
+}
 
 
 def check_p(D: DependencyMatrix) -> ConditionReport:
