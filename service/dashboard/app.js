@@ -394,6 +394,7 @@ function renderStatus(card, st) {
       if (st.decide_by.length) {
         lines.push(el("div", { class: "decide" },
           `to decide, move each on its own with the others still: ${st.decide_by.join(", ")}`));
+        lines.push(planLink(card.root.dataset.robot));
       }
     }
     // the joints to move are on their own line above; the reasons say the rest
@@ -442,6 +443,27 @@ function renderStatus(card, st) {
     if (waits) lines.push(waits);
   }
   card.detail.replaceChildren(...lines);
+}
+
+// The motion that decides what the data left open (GET .../excitation, docs/excitation.md), as CSV:
+// a time column and one column of positions (rad) per joint. Fetched with the API token (a plain link
+// would not send it), then saved from a blob; the href names the route for a reader of the page.
+function planLink(robot) {
+  const route = `${API}/robots/${encodeURIComponent(robot)}/excitation?format=csv`;
+  const file = `${robot}-excitation.csv`;
+  const a = el("a", { href: route, class: "excitation-plan", download: file },
+    "download the excitation plan (CSV)");
+  a.addEventListener("click", async (ev) => {
+    ev.preventDefault();
+    const r = await apiFetch(route);
+    if (!r.ok) { a.textContent = `excitation plan: ${r.status}`; return; }
+    const blob = URL.createObjectURL(await r.blob());
+    el("a", { href: blob, download: file }).click();
+    setTimeout(() => URL.revokeObjectURL(blob), 60_000);  // once the browser has read it
+  });
+  const row = el("div", { class: "plan" });
+  row.appendChild(a);
+  return row;
 }
 
 function ago(t) {

@@ -167,3 +167,36 @@ def test_status_shown_per_robot(browser: Any, served: tuple[str, Store], tmp_pat
     assert page.locator("#summary .verdict").all_inner_texts() == ["1 damaged", "2 healthy"]
     assert errors == []
     page.close()
+
+
+def test_undetermined_robot_offers_its_excitation_plan(browser: Any, served: tuple[str, Store]) -> None:
+    """Beside the joints to move, an undetermined robot's card links the plan of that motion; the link
+    downloads it as CSV (a time column, then one column of positions per joint); a robot the data
+    decide has no such link."""
+    url, _ = served
+    page = browser.new_page(viewport={"width": 1300, "height": 1000})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url + "/")
+    link = page.locator("article[data-robot='sparse-arm'] .verdict-detail a.excitation-plan")
+    link.wait_for(timeout=20_000)
+    assert link.inner_text() == "download the excitation plan (CSV)"
+    assert link.get_attribute("href") == "/api/v1/robots/sparse-arm/excitation?format=csv"
+    page.wait_for_selector("article[data-robot='full-arm'][data-status='healthy']", timeout=20_000)
+    assert page.locator("article[data-robot='full-arm'] a.excitation-plan").count() == 0
+    assert page.locator("article[data-robot='broken-arm'] a.excitation-plan").count() == 0
+    with page.expect_download(timeout=20_000) as download:
+        link.click()
+    saved = download.value
+    assert saved.suggested_filename == "sparse-arm-excitation.csv"
+    header, *rows = Path(saved.path()).read_text().splitlines()
+    assert header.split(",") == ["time", *JOINTS]
+    table = np.array([[float(x) for x in r.split(",")] for r in rows])
+    # the route's default plan: 30 s at 100 Hz, from rest at the start pose and back
+    assert table.shape == (3001, 1 + len(JOINTS))
+    assert np.allclose(np.diff(table[:, 0]), 0.01) and table[0, 0] == 0.0
+    q = table[:, 1:]
+    assert np.allclose(q[0], q[-1], atol=1e-9)
+    assert (np.ptp(q, axis=0) > 0.1).all()  # every joint the reasons name moves
+    assert errors == []
+    page.close()
