@@ -141,36 +141,44 @@ def _fd_specifics() -> object:
     )
 
 
-def project_database() -> Database:
-    """The project DBC as a cantools database (built in code; the shipped file is its dump)."""
-    msgs: list[Message] = []
-    for fid, what, name in zip(
-        (ENCODER_STAMP_ID, IMU_STAMP_ID), ("encoder", "IMU"), STAMP_MESSAGES.values(), strict=True
-    ):
-        msgs.append(
-            Message(
-                frame_id=fid,
-                name=name,
-                length=8,
-                signals=[_sig("stamp", 0, STAMP_BITS, 1, "tick", signed=False), _counter()],
-                senders=["ROBOT"],
-                cycle_time=10,
-                comment=f"multi-rate device: time stamp of one {what} sample and its stream counter",
-            )
+def _message(
+    frame_id: int, name: str, signals: list[Signal], comment: str, length: int = 8, is_fd: bool = False
+) -> Message:
+    """One of the robot's messages: sent every 10 ms, the counter last among its signals."""
+    return Message(
+        frame_id=frame_id,
+        name=name,
+        length=length,
+        is_fd=is_fd,
+        signals=signals,
+        senders=["ROBOT"],
+        cycle_time=10,
+        comment=comment,
+    )
+
+
+def _stamp_messages() -> list[Message]:
+    """A multi-rate device's stamp frames, one per stream."""
+    return [
+        _message(
+            fid,
+            name,
+            [_sig("stamp", 0, STAMP_BITS, 1, "tick", signed=False), _counter()],
+            f"multi-rate device: time stamp of one {what} sample and its stream counter",
         )
+        for fid, what, name in zip(
+            (ENCODER_STAMP_ID, IMU_STAMP_ID), ("encoder", "IMU"), STAMP_MESSAGES.values(), strict=True
+        )
+    ]
+
+
+def _classic_messages() -> list[Message]:
+    """The classic layout: two joints a frame, one frame per IMU triad."""
+    msgs = []
     for m in range(JOINT_FRAMES):
         sigs = [_sig(f"q{j}", 24 * j, 24, Q_LSB, "rad") for j in range(JOINTS_PER_FRAME)]
-        msgs.append(
-            Message(
-                frame_id=JOINT_BASE + m,
-                name=f"JOINTS_{m}",
-                length=8,
-                signals=[*sigs, _counter()],
-                senders=["ROBOT"],
-                cycle_time=10,
-                comment=f"joint positions {2 * m} and {2 * m + 1} of the device config",
-            )
-        )
+        comment = f"joint positions {2 * m} and {2 * m + 1} of the device config"
+        msgs.append(_message(JOINT_BASE + m, f"JOINTS_{m}", [*sigs, _counter()], comment))
     for base, kind, lsb, unit in (
         (IMU_ACC_BASE, "ACC", ACC_LSB, "m/s2"),
         (IMU_GYRO_BASE, "GYRO", GYRO_LSB, "rad/s"),
@@ -178,47 +186,46 @@ def project_database() -> Database:
         for k in range(MAX_IMUS):
             sigs = [_sig(a, 16 * i, 16, lsb, unit) for i, a in enumerate("xyz")]
             what = "specific force" if kind == "ACC" else "angular velocity"
-            msgs.append(
-                Message(
-                    frame_id=base + k,
-                    name=f"IMU_{kind}_{k}",
-                    length=8,
-                    signals=[*sigs, _counter()],
-                    senders=["ROBOT"],
-                    cycle_time=10,
-                    comment=f"IMU {k} {what} in the sensor frame",
-                )
-            )
+            comment = f"IMU {k} {what} in the sensor frame"
+            msgs.append(_message(base + k, f"IMU_{kind}_{k}", [*sigs, _counter()], comment))
+    return msgs
+
+
+def _fd_messages() -> list[Message]:
+    """The CAN FD layout: fifteen joints a frame, one frame per IMU."""
+    msgs = []
     for m in range(FD_JOINT_FRAMES):
         sigs = [_sig(f"q{j}", 32 * j, 32, Q_LSB, "rad") for j in range(FD_JOINTS_PER_FRAME)]
         first = FD_JOINTS_PER_FRAME * m
         msgs.append(
-            Message(
-                frame_id=FD_JOINT_BASE + m,
-                name=f"JOINTS_FD_{m}",
+            _message(
+                FD_JOINT_BASE + m,
+                f"JOINTS_FD_{m}",
+                [*sigs, _counter(32 * FD_JOINTS_PER_FRAME)],
+                f"CAN FD layout: joint positions {first}..{first + 14}",
                 length=FD_JOINT_LEN,
                 is_fd=True,
-                signals=[*sigs, _counter(32 * FD_JOINTS_PER_FRAME)],
-                senders=["ROBOT"],
-                cycle_time=10,
-                comment=f"CAN FD layout: joint positions {first}..{first + 14}",
             )
         )
     for k in range(MAX_IMUS):
         sigs = [_sig(f"acc_{a}", 16 * i, 16, ACC_LSB, "m/s2") for i, a in enumerate("xyz")]
         sigs += [_sig(f"gyro_{a}", 48 + 16 * i, 16, GYRO_LSB, "rad/s") for i, a in enumerate("xyz")]
         msgs.append(
-            Message(
-                frame_id=FD_IMU_BASE + k,
-                name=f"IMU_FD_{k}",
+            _message(
+                FD_IMU_BASE + k,
+                f"IMU_FD_{k}",
+                [*sigs, _counter(96)],
+                f"CAN FD layout: IMU {k} specific force and angular velocity",
                 length=FD_IMU_LEN,
                 is_fd=True,
-                signals=[*sigs, _counter(96)],
-                senders=["ROBOT"],
-                cycle_time=10,
-                comment=f"CAN FD layout: IMU {k} specific force and angular velocity",
             )
         )
+    return msgs
+
+
+def project_database() -> Database:
+    """The project DBC as a cantools database (built in code; the shipped file is its dump)."""
+    msgs: list[Message] = [*_stamp_messages(), *_classic_messages(), *_fd_messages()]
     from cantools.database.can import Node
 
     db = Database(
