@@ -339,23 +339,43 @@ class Robot:
         the encoders report: the accelerometers are corrected by what the difference does at each
         site, through the dofs' motion axes (to 0.0006 m/s² there).
         """
-        m, d = self.model, self.data
+        m = self.model
         ctrl = np.asarray(ctrl, dtype=np.float64)
         if ctrl.ndim != 2 or ctrl.shape[1] != m.nu:
             raise ValueError(f"ctrl must have shape (T, {m.nu}), got {ctrl.shape}")
+        raw = self._run(ctrl, poses)
         T = ctrl.shape[0]
-        t = np.empty(T)
-        qpos = np.empty((T, m.nq))
-        qvel = np.empty((T, m.nv))
-        qacc = np.empty((T, m.nv))
-        sens = np.empty((T, m.nsensordata))
-        xmat = np.empty((T, m.nsite, 9))
-        cacc = np.empty((T, m.nbody, 6)) if poses else None
-        site_pos = np.empty((T, m.nsite, 3))
-        com = np.empty((T, m.nbody, 3))
-        cdof = np.empty((T, m.nv, 6))
-        realised = np.empty((T, m.nv))
-        h = m.opt.timestep
+        t = raw.t0 + np.arange(T) * (self.substeps * m.opt.timestep)
+        K = len(self.site_ids)
+        R = raw.xmat[:, self.site_ids].reshape(T, K, 3, 3)
+        realised = raw.realised
+        realised -= raw.qvel
+        realised /= m.opt.timestep
+        lin, ang = self._site_accelerations(realised - raw.qacc, raw.cdof, raw.com, raw.site_pos)
+        acc = raw.sens[:, self.acc_adr] + np.matmul(lin[:, :, None, :], R)[:, :, 0]  # R^T lin per sample
+        if poses:
+            alpha = raw.cacc[:, self.site_body, :3] + ang  # type: ignore[index]
+            gyro_dot = np.einsum("tkji,tkj->tki", R, alpha)
+        else:
+            R, gyro_dot = np.empty((T, K, 0, 0)), np.empty((T, K, 0))
+        return Samples(
+            t=t,
+            q=raw.qpos[:, self.qpos_adr],
+            qd=raw.qvel[:, self.dof_adr],
+            qdd=realised[:, self.dof_adr],
+            acc=acc,
+            gyro=raw.sens[:, self.gyro_adr],
+            gyro_dot=gyro_dot,
+            R=R,
+        )
+
+    def _run(self, ctrl: np.ndarray, poses: bool) -> _Raw:
+        """Step the physics through ``ctrl`` and keep MjData's state at every sampling instant."""
+        m, d = self.model, self.data
+        T = ctrl.shape[0]
+        raw = _Raw.empty(m, T, poses, d.time)
+        qpos, qvel, qacc, sens, xmat, cacc = raw.qpos, raw.qvel, raw.qacc, raw.sens, raw.xmat, raw.cacc
+        site_pos, com, cdof, realised = raw.site_pos, raw.com, raw.cdof, raw.realised
         integrate, rest = self._integrate, self.substeps - 1
         forward, step = mujoco.mj_forward, mujoco.mj_step
         opt = m.opt
@@ -377,7 +397,6 @@ class Robot:
             d.subtree_com,
             d.cdof,
         )
-        t0 = d.time
         try:
             for i in range(T):
                 d_ctrl[:] = ctrl[i]
@@ -400,27 +419,39 @@ class Robot:
                     opt.disableflags = on
         finally:
             opt.disableflags = off
-        t[:] = t0 + np.arange(T) * (self.substeps * m.opt.timestep)
-        K = len(self.site_ids)
-        R = xmat[:, self.site_ids].reshape(T, K, 3, 3)
-        realised -= qvel
-        realised /= h
-        lin, ang = self._site_accelerations(realised - qacc, cdof, com, site_pos)
-        acc = sens[:, self.acc_adr] + np.matmul(lin[:, :, None, :], R)[:, :, 0]  # R^T lin per sample
-        if poses:
-            alpha = cacc[:, self.site_body, :3] + ang  # type: ignore[index]
-            gyro_dot = np.einsum("tkji,tkj->tki", R, alpha)
-        else:
-            R, gyro_dot = np.empty((T, K, 0, 0)), np.empty((T, K, 0))
-        return Samples(
-            t=t,
-            q=qpos[:, self.qpos_adr],
-            qd=qvel[:, self.dof_adr],
-            qdd=realised[:, self.dof_adr],
-            acc=acc,
-            gyro=sens[:, self.gyro_adr],
-            gyro_dot=gyro_dot,
-            R=R,
+        return raw
+
+
+@dataclass(frozen=True)
+class _Raw:
+    """MjData's state at each sampling instant of one :meth:`Robot.sample` (``cacc`` only with poses)."""
+
+    t0: float
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qacc: np.ndarray
+    sens: np.ndarray
+    xmat: np.ndarray
+    cacc: np.ndarray | None
+    site_pos: np.ndarray
+    com: np.ndarray
+    cdof: np.ndarray
+    realised: np.ndarray
+
+    @classmethod
+    def empty(cls, m: mujoco.MjModel, T: int, poses: bool, t0: float) -> _Raw:
+        return cls(
+            t0=t0,
+            qpos=np.empty((T, m.nq)),
+            qvel=np.empty((T, m.nv)),
+            qacc=np.empty((T, m.nv)),
+            sens=np.empty((T, m.nsensordata)),
+            xmat=np.empty((T, m.nsite, 9)),
+            cacc=np.empty((T, m.nbody, 6)) if poses else None,
+            site_pos=np.empty((T, m.nsite, 3)),
+            com=np.empty((T, m.nbody, 3)),
+            cdof=np.empty((T, m.nv, 6)),
+            realised=np.empty((T, m.nv)),
         )
 
 
