@@ -14,6 +14,8 @@ white noise). Gyro and accelerometer follow the rigid-body equations exactly: ``
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from bodyschema.recording import GRAVITY, Recording
@@ -121,51 +123,11 @@ def random_robot_recording(
     R_plus, _ = tree.link_poses(qf(t + h))
     _, p_minus = tree.link_poses(qf(t - h))
     R_minus, _ = tree.link_poses(qf(t - h))
-
-    # world angular velocity of each link: parent's plus its own axis (in world) times q̇
-    omega: list[np.ndarray] = []
-    for j, par in enumerate(parent):
-        w_axis = R[j] @ tree.axis[j]
-        base = np.zeros((len(t), 3)) if par < 0 else omega[par]
-        omega.append(base + w_axis * qd[:, j : j + 1])
-
-    links = list(range(-1, n_joints))
-    gyro, acc, imu_link = [], [], []
-    for link in links:
-        if link in bare_links:
-            continue
-        count = base_imus if link < 0 else int(rng.integers(imus_per_link[0], imus_per_link[1] + 1))
-        for _ in range(count):
-            Rm = _random_rotation(rng)
-            r = rng.normal(scale=0.08, size=3)
-            if link < 0:
-                gyro.append(np.zeros((len(t), 3)))
-                acc.append(np.broadcast_to(Rm.T @ (-GRAVITY), (len(t), 3)).copy())
-            else:
-                Rs = R[link] @ Rm
-                gyro.append(np.einsum("tji,tj->ti", Rs, omega[link]))
-                pp = p_plus[link] + R_plus[link] @ r
-                pm = p_minus[link] + R_minus[link] @ r
-                p0 = p[link] + R[link] @ r
-                pdd = (pp - 2 * p0 + pm) / h**2
-                acc.append(np.einsum("tji,tj->ti", Rs, pdd - GRAVITY))
-            imu_link.append(link)
-    gyro_a = np.stack(gyro, axis=1)
-    acc_a = np.stack(acc, axis=1)
+    motion = _LinkMotion(len(t), R, p, R_plus, p_plus, R_minus, p_minus, _link_omegas(tree, parent, R, qd), h)
+    gyro_a, acc_a, imu_link = _imus(rng, motion, n_joints, imus_per_link, base_imus, bare_links)
     K = gyro_a.shape[1]
     if noise:
-        deg = np.pi / 180
-        for k in range(K):
-            Sg = (
-                np.eye(3)
-                + np.diag(rng.uniform(-0.03, 0.03, 3))
-                + rng.uniform(-0.02, 0.02, (3, 3)) * (1 - np.eye(3))
-            )
-            Sa = np.eye(3) + np.diag(rng.uniform(-0.03, 0.03, 3))
-            gyro_a[:, k] = gyro_a[:, k] @ Sg.T + rng.uniform(-20, 20, 3) * deg
-            acc_a[:, k] = acc_a[:, k] @ Sa.T + rng.uniform(-1, 1, 3) * np.array([0.05, 0.05, 0.08]) * 9.81
-        gyro_a += rng.normal(scale=0.005 * deg * np.sqrt(rate / 2), size=gyro_a.shape)
-        acc_a += rng.normal(scale=400e-6 * 9.81 * np.sqrt(rate / 2), size=acc_a.shape)
+        _add_imu_errors(rng, gyro_a, acc_a, rate)
 
     jperm = rng.permutation(n_joints)
     jname = {j: f"j{int(jperm[j])}" for j in range(n_joints)}
@@ -183,3 +145,80 @@ def random_robot_recording(
         truth_joint_parent=["" if parent[j] < 0 else jname[parent[j]] for j in order],
         truth_imu_joint=["" if imu_link[k] < 0 else jname[imu_link[k]] for k in imu_order],
     )
+
+
+@dataclass(frozen=True)
+class _LinkMotion:
+    """Every link's pose at the samples and ``h`` either side of them, and its world angular velocity."""
+
+    n: int  # samples
+    R: list[np.ndarray]
+    p: list[np.ndarray]
+    R_plus: list[np.ndarray]
+    p_plus: list[np.ndarray]
+    R_minus: list[np.ndarray]
+    p_minus: list[np.ndarray]
+    omega: list[np.ndarray]
+    h: float
+
+
+def _link_omegas(
+    tree: KinematicTree, parent: list[int], R: list[np.ndarray], qd: np.ndarray
+) -> list[np.ndarray]:
+    """World angular velocity of each link: its parent's plus its own axis (in world) times q̇."""
+    omega: list[np.ndarray] = []
+    for j, par in enumerate(parent):
+        w_axis = R[j] @ tree.axis[j]
+        base = np.zeros((len(qd), 3)) if par < 0 else omega[par]
+        omega.append(base + w_axis * qd[:, j : j + 1])
+    return omega
+
+
+def _imus(
+    rng: np.random.Generator,
+    m: _LinkMotion,
+    n_joints: int,
+    imus_per_link: tuple[int, int],
+    base_imus: int,
+    bare_links: tuple[int, ...],
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Ideal gyro and accelerometer readings (T, K, 3) of IMUs at random poses on the links, and each
+    IMU's link (-1: the base)."""
+    T = m.n
+    gyro, acc, imu_link = [], [], []
+    for link in range(-1, n_joints):
+        if link in bare_links:
+            continue
+        count = base_imus if link < 0 else int(rng.integers(imus_per_link[0], imus_per_link[1] + 1))
+        for _ in range(count):
+            Rm = _random_rotation(rng)
+            r = rng.normal(scale=0.08, size=3)
+            if link < 0:
+                gyro.append(np.zeros((T, 3)))
+                acc.append(np.broadcast_to(Rm.T @ (-GRAVITY), (T, 3)).copy())
+            else:
+                Rs = m.R[link] @ Rm
+                gyro.append(np.einsum("tji,tj->ti", Rs, m.omega[link]))
+                pp = m.p_plus[link] + m.R_plus[link] @ r
+                pm = m.p_minus[link] + m.R_minus[link] @ r
+                p0 = m.p[link] + m.R[link] @ r
+                pdd = (pp - 2 * p0 + pm) / m.h**2
+                acc.append(np.einsum("tji,tj->ti", Rs, pdd - GRAVITY))
+            imu_link.append(link)
+    return np.stack(gyro, axis=1), np.stack(acc, axis=1), imu_link
+
+
+def _add_imu_errors(rng: np.random.Generator, gyro: np.ndarray, acc: np.ndarray, rate: float) -> None:
+    """MPU-6050-like errors, in place: per-IMU scale, cross-axis and bias, then white noise."""
+    deg = np.pi / 180
+    for k in range(gyro.shape[1]):
+        Sg = (
+            np.eye(3)
+            + np.diag(rng.uniform(-0.03, 0.03, 3))
+            + rng.uniform(-0.02, 0.02, (3, 3)) * (1 - np.eye(3))
+        )
+        Sa = np.eye(3) + np.diag(rng.uniform(-0.03, 0.03, 3))
+        gyro[:, k] = gyro[:, k] @ Sg.T + rng.uniform(-20, 20, 3) * deg
+        acc[:, k] = acc[:, k] @ Sa.T + rng.uniform(-1, 1, 3) * np.array([0.05, 0.05, 0.08]) * 9.81
+    gyro += rng.normal(scale=0.005 * deg * np.sqrt(rate / 2), size=gyro.shape)
+    acc += rng.normal(scale=400e-6 * 9.81 * np.sqrt(rate / 2), size=acc.shape)
