@@ -219,168 +219,63 @@ def _chain(specs: list[dict[str, object]]) -> LinkSpec:
     return link
 
 
+#: The humanoid's limbs, outward from the trunk, one link a row: (link, joint, axis, end, radius, mass,
+#: range). Link and joint names take the side ("l_", "r_") in front; the first link's ``pos`` is the side's.
+_HUMANOID_LEG: tuple[tuple, ...] = (
+    ("hip_yaw_link", "hip_yaw", (0, 0, 1), (0, 0, -0.06), 0.04, 1.0, (-0.7, 0.7)),
+    ("hip_roll_link", "hip_roll", (1, 0, 0), (0, 0, -0.06), 0.04, 1.0, (-0.5, 0.5)),
+    ("thigh", "hip_pitch", (0, 1, 0), (0, 0, -0.4), 0.055, 4.0, (-1.6, 1.0)),
+    ("shank", "knee", (0, 1, 0), (0, 0, -0.4), 0.045, 2.5, (0.0, 2.4)),
+    ("ankle_link", "ankle_pitch", (0, 1, 0), (0, 0, -0.04), 0.035, 0.4, (-0.8, 0.8)),
+    ("foot", "ankle_roll", (1, 0, 0), (0.15, 0, 0), 0.03, 0.6, (-0.4, 0.4)),
+)
+#: The arm; its first link's end points outward, to the side's y (given here for the left).
+_HUMANOID_ARM: tuple[tuple, ...] = (
+    ("shoulder_link", "shoulder_pitch", (0, 1, 0), (0, 0.06, 0), 0.04, 0.8, (-2.5, 2.5)),
+    ("shoulder_roll_link", "shoulder_roll", (1, 0, 0), (0, 0, -0.05), 0.04, 0.6, (-1.5, 1.5)),
+    ("upper_arm", "shoulder_yaw", (0, 0, 1), (0, 0, -0.28), 0.04, 1.5, (-1.5, 1.5)),
+    ("forearm", "elbow", (0, 1, 0), (0, 0, -0.25), 0.035, 1.0, (-2.4, 0.0)),
+    ("hand", "wrist_yaw", (0, 0, 1), (0, 0, -0.08), 0.03, 0.4, (-1.5, 1.5)),
+)
+#: Neck and head, then waist and chest (the chest carries the head and both arms).
+_HUMANOID_HEAD: tuple[tuple, ...] = (
+    ("neck", "neck_yaw", (0, 0, 1), (0, 0, 0.06), 0.03, 0.4, (-1.2, 1.2)),
+    ("head", "neck_pitch", (0, 1, 0), (0, 0, 0.14), 0.08, 3.0, (-0.6, 0.6)),
+)
+_HUMANOID_TORSO: tuple[tuple, ...] = (
+    ("waist", "waist_yaw", (0, 0, 1), (0, 0, 0.08), 0.08, 3.0, (-1.0, 1.0)),
+    ("chest", "waist_pitch", (0, 1, 0), (0, 0, 0.32), 0.12, 10.0, (-0.5, 0.8)),
+)
+
+
+def _limb(
+    rows: tuple[tuple, ...], pos: tuple[float, float, float], prefix: str = ""
+) -> list[dict[str, object]]:
+    """The :func:`_chain` specs of a table of links, the first at ``pos``, names after ``prefix``."""
+    specs: list[dict[str, object]] = [
+        dict(
+            name=f"{prefix}{link}", joint=f"{prefix}{joint}", axis=axis, end=end, radius=r, mass=m, range=rng
+        )
+        for link, joint, axis, end, r, m, rng in rows
+    ]
+    specs[0]["pos"] = pos
+    return specs
+
+
 def _humanoid() -> RobotDescription:
     def leg(side: str, y: float) -> LinkSpec:
-        return _chain(
-            [
-                dict(
-                    name=f"{side}_hip_yaw_link",
-                    joint=f"{side}_hip_yaw",
-                    axis=(0, 0, 1),
-                    pos=(0, y, -0.06),
-                    end=(0, 0, -0.06),
-                    radius=0.04,
-                    mass=1.0,
-                    range=(-0.7, 0.7),
-                ),
-                dict(
-                    name=f"{side}_hip_roll_link",
-                    joint=f"{side}_hip_roll",
-                    axis=(1, 0, 0),
-                    end=(0, 0, -0.06),
-                    radius=0.04,
-                    mass=1.0,
-                    range=(-0.5, 0.5),
-                ),
-                dict(
-                    name=f"{side}_thigh",
-                    joint=f"{side}_hip_pitch",
-                    axis=(0, 1, 0),
-                    end=(0, 0, -0.4),
-                    radius=0.055,
-                    mass=4.0,
-                    range=(-1.6, 1.0),
-                ),
-                dict(
-                    name=f"{side}_shank",
-                    joint=f"{side}_knee",
-                    axis=(0, 1, 0),
-                    end=(0, 0, -0.4),
-                    radius=0.045,
-                    mass=2.5,
-                    range=(0.0, 2.4),
-                ),
-                dict(
-                    name=f"{side}_ankle_link",
-                    joint=f"{side}_ankle_pitch",
-                    axis=(0, 1, 0),
-                    end=(0, 0, -0.04),
-                    radius=0.035,
-                    mass=0.4,
-                    range=(-0.8, 0.8),
-                ),
-                dict(
-                    name=f"{side}_foot",
-                    joint=f"{side}_ankle_roll",
-                    axis=(1, 0, 0),
-                    end=(0.15, 0, 0),
-                    radius=0.03,
-                    mass=0.6,
-                    range=(-0.4, 0.4),
-                ),
-            ]
-        )
+        return _chain(_limb(_HUMANOID_LEG, (0, y, -0.06), f"{side}_"))
 
     def arm(side: str, y: float) -> LinkSpec:
         sgn = 1.0 if y > 0 else -1.0
-        return _chain(
-            [
-                dict(
-                    name=f"{side}_shoulder_link",
-                    joint=f"{side}_shoulder_pitch",
-                    axis=(0, 1, 0),
-                    pos=(0, y, 0.26),
-                    end=(0, sgn * 0.06, 0),
-                    radius=0.04,
-                    mass=0.8,
-                    range=(-2.5, 2.5),
-                ),
-                dict(
-                    name=f"{side}_shoulder_roll_link",
-                    joint=f"{side}_shoulder_roll",
-                    axis=(1, 0, 0),
-                    end=(0, 0, -0.05),
-                    radius=0.04,
-                    mass=0.6,
-                    range=(-1.5, 1.5),
-                ),
-                dict(
-                    name=f"{side}_upper_arm",
-                    joint=f"{side}_shoulder_yaw",
-                    axis=(0, 0, 1),
-                    end=(0, 0, -0.28),
-                    radius=0.04,
-                    mass=1.5,
-                    range=(-1.5, 1.5),
-                ),
-                dict(
-                    name=f"{side}_forearm",
-                    joint=f"{side}_elbow",
-                    axis=(0, 1, 0),
-                    end=(0, 0, -0.25),
-                    radius=0.035,
-                    mass=1.0,
-                    range=(-2.4, 0.0),
-                ),
-                dict(
-                    name=f"{side}_hand",
-                    joint=f"{side}_wrist_yaw",
-                    axis=(0, 0, 1),
-                    end=(0, 0, -0.08),
-                    radius=0.03,
-                    mass=0.4,
-                    range=(-1.5, 1.5),
-                ),
-            ]
-        )
+        specs = _limb(_HUMANOID_ARM, (0, y, 0.26), f"{side}_")
+        specs[0]["end"] = (0, sgn * 0.06, 0)
+        return _chain(specs)
 
-    head = _chain(
-        [
-            dict(
-                name="neck",
-                joint="neck_yaw",
-                axis=(0, 0, 1),
-                pos=(0, 0, 0.32),
-                end=(0, 0, 0.06),
-                radius=0.03,
-                mass=0.4,
-                range=(-1.2, 1.2),
-            ),
-            dict(
-                name="head",
-                joint="neck_pitch",
-                axis=(0, 1, 0),
-                end=(0, 0, 0.14),
-                radius=0.08,
-                mass=3.0,
-                range=(-0.6, 0.6),
-            ),
-        ]
-    )
-    torso = _chain(
-        [
-            dict(
-                name="waist",
-                joint="waist_yaw",
-                axis=(0, 0, 1),
-                pos=(0, 0, 0.02),
-                end=(0, 0, 0.08),
-                radius=0.08,
-                mass=3.0,
-                range=(-1.0, 1.0),
-            ),
-            dict(
-                name="chest",
-                joint="waist_pitch",
-                axis=(0, 1, 0),
-                end=(0, 0, 0.32),
-                radius=0.12,
-                mass=10.0,
-                range=(-0.5, 0.8),
-                children=(head, arm("l", 0.2), arm("r", -0.2)),
-            ),
-        ]
-    )
+    head = _chain(_limb(_HUMANOID_HEAD, (0, 0, 0.32)))
+    torso_specs = _limb(_HUMANOID_TORSO, (0, 0, 0.02))
+    torso_specs[1]["children"] = (head, arm("l", 0.2), arm("r", -0.2))
+    torso = _chain(torso_specs)
     return RobotDescription(
         name="humanoid",
         links=(leg("l", 0.1), leg("r", -0.1), torso),
