@@ -32,7 +32,7 @@ Example
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -41,7 +41,7 @@ from bodyschema.completion import complete
 from bodyschema.conditions import check_p_minus
 from bodyschema.convert import tree_to_topology
 from bodyschema.depmatrix import DependencyMatrix
-from bodyschema.fast import FastOptions, fast_fit, fast_options, fit_path
+from bodyschema.fast import FastFit, FastOptions, fast_fit, fast_options, fit_path
 from bodyschema.outtree import OutTree
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
@@ -111,91 +111,136 @@ def fit_topology(
     ``heldout_check=True`` tests the networks' tree against its rivals on held-out data
     (:func:`bodyschema.network_confidence.heldout_check`) before any part is called decided.
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    if rec.q is None:
-        raise ValueError("topology estimation needs joint positions q (this recording has none)")
-    if rec.n_joints == 0 or rec.n_imus == 0:
-        raise ValueError("topology estimation needs at least one joint and one IMU")
+    _check_input(rec, method)
     # opt-in until it stops leaving parts undetermined that the networks placed right (docs/topology.md)
     heldout = bool(kw.pop("heldout_check", False))
     start = timer() if timer is not None else 0.0
-    timing: dict[str, float] = {}
-    training: dict[str, float] = {}
-    weights = None
-    timed = None
     fast_opts = _fast_options(kw) if method == "fast" else None
-    if fit_path(rec) == "timed":
-        # positions without velocities the robot measured, on one clock or two: the fast estimator's
-        # timed path finds the IMU's lag behind the encoders (and answers directly); the networks then
-        # train on the streams aligned by that lag
-        opts = fast_opts or FastOptions()
-        if imu_delay is not None:
-            opts = replace(opts, imu_delay=imu_delay)
-        timed = fast_fit(rec, opts)
-        timing = {
-            "lag_ms": float(timed.lag_ms or 0.0),
-            "skew_ms": float(timed.skew_ms or 0.0),
-            **({} if timed.drift_ppm is None else {"drift_ppm": float(timed.drift_ppm)}),
-            "band_hz": float(timed.band_hz or 0.0),
-            "at_s": float(timed.lag_time or 0.0),
-        }
-        if method != "fast":
-            from bodyschema.timing import aligned_recording, timed_view
-
-            rec = aligned_recording(
-                timed_view(rec), 1e-3 * timing["lag_ms"], 1e-6 * timing.get("drift_ppm", 0.0), timing["at_s"]
-            )
+    rec, timed, timing = _timed(rec, method, fast_opts, imu_delay)
     rec = rec.derived()
     assert rec.qd is not None and rec.q is not None
-    excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
     if method == "fast":
-        fit = timed if timed is not None else fast_fit(rec, fast_opts)
-        if timed is not None:
-            excitation = fit.excitation  # in the comparison band: what the tests could see
-        dep, evidence = fit.dependency, None
-        undetermined = [rec.joint_names[j] for j in fit.undetermined]
-        imu_conf = dict(zip(rec.imu_names, fit.imu_confidence.tolist(), strict=True))
-        joint_conf = dict(zip(rec.joint_names, fit.joint_confidence.tolist(), strict=True))
+        found = _fast_found(rec, timed, fast_opts)
     else:
-        from bodyschema.dependency import network_dependency
-
-        if method == "mlp":
-            kw.pop("warm_start", None)
-        res = network_dependency(rec, method=method, **kw)
-        dep, evidence, weights = res.dependency, res.evidence, res.weights
-        bound = kw.get("epochs") or kw.get("max_epochs", 200)
-        training = {"epochs": float(len(res.loss))}
-        training |= {
-            # the MLP baseline trains a fixed budget (the paper's); the sensor networks to a flat loss
-            "converged": float(method != "mlp" and kw.get("epochs") is None and len(res.loss) < bound),
-        }
-        if method != "mlp":
-            training["warm"] = float(res.warm)
-        if res.loss and np.isfinite(res.loss[-1]):  # JSON (and PostgreSQL's JSON) has no NaN
-            training["loss"] = float(res.loss[-1])
-        undetermined = [rec.joint_names[j] for j in res.undetermined]
-        imu_conf = dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True))
-        joint_conf = dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True))
+        found = _network_found(rec, method, kw)
     topo = topology_from_dependency(
-        dep,
+        found.dependency,
         rec.imu_names,
         rec.joint_names,
-        undetermined=undetermined,
-        imu_confidence=imu_conf,
-        joint_confidence=joint_conf,
+        undetermined=found.undetermined,
+        imu_confidence=found.imu_confidence,
+        joint_confidence=found.joint_confidence,
         method=method,
-        excitation=dict(zip(rec.joint_names, excitation.tolist(), strict=True)),
-        evidence=evidence,
+        excitation=dict(zip(rec.joint_names, found.excitation.tolist(), strict=True)),
+        evidence=found.evidence,
     )
     if heldout and method != "fast":  # the networks' ranking is sure only where held-out rivals fail
         from bodyschema.network_confidence import heldout_check
 
         topo = heldout_check(rec, topo)
     topo = _with(
-        topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=training
+        topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=found.training
     )
-    return TopologyFit(topo, weights)
+    return TopologyFit(topo, found.weights)
+
+
+def _check_input(rec: Recording, method: str) -> None:
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if rec.q is None:
+        raise ValueError("topology estimation needs joint positions q (this recording has none)")
+    if rec.n_joints == 0 or rec.n_imus == 0:
+        raise ValueError("topology estimation needs at least one joint and one IMU")
+
+
+def _timed(
+    rec: Recording, method: str, fast_opts: FastOptions | None, imu_delay: float | None
+) -> tuple[Recording, FastFit | None, dict[str, float]]:
+    """The recording the method reads, the fast estimator's timed fit (None off the timed path) and its
+    timing figures.
+
+    Positions without velocities the robot measured, on one clock or two: the fast estimator's timed
+    path finds the IMU's lag behind the encoders (and answers directly); the networks then train on the
+    streams aligned by that lag.
+    """
+    if fit_path(rec) != "timed":
+        return rec, None, {}
+    opts = fast_opts or FastOptions()
+    if imu_delay is not None:
+        opts = replace(opts, imu_delay=imu_delay)
+    timed = fast_fit(rec, opts)
+    timing = {
+        "lag_ms": float(timed.lag_ms or 0.0),
+        "skew_ms": float(timed.skew_ms or 0.0),
+        **({} if timed.drift_ppm is None else {"drift_ppm": float(timed.drift_ppm)}),
+        "band_hz": float(timed.band_hz or 0.0),
+        "at_s": float(timed.lag_time or 0.0),
+    }
+    if method != "fast":
+        from bodyschema.timing import aligned_recording, timed_view
+
+        rec = aligned_recording(
+            timed_view(rec), 1e-3 * timing["lag_ms"], 1e-6 * timing.get("drift_ppm", 0.0), timing["at_s"]
+        )
+    return rec, timed, timing
+
+
+@dataclass(frozen=True)
+class _Found:
+    """What one method found in a recording, before it becomes a topology."""
+
+    dependency: np.ndarray
+    evidence: np.ndarray | None
+    undetermined: list[str]
+    imu_confidence: dict[str, float]
+    joint_confidence: dict[str, float]
+    excitation: np.ndarray
+    training: dict[str, float] = field(default_factory=dict)
+    weights: NetworkWeights | None = None
+
+
+def _fast_found(rec: Recording, timed: FastFit | None, fast_opts: FastOptions | None) -> _Found:
+    fit = timed if timed is not None else fast_fit(rec, fast_opts)
+    excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
+    if timed is not None:
+        excitation = fit.excitation  # in the comparison band: what the tests could see
+    return _Found(
+        dependency=fit.dependency,
+        evidence=None,
+        undetermined=[rec.joint_names[j] for j in fit.undetermined],
+        imu_confidence=dict(zip(rec.imu_names, fit.imu_confidence.tolist(), strict=True)),
+        joint_confidence=dict(zip(rec.joint_names, fit.joint_confidence.tolist(), strict=True)),
+        excitation=excitation,
+    )
+
+
+def _network_found(rec: Recording, method: str, kw: dict[str, Any]) -> _Found:
+    from bodyschema.dependency import network_dependency
+
+    excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
+    if method == "mlp":
+        kw.pop("warm_start", None)
+    res = network_dependency(rec, method=method, **kw)
+    bound = kw.get("epochs") or kw.get("max_epochs", 200)
+    training = {"epochs": float(len(res.loss))}
+    training |= {
+        # the MLP baseline trains a fixed budget (the paper's); the sensor networks to a flat loss
+        "converged": float(method != "mlp" and kw.get("epochs") is None and len(res.loss) < bound),
+    }
+    if method != "mlp":
+        training["warm"] = float(res.warm)
+    if res.loss and np.isfinite(res.loss[-1]):  # JSON (and PostgreSQL's JSON) has no NaN
+        training["loss"] = float(res.loss[-1])
+    return _Found(
+        dependency=res.dependency,
+        evidence=res.evidence,
+        undetermined=[rec.joint_names[j] for j in res.undetermined],
+        imu_confidence=dict(zip(rec.imu_names, res.imu_confidence.tolist(), strict=True)),
+        joint_confidence=dict(zip(rec.joint_names, res.joint_confidence.tolist(), strict=True)),
+        excitation=excitation,
+        training=training,
+        weights=res.weights,
+    )
 
 
 def _with(topo: Topology, **changes: Any) -> Topology:
@@ -236,12 +281,7 @@ def topology_from_dependency(
     dependency = np.asarray(dependency, dtype=bool)
     imu_names = list(imu_names)
     joint_names = list(joint_names)
-    if dependency.shape != (len(imu_names), len(joint_names)):
-        expected = (len(imu_names), len(joint_names))
-        raise ValueError(f"dependency has shape {dependency.shape}, expected {expected}")
-    evidence = np.ones(dependency.shape) if evidence is None else np.asarray(evidence, dtype=float)
-    if evidence.shape != dependency.shape or not np.all(evidence >= 0):
-        raise ValueError(f"evidence must be non-negative with shape {dependency.shape}")
+    evidence = _checked_evidence(dependency, evidence, imu_names, joint_names)
     undetermined = [j for j in joint_names if j in set(undetermined)]
     keep = [k for k, j in enumerate(joint_names) if j not in set(undetermined)]
     cols = [joint_names[k] for k in keep]
@@ -256,21 +296,8 @@ def topology_from_dependency(
         imu_nodes = {i: None for i in imu_names}
     else:
         D = DependencyMatrix(dependency[:, keep], imu_names, cols)
-        merged = D.merge_rows()
-        imu_nodes = merged.imu_nodes()
-        M = merged.matrix
-        corrected = 0
-        if not check_p_minus(M).ok:
-            weight = dict(zip(imu_names, evidence[:, keep], strict=True))
-            M, imu_nodes, corrected = _correct(M, merged.groups, imu_nodes, weight)
-        comp = complete(M)
-        unique = comp.unique
-        trees = [comp.tree()]
-        if not unique:
-            alts = [t for t in comp.trees(limit=max_candidates) if t.joint_parent != trees[0].joint_parent]
-            trees += alts[: max_candidates - 1]
-        if corrected:
-            scale = max(0.0, 1.0 - corrected / max(M.values.size, 1) * 10)
+        trees, unique, imu_nodes, scale = _trees(D, evidence[:, keep], max_candidates)
+        if scale is not None:
             joint_conf = {j: c * scale for j, c in joint_conf.items()}
             imu_conf = {k: c * scale for k, c in imu_conf.items()}
 
@@ -281,19 +308,7 @@ def topology_from_dependency(
 
     best = full(trees[0])
     candidates = tuple(full(t) for t in trees[1:]) if not unique else ()
-    conf: dict[str, float] = dict(imu_conf)
-    for j in joint_names:
-        c = float(joint_conf.get(j, 1.0))
-        if j in undetermined:
-            c = 0.0
-        elif candidates:
-            agree = sum(1 for t in (best, *candidates) if t.joint_parent[j] == best.joint_parent[j])
-            c *= agree / (1 + len(candidates))
-        conf[f"joint:{j}"] = c
-    if candidates:
-        for i in imu_names:
-            agree = sum(1 for t in (best, *candidates) if t.imu_joint[i] == best.imu_joint[i])
-            conf[f"imu:{i}"] = conf.get(f"imu:{i}", 1.0) * agree / (1 + len(candidates))
+    conf = _confidence(best, candidates, undetermined, imu_conf, joint_conf)
     return Topology(
         joint_parent=best.joint_parent,
         imu_joint=best.imu_joint,
@@ -304,6 +319,66 @@ def topology_from_dependency(
         candidates=candidates,
         excitation=dict(excitation or {}),
     )
+
+
+def _checked_evidence(
+    dependency: np.ndarray, evidence: np.ndarray | None, imu_names: list[str], joint_names: list[str]
+) -> np.ndarray:
+    """``evidence`` as floats (ones when None), after checking both matrices' shapes against the names."""
+    if dependency.shape != (len(imu_names), len(joint_names)):
+        expected = (len(imu_names), len(joint_names))
+        raise ValueError(f"dependency has shape {dependency.shape}, expected {expected}")
+    evidence = np.ones(dependency.shape) if evidence is None else np.asarray(evidence, dtype=float)
+    if evidence.shape != dependency.shape or not np.all(evidence >= 0):
+        raise ValueError(f"evidence must be non-negative with shape {dependency.shape}")
+    return evidence
+
+
+def _trees(
+    D: DependencyMatrix, evidence: np.ndarray, max_candidates: int
+) -> tuple[list[OutTree], bool, dict[str, str | None], float | None]:
+    """The trees that explain ``D`` (the chosen one first), whether it is the only one, each IMU's node,
+    and the confidence scale a correction costs (None when ``D`` needed none)."""
+    merged = D.merge_rows()
+    imu_nodes = merged.imu_nodes()
+    M = merged.matrix
+    corrected = 0
+    if not check_p_minus(M).ok:
+        weight = dict(zip(D.rows, evidence, strict=True))
+        M, imu_nodes, corrected = _correct(M, merged.groups, imu_nodes, weight)
+    comp = complete(M)
+    unique = comp.unique
+    trees = [comp.tree()]
+    if not unique:
+        alts = [t for t in comp.trees(limit=max_candidates) if t.joint_parent != trees[0].joint_parent]
+        trees += alts[: max_candidates - 1]
+    scale = max(0.0, 1.0 - corrected / max(M.values.size, 1) * 10) if corrected else None
+    return trees, unique, imu_nodes, scale
+
+
+def _confidence(
+    best: Topology,
+    candidates: tuple[Topology, ...],
+    undetermined: list[str],
+    imu_conf: dict[str, float],
+    joint_conf: dict[str, float],
+) -> dict[str, float]:
+    """Each part's confidence: undetermined joints 0, the rest scaled by the share of candidates that
+    agree with the chosen tree on it."""
+    conf: dict[str, float] = dict(imu_conf)
+    for j in best.joint_parent:
+        c = float(joint_conf.get(j, 1.0))
+        if j in undetermined:
+            c = 0.0
+        elif candidates:
+            agree = sum(1 for t in (best, *candidates) if t.joint_parent[j] == best.joint_parent[j])
+            c *= agree / (1 + len(candidates))
+        conf[f"joint:{j}"] = c
+    if candidates:
+        for i in best.imu_joint:
+            agree = sum(1 for t in (best, *candidates) if t.imu_joint[i] == best.imu_joint[i])
+            conf[f"imu:{i}"] = conf.get(f"imu:{i}", 1.0) * agree / (1 + len(candidates))
+    return conf
 
 
 def _correct(
