@@ -298,61 +298,88 @@ def network_jacobian(
     S = min(samples, rec.n_samples)
     pick = np.sort(rng.choice(rec.n_samples, size=S, replace=False))
     theta = torch.as_tensor(rec.q[pick], dtype=torch.float32)
-    weights, warm = None, False
+    run = _Training(hidden=hidden, epochs=epochs, seed=seed, progress=progress, train_kw=train_kw)
     if kind == "mlp":
-        from bodyschema.mlp_baseline import mlp_jacobian, train_mlp
+        return _mlp_jacobian(rec, pick, theta, run)
+    if kind == "network":
+        watching = None if watch is None else (watch, watch_stride)
+        return _sensor_network_jacobian(rec, theta, run, gravity, warm_start, watching)
+    raise ValueError(f"unknown network kind {kind!r}")
 
-        mlp, loss = train_mlp(
-            rec.q,
-            rec.qd,
-            rec.qdd,
-            rec.gyro,
-            rec.acc,
-            hidden=hidden,
-            epochs=60 if epochs is None else epochs,  # the paper's baseline keeps a fixed budget
-            seed=seed,
-            progress=progress,
-            **train_kw,
-        )
-        jbar = mlp_jacobian(
-            mlp,
-            theta,
-            torch.as_tensor(rec.qd[pick], dtype=torch.float32),
-            torch.as_tensor(rec.qdd[pick], dtype=torch.float32),
-        )
-    elif kind == "network":
-        from bodyschema.networks import train_sensor_networks
 
-        use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
-        on_epoch = None
-        if watch is not None:
-            # fewer than 500 configurations read too noisily to settle: short windows read them all
-            stride = watch_stride if S // watch_stride >= 500 else 1
-            theta_w = theta[::stride].contiguous()
+@dataclass(frozen=True)
+class _Training:
+    """The training settings :func:`network_jacobian` hands to either kind of network."""
 
-            def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
-                return watch(invariant_jacobian(net, theta_w).numpy().astype(np.float64), epoch)
+    hidden: tuple[int, ...]
+    epochs: int | None
+    seed: int
+    progress: bool
+    train_kw: dict[str, Any]
 
-        net, loss = train_sensor_networks(
-            rec.q,
-            rec.qd,
-            rec.qdd,
-            rec.gyro,
-            rec.acc,
-            rec.gravity if use_g else None,
-            hidden=hidden,
-            epochs=epochs,
-            seed=seed,
-            progress=progress,
-            warm_start=warm_start,
-            on_epoch=on_epoch,
-            **train_kw,
-        )
-        jbar = invariant_jacobian(net, theta)
-        weights, warm = NetworkWeights.from_model(net), net.warm
-    else:
-        raise ValueError(f"unknown network kind {kind!r}")
-    return JacobianFit(jbar.numpy().astype(np.float64), loss, weights, warm)
+
+def _mlp_jacobian(rec: Recording, pick: np.ndarray, theta: torch.Tensor, run: _Training) -> JacobianFit:
+    from bodyschema.mlp_baseline import mlp_jacobian, train_mlp
+
+    mlp, loss = train_mlp(
+        rec.q,
+        rec.qd,
+        rec.qdd,
+        rec.gyro,
+        rec.acc,
+        hidden=run.hidden,
+        epochs=60 if run.epochs is None else run.epochs,  # the paper's baseline keeps a fixed budget
+        seed=run.seed,
+        progress=run.progress,
+        **run.train_kw,
+    )
+    jbar = mlp_jacobian(
+        mlp,
+        theta,
+        torch.as_tensor(rec.qd[pick], dtype=torch.float32),
+        torch.as_tensor(rec.qdd[pick], dtype=torch.float32),
+    )
+    return JacobianFit(jbar.numpy().astype(np.float64), loss, None, False)
+
+
+def _sensor_network_jacobian(
+    rec: Recording,
+    theta: torch.Tensor,
+    run: _Training,
+    gravity: bool | None,
+    warm_start: NetworkWeights | None,
+    watching: tuple[Callable[[np.ndarray, int], bool], int] | None,
+) -> JacobianFit:
+    from bodyschema.networks import train_sensor_networks
+
+    use_g = bool(np.linalg.norm(rec.gravity) > 0) if gravity is None else gravity
+    on_epoch = None
+    if watching is not None:
+        watch, watch_stride = watching
+        # fewer than 500 configurations read too noisily to settle: short windows read them all
+        stride = watch_stride if len(theta) // watch_stride >= 500 else 1
+        theta_w = theta[::stride].contiguous()
+
+        def on_epoch(net: Any, epoch: int, _loss: float) -> bool:
+            return watch(invariant_jacobian(net, theta_w).numpy().astype(np.float64), epoch)
+
+    net, loss = train_sensor_networks(
+        rec.q,
+        rec.qd,
+        rec.qdd,
+        rec.gyro,
+        rec.acc,
+        rec.gravity if use_g else None,
+        hidden=run.hidden,
+        epochs=run.epochs,
+        seed=run.seed,
+        progress=run.progress,
+        warm_start=warm_start,
+        on_epoch=on_epoch,
+        **run.train_kw,
+    )
+    jbar = invariant_jacobian(net, theta)
+    return JacobianFit(jbar.numpy().astype(np.float64), loss, NetworkWeights.from_model(net), net.warm)
 
 
 def cluster_vote(
