@@ -37,6 +37,7 @@ import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -312,16 +313,9 @@ def train_sensor_networks(
     torch.manual_seed(int(seed))
     T, N = q.shape
     K = gyro.shape[1]
-    f32 = torch.float32
-    th = torch.as_tensor(q, dtype=f32)
-    thd = torch.as_tensor(qd, dtype=f32)
-    thdd = torch.as_tensor(qdd, dtype=f32)
-    w_meas = torch.as_tensor(gyro, dtype=f32).transpose(0, 1)  # (K, T, 3)
-    a_meas = torch.as_tensor(acc, dtype=f32).transpose(0, 1)
-    g = None if gravity is None else torch.as_tensor(gravity, dtype=f32)
-    w_scale, a_scale = robot_scale(w_meas, 1e-3), robot_scale(a_meas, 1e-2)
+    data = _Data.of(q, qd, qdd, gyro, acc, gravity)
     net = SensorNetworks(K, N, hidden=hidden, seed=seed)
-    warm = warm_start is not None and epochs is None and warm_start.fits(K, N, hidden)
+    warm = _start(net, data, warm_start if epochs is None else None, hidden)
     if warm_start is not None and not warm:
         log.info(
             "sensor networks: cold start, the stored weights do not fit (%s IMUs x %s joints, %s; "
@@ -335,15 +329,6 @@ def train_sensor_networks(
             ", fixed epochs" if epochs is not None else "",
         )
     per_epoch = max(1, math.ceil(T / batch_size))
-    if warm:
-        assert warm_start is not None
-        warm_start.load_into(net)
-    else:
-        net.set_input_scaling(th.mean(0), th.std(0))
-        with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
-            net.gyro_bias.copy_(w_meas.mean(dim=1, keepdim=True))
-            if g is not None:
-                net.gravity_dir.copy_(mean_pose_gravity(a_meas))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     if warm:
         schedule = warm_plateau(opt, lr, per_epoch, plateau_tol)
@@ -354,19 +339,9 @@ def train_sensor_networks(
         # what the stored weights read from this window before any step (epoch -1): a watcher that
         # waits for the same answer several epochs in a row can count it (StableDependency)
         on_epoch(net, -1, math.nan)
-
-    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
-        w_hat, a_hat = net.predict(th[idx], thd[idx], thdd[idx], g)
-        lw = (((w_hat - w_meas[:, idx]) / w_scale) ** 2).mean()
-        la = (((a_hat - a_meas[:, idx]) / a_scale) ** 2).mean()
-        loss = la + gyro_weight * lw
-        if input_sparsity > 0:  # group lasso: one group per (IMU, joint) input of the first layer
-            loss = loss + input_sparsity * torch.linalg.vector_norm(net.weights[0], dim=-1).sum() / K
-        return loss
-
     history = train_epochs(
         opt,
-        batch_loss,
+        _batch_loss(net, data, gyro_weight, input_sparsity),
         T,
         epochs=int(epochs) if epochs is not None else int(max_epochs),
         batch_size=batch_size,
@@ -378,3 +353,77 @@ def train_sensor_networks(
         logger=log,
     )
     return net, history
+
+
+@dataclass(frozen=True)
+class _Data:
+    """A recording's arrays as the training reads them: float32 tensors, the IMUs' first."""
+
+    th: torch.Tensor
+    thd: torch.Tensor
+    thdd: torch.Tensor
+    w_meas: torch.Tensor  # (K, T, 3)
+    a_meas: torch.Tensor  # (K, T, 3)
+    g: torch.Tensor | None
+    w_scale: torch.Tensor
+    a_scale: torch.Tensor
+
+    @classmethod
+    def of(
+        cls,
+        q: np.ndarray,
+        qd: np.ndarray,
+        qdd: np.ndarray,
+        gyro: np.ndarray,
+        acc: np.ndarray,
+        gravity: np.ndarray | None,
+    ) -> _Data:
+        f32 = torch.float32
+        w_meas = torch.as_tensor(gyro, dtype=f32).transpose(0, 1)
+        a_meas = torch.as_tensor(acc, dtype=f32).transpose(0, 1)
+        return cls(
+            th=torch.as_tensor(q, dtype=f32),
+            thd=torch.as_tensor(qd, dtype=f32),
+            thdd=torch.as_tensor(qdd, dtype=f32),
+            w_meas=w_meas,
+            a_meas=a_meas,
+            g=None if gravity is None else torch.as_tensor(gravity, dtype=f32),
+            w_scale=robot_scale(w_meas, 1e-3),
+            a_scale=robot_scale(a_meas, 1e-2),
+        )
+
+
+def _start(
+    net: SensorNetworks, data: _Data, warm_start: NetworkWeights | None, hidden: Sequence[int]
+) -> bool:
+    """Load ``warm_start`` into ``net`` when it fits (True), else start it from the data's means."""
+    K, N = net.n_imus, net.n_joints
+    warm = warm_start is not None and warm_start.fits(K, N, hidden)
+    if warm:
+        assert warm_start is not None
+        warm_start.load_into(net)
+        return True
+    net.set_input_scaling(data.th.mean(0), data.th.std(0))
+    with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
+        net.gyro_bias.copy_(data.w_meas.mean(dim=1, keepdim=True))
+        if data.g is not None:
+            net.gravity_dir.copy_(mean_pose_gravity(data.a_meas))
+    return False
+
+
+def _batch_loss(
+    net: SensorNetworks, data: _Data, gyro_weight: float, input_sparsity: float
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The loss of one batch of samples: both sensors' scaled squared errors, plus the group lasso."""
+    K = data.w_meas.shape[0]
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        w_hat, a_hat = net.predict(data.th[idx], data.thd[idx], data.thdd[idx], data.g)
+        lw = (((w_hat - data.w_meas[:, idx]) / data.w_scale) ** 2).mean()
+        la = (((a_hat - data.a_meas[:, idx]) / data.a_scale) ** 2).mean()
+        loss = la + gyro_weight * lw
+        if input_sparsity > 0:  # group lasso: one group per (IMU, joint) input of the first layer
+            loss = loss + input_sparsity * torch.linalg.vector_norm(net.weights[0], dim=-1).sum() / K
+        return loss
+
+    return batch_loss
