@@ -628,57 +628,86 @@ def signal_health(
         return SignalHealth(imus, joints)
     assert d.qd is not None and d.q is not None
     healthy = {n for n, h in imus.items() if not h.dead and n in present}
+    ctx = _Judging(d, present, healthy, layout, current, fingerprints or {}, still_since, th)
     for j_idx, j in enumerate(rec.joint_names):
-        qd = d.qd[:, j_idx]
-        excitation = float(np.sqrt(np.mean(qd**2)))
-        motion: float | None = None
-        explained: float | None = None
-        if layout is not None and j in layout.joint_parent:
-            child = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in healthy)
-            parent_joint = layout.joint_parent[j]
-            parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in healthy)
-            if current is not None:
-                trusted = [i for i in parent if current.imu_joint.get(i, "?") == parent_joint]
-                parent = trusted or parent
-            if child and (parent or parent_joint is None):
-                # Several references and subjects (a few each, to bound the cost): one moved or loose
-                # IMU on either link must not decide the joint. Per subject the reference that leaves
-                # the least unexplained motion (full model residual) wins: a swinging reference fits
-                # nothing, a rigid one fits a locked joint and a turning one alike.
-                refs = [rec.gyro[:, present[p], :] for p in parent[: th.max_pairs]] or [None]
-                fits = [
-                    min(
-                        (relative_motion(rec.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for pg in refs),
-                        key=lambda f: f[0] * np.sqrt(max(0.0, 1.0 - f[1])),
-                    )
-                    for c in child[: th.max_pairs]
-                ]
-                states = [_joint_state(excitation, m, e, th) for m, e in fits]
-                # One IMU that agrees with the encoder clears the joint: a single moved or detached
-                # IMU on the link must not read as an encoder fault.
-                pick = (
-                    states.index("ok")
-                    if "ok" in states
-                    else max(range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
-                )
-                motion, explained = fits[pick]
-                state = states[pick]
-                if state not in ("frozen_encoder", "still"):
-                    late = _still_lately(rec, d, j_idx, still_since[j_idx], child, refs, present, th)
-                    if late is not None:
-                        state, excitation, motion, explained = late
-                fp = (fingerprints or {}).get(j)
-                if (
-                    state == "ok"
-                    and fp is not None
-                    and _shifted(fp, rec, d, j_idx, present, healthy, layout, current, th)
-                ):
-                    state = "shifted_encoder"
-                joints[j] = JointHealth(j, state, excitation, motion, explained)
-                continue
-        joints[j] = JointHealth(j, _joint_state(excitation, motion, explained, th), excitation)
+        joints[j] = _joint_health(ctx, j_idx, j)
     loose = _loose(d, present, imu_fingerprints or {}, healthy, current, th)
     return SignalHealth(imus, joints, loose)
+
+
+@dataclass(frozen=True)
+class _Judging:
+    """What :func:`signal_health` judges every joint against: the window on one clock, the IMUs in it
+    and which of them are healthy, the layout and the current estimate, and the baseline's fingerprints."""
+
+    d: Recording
+    present: dict[str, int]
+    healthy: set[str]
+    layout: Topology | None
+    current: Topology | None
+    fingerprints: dict[str, JointFingerprint]
+    still_since: np.ndarray
+    th: HealthThresholds
+
+
+def _joint_health(ctx: _Judging, j_idx: int, j: str) -> JointHealth:
+    """Joint ``j``'s health: from its encoder alone, or against the IMUs on its link and its parent's."""
+    d, th, layout = ctx.d, ctx.th, ctx.layout
+    assert d.qd is not None
+    excitation = float(np.sqrt(np.mean(d.qd[:, j_idx] ** 2)))
+    if layout is not None and j in layout.joint_parent:
+        child = sorted(i for i, jj in layout.imu_joint.items() if jj == j and i in ctx.healthy)
+        parent_joint = layout.joint_parent[j]
+        parent = sorted(i for i, jj in layout.imu_joint.items() if jj == parent_joint and i in ctx.healthy)
+        if ctx.current is not None:
+            trusted = [i for i in parent if ctx.current.imu_joint.get(i, "?") == parent_joint]
+            parent = trusted or parent
+        if child and (parent or parent_joint is None):
+            return _joint_against_imus(ctx, j_idx, j, child, parent, excitation)
+    return JointHealth(j, _joint_state(excitation, None, None, th), excitation)
+
+
+def _joint_against_imus(
+    ctx: _Judging, j_idx: int, j: str, child: list[str], parent: list[str], excitation: float
+) -> JointHealth:
+    """Joint ``j`` judged by how its child link's IMUs move against its parent link's."""
+    d, th, present = ctx.d, ctx.th, ctx.present
+    assert d.qd is not None and d.q is not None
+    qd = d.qd[:, j_idx]
+    # Several references and subjects (a few each, to bound the cost): one moved or loose
+    # IMU on either link must not decide the joint. Per subject the reference that leaves
+    # the least unexplained motion (full model residual) wins: a swinging reference fits
+    # nothing, a rigid one fits a locked joint and a turning one alike.
+    refs = [d.gyro[:, present[p], :] for p in parent[: th.max_pairs]] or [None]
+    fits = [
+        min(
+            (relative_motion(d.gyro[:, present[c], :], pg, d.q[:, j_idx], qd) for pg in refs),
+            key=lambda f: f[0] * np.sqrt(max(0.0, 1.0 - f[1])),
+        )
+        for c in child[: th.max_pairs]
+    ]
+    states = [_joint_state(excitation, m, e, th) for m, e in fits]
+    # One IMU that agrees with the encoder clears the joint: a single moved or detached
+    # IMU on the link must not read as an encoder fault.
+    pick = (
+        states.index("ok")
+        if "ok" in states
+        else max(range(len(states)), key=lambda k: (states.count(states[k]), fits[k][0]))
+    )
+    motion, explained = fits[pick]
+    state = states[pick]
+    if state not in ("frozen_encoder", "still"):
+        late = _still_lately(d, d, j_idx, ctx.still_since[j_idx], child, refs, present, th)
+        if late is not None:
+            state, excitation, motion, explained = late
+    fp = ctx.fingerprints.get(j)
+    if (
+        state == "ok"
+        and fp is not None
+        and _shifted(fp, d, d, j_idx, present, ctx.healthy, ctx.layout, ctx.current, th)
+    ):
+        state = "shifted_encoder"
+    return JointHealth(j, state, excitation, motion, explained)
 
 
 def _still_since(rec: Recording, th: HealthThresholds) -> np.ndarray:
