@@ -66,6 +66,54 @@ def load_dbc(path: str | None) -> Database:
     return db
 
 
+class _Router:
+    """The routes a :class:`SignalMap` collects while it resolves its section against the DBC."""
+
+    def __init__(self, db: Database, counter_signal: str, factor: dict[int, float]) -> None:
+        self.db, self.counter_signal, self.factor = db, counter_signal, factor
+        self.routes: dict[int, list] = {}
+        self.joints_of: dict[int, set[int]] = {}
+        self.imus_of: dict[int, set[int]] = {}
+        self.messages: dict[int, Message] = {}
+
+    def resolve(self, ref: str) -> Message:
+        """The message of ``ref`` ("Message.signal"), checked to carry the signal and the counter."""
+        mname, _, sname = str(ref).partition(".")
+        try:
+            msg = self.db.get_message_by_name(mname)
+        except KeyError:
+            raise DeviceConfigError(f"CAN mapping: no message {mname!r} in the DBC") from None
+        names = {s.name for s in msg.signals}
+        if sname not in names:
+            raise DeviceConfigError(f"CAN mapping: message {mname!r} has no signal {sname!r}")
+        if self.counter_signal not in names:
+            raise DeviceConfigError(
+                f"CAN mapping: message {mname!r} lacks the counter signal {self.counter_signal!r}"
+            )
+        return msg
+
+    def add(self, ref: str, kind: int, index: int, axis: int) -> int:
+        """Route signal ``ref`` to ``kind``'s array at ``index``, ``axis``; returns its frame id."""
+        msg = self.resolve(ref)
+        self.routes.setdefault(msg.frame_id, []).append(
+            (ref.partition(".")[2], kind, index, axis, self.factor[kind])
+        )
+        self.messages[msg.frame_id] = msg
+        return msg.frame_id
+
+    def add_imu(self, name: str, k: int, spec: object) -> frozenset[int]:
+        """Route IMU ``name``'s six signals (``spec``: 'acc' and 'gyro' lists); returns its frame ids."""
+        if not (isinstance(spec, dict) and all(len(spec.get(key, ())) == 3 for key in ("acc", "gyro"))):
+            raise DeviceConfigError(f"CAN mapping: IMU {name!r} needs 'acc' and 'gyro' lists of 3 signals")
+        fids = set()
+        for kind, key in ((ACC, "acc"), (GYRO, "gyro")):
+            for axis, ref in enumerate(spec[key]):
+                fid = self.add(ref, kind, k, axis)
+                fids.add(fid)
+                self.imus_of.setdefault(fid, set()).add(k)
+        return frozenset(fids)
+
+
 class SignalMap:
     """Resolved routing from frame ids to the joint/IMU arrays, checked against the DBC.
 
@@ -93,79 +141,45 @@ class SignalMap:
         unknown = [n for n in jmap if n not in config.joints] + [n for n in imap if n not in config.imus]
         if missing or unknown:
             raise DeviceConfigError(f"CAN mapping: names without a signal {missing}, unknown names {unknown}")
-        routes: dict[int, list] = {}
-        joints_of: dict[int, set[int]] = {}
-        imus_of: dict[int, set[int]] = {}
-        self.imu_frames: list[frozenset[int]] = []
-
-        def resolve(ref: str) -> Message:
-            mname, _, sname = str(ref).partition(".")
-            try:
-                msg = db.get_message_by_name(mname)
-            except KeyError:
-                raise DeviceConfigError(f"CAN mapping: no message {mname!r} in the DBC") from None
-            names = {s.name for s in msg.signals}
-            if sname not in names:
-                raise DeviceConfigError(f"CAN mapping: message {mname!r} has no signal {sname!r}")
-            if self.counter_signal not in names:
-                raise DeviceConfigError(
-                    f"CAN mapping: message {mname!r} lacks the counter signal {self.counter_signal!r}"
-                )
-            return msg
-
-        def add(ref: str, kind: int, index: int, axis: int) -> int:
-            msg = resolve(ref)
-            routes.setdefault(msg.frame_id, []).append(
-                (ref.partition(".")[2], kind, index, axis, factor[kind])
-            )
-            self._messages[msg.frame_id] = msg
-            return msg.frame_id
-
-        self._messages: dict[int, Message] = {}
+        router = _Router(db, self.counter_signal, factor)
         for j, name in enumerate(config.joints):
-            fid = add(jmap[name], Q, j, 0)
-            joints_of.setdefault(fid, set()).add(j)
-        for k, name in enumerate(config.imus):
-            spec = imap[name]
-            if not (isinstance(spec, dict) and all(len(spec.get(k, ())) == 3 for k in ("acc", "gyro"))):
-                raise DeviceConfigError(
-                    f"CAN mapping: IMU {name!r} needs 'acc' and 'gyro' lists of 3 signals"
-                )
-            fids = set()
-            for kind, key in ((ACC, "acc"), (GYRO, "gyro")):
-                for axis, ref in enumerate(spec[key]):
-                    fid = add(ref, kind, k, axis)
-                    fids.add(fid)
-                    imus_of.setdefault(fid, set()).add(k)
-            self.imu_frames.append(frozenset(fids))
+            fid = router.add(jmap[name], Q, j, 0)
+            router.joints_of.setdefault(fid, set()).add(j)
+        self.imu_frames: list[frozenset[int]] = [
+            router.add_imu(name, k, imap[name]) for k, name in enumerate(config.imus)
+        ]
         self.stamp_frames: frozenset[int] = frozenset()
         #: bit width, scale and offset of the stamp signal (raw ticks = (value - offset) / scale)
         self.stamp_bits, self.stamp_scale, self.stamp_offset = 0, 1.0, 0.0
         if "stamp" in section:
-            ref = str(section["stamp"])
-            msg = resolve(ref)
-            sig = msg.get_signal_by_name(ref.partition(".")[2])
-            if sig.is_float or sig.length < 8:
-                raise DeviceConfigError(f"CAN mapping: stamp {ref!r} must be an integer signal of 8+ bits")
-            self.stamp_bits, self.stamp_scale, self.stamp_offset = (
-                int(sig.length),
-                float(sig.scale),
-                float(sig.offset),
-            )
-            routes.setdefault(msg.frame_id, []).append((sig.name, STAMP, 0, 0, 1.0))
-            self._messages[msg.frame_id] = msg
-            self.stamp_frames = frozenset({msg.frame_id})
+            self._route_stamp(router, str(section["stamp"]))
+        self._messages: dict[int, Message] = router.messages
         self.by_id: dict[int, FrameRoute] = {
             fid: FrameRoute(
-                self._messages[fid],
+                router.messages[fid],
                 tuple(t),
-                tuple(sorted(joints_of.get(fid, ()))),
-                tuple(sorted(imus_of.get(fid, ()))),
+                tuple(sorted(router.joints_of.get(fid, ()))),
+                tuple(sorted(router.imus_of.get(fid, ()))),
             )
-            for fid, t in routes.items()
+            for fid, t in router.routes.items()
         }
-        self.joint_frames = frozenset(joints_of)
+        self.joint_frames = frozenset(router.joints_of)
         self.n_frames = len(self.by_id)
+
+    def _route_stamp(self, router: _Router, ref: str) -> None:
+        """Route the stream's ``stamp`` signal ``ref`` ("Message.signal") and keep its width and scale."""
+        msg = router.resolve(ref)
+        sig = msg.get_signal_by_name(ref.partition(".")[2])
+        if sig.is_float or sig.length < 8:
+            raise DeviceConfigError(f"CAN mapping: stamp {ref!r} must be an integer signal of 8+ bits")
+        self.stamp_bits, self.stamp_scale, self.stamp_offset = (
+            int(sig.length),
+            float(sig.scale),
+            float(sig.offset),
+        )
+        router.routes.setdefault(msg.frame_id, []).append((sig.name, STAMP, 0, 0, 1.0))
+        router.messages[msg.frame_id] = msg
+        self.stamp_frames = frozenset({msg.frame_id})
 
     @classmethod
     def for_config(cls, config: DeviceConfig, db: Database | None = None) -> SignalMap:
