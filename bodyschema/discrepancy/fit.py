@@ -314,57 +314,7 @@ def fit_params(
     # bias, 4-6 standard errors off; beside a 25 ms delay it held a 3 deg/s gyro bias to 80 % of
     # itself. Nothing real sits as low as 1e-12: the finite-difference columns alone are that coarse.
     ridge = 1e-6 * np.sqrt(6 * index.size)
-    model = _Rows(prob, fixed, free, index)
-    n6 = 6 * index.size
-    cache: dict[bytes, np.ndarray] = {}
-
-    def extra(z: np.ndarray, x: np.ndarray, p: Params) -> list[np.ndarray]:
-        """The rows after the data's: the ridge, and the magnitude pin when there is one."""
-        rows = [ridge * var.deviation(z, x)]
-        return rows if pin is None else [*rows, _pin_row(p, pin)]
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        key = z.tobytes()
-        if key not in cache:
-            cache.clear()
-            x = var.x(z)
-            p = model.params(x)
-            cache[key] = np.concatenate([model.rows(p).ravel(), *extra(z, x, p)])
-        return cache[key]
-
-    last: dict[bytes, np.ndarray] = {}
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        """(parameters, rows): the Jacobian transposed, the layout MINPACK keeps (``col_deriv``)."""
-        key = z.tobytes()
-        if key in last:  # the optimiser's shape check asks for the Jacobian at the start point first
-            return last[key]
-        # Forward differences with absolute steps (MINPACK's are relative to |z|). A parameter that
-        # moves one channel only (a bias, a gain, a lever arm, gravity) leaves the other channel's
-        # rows, every ridge row but its own and, unless it is gravity, the magnitude row exactly as
-        # they were (gravity, a tilt and a magnitude when that row is there, moves its three ridge
-        # rows): their differences are zero, and only the rows it moves are computed (each the same
-        # number the full residual gives, see predict_rows).
-        f0 = fun(z).copy()
-        J = np.zeros((z.size, f0.size))
-        f0r = f0[:n6].reshape(index.size, 6)
-        for i in range(z.size):
-            zp = z.copy()
-            zp[i] += 0.01
-            cols = _CHANNEL_OF.get(model.effect_of[i])
-            if cols is None:
-                J[i] = (fun(zp) - f0) / 0.01
-                continue
-            x = var.x(zp)
-            p = model.params(x)
-            J[i, :n6].reshape(index.size, 6)[:, cols] = (model.rows(p, cols) - f0r[:, cols]) / 0.01
-            if var.sphere is not None and model.effect_of[i] == "gravity":
-                J[i, n6:] = (np.concatenate(extra(zp, x, p)) - f0[n6:]) / 0.01
-            else:
-                J[i, n6 + i] = (ridge * (zp[i] - 1.0) - f0[n6 + i]) / 0.01
-        last.clear()
-        last[key] = J
-        return J
+    obj = _Objective(var, _Rows(prob, fixed, free, index), ridge, pin, index.size)
 
     # Levenberg-Marquardt (MINPACK's lmder, QR) is several times faster here than the bounded
     # trust-region method, whose exact solver takes an SVD of the full Jacobian every step; the
@@ -373,12 +323,12 @@ def fit_params(
     # but takes the Jacobian in MINPACK's own column-major layout and evaluates nothing beyond what
     # MINPACK asks for.
     z0 = var.z(x0)
-    if not np.all(np.isfinite(fun(z0))):
+    if not np.all(np.isfinite(obj.fun(z0))):
         raise ValueError("Residuals are not finite in the initial point.")
     z, *_ = leastsq(
-        fun,
+        obj.fun,
         z0,
-        Dfun=jac,
+        Dfun=obj.jac,
         full_output=True,
         col_deriv=True,
         ftol=1e-7,
@@ -390,6 +340,66 @@ def fit_params(
     out = dict(fixed)
     out.update(unpack(x, free))
     return {n: out[n] for n in EFFECTS if n in out}
+
+
+class _Objective:
+    """What :func:`fit_params` hands MINPACK: the residual rows at z and their Jacobian, each cached for
+    the last point asked (the optimiser asks for the same point more than once)."""
+
+    def __init__(
+        self, var: _Variables, model: _Rows, ridge: float, pin: tuple[float, float] | None, n: int
+    ) -> None:
+        self.var, self.model, self.ridge, self.pin, self.n = var, model, ridge, pin, n
+        self.n6 = 6 * n
+        self._cache: dict[bytes, np.ndarray] = {}
+        self._last: dict[bytes, np.ndarray] = {}
+
+    def extra(self, z: np.ndarray, x: np.ndarray, p: Params) -> list[np.ndarray]:
+        """The rows after the data's: the ridge, and the magnitude pin when there is one."""
+        rows = [self.ridge * self.var.deviation(z, x)]
+        return rows if self.pin is None else [*rows, _pin_row(p, self.pin)]
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in self._cache:
+            self._cache.clear()
+            x = self.var.x(z)
+            p = self.model.params(x)
+            self._cache[key] = np.concatenate([self.model.rows(p).ravel(), *self.extra(z, x, p)])
+        return self._cache[key]
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        """(parameters, rows): the Jacobian transposed, the layout MINPACK keeps (``col_deriv``)."""
+        key = z.tobytes()
+        if key in self._last:  # the optimiser's shape check asks for the Jacobian at the start point first
+            return self._last[key]
+        # Forward differences with absolute steps (MINPACK's are relative to |z|). A parameter that
+        # moves one channel only (a bias, a gain, a lever arm, gravity) leaves the other channel's
+        # rows, every ridge row but its own and, unless it is gravity, the magnitude row exactly as
+        # they were (gravity, a tilt and a magnitude when that row is there, moves its three ridge
+        # rows): their differences are zero, and only the rows it moves are computed (each the same
+        # number the full residual gives, see predict_rows).
+        model, n6 = self.model, self.n6
+        f0 = self.fun(z).copy()
+        J = np.zeros((z.size, f0.size))
+        f0r = f0[:n6].reshape(self.n, 6)
+        for i in range(z.size):
+            zp = z.copy()
+            zp[i] += 0.01
+            cols = _CHANNEL_OF.get(model.effect_of[i])
+            if cols is None:
+                J[i] = (self.fun(zp) - f0) / 0.01
+                continue
+            x = self.var.x(zp)
+            p = model.params(x)
+            J[i, :n6].reshape(self.n, 6)[:, cols] = (model.rows(p, cols) - f0r[:, cols]) / 0.01
+            if self.var.sphere is not None and model.effect_of[i] == "gravity":
+                J[i, n6:] = (np.concatenate(self.extra(zp, x, p)) - f0[n6:]) / 0.01
+            else:
+                J[i, n6 + i] = (self.ridge * (zp[i] - 1.0) - f0[n6 + i]) / 0.01
+        self._last.clear()
+        self._last[key] = J
+        return J
 
 
 #: The residual columns each effect moves when it alone changes (absent: both channels, or the
