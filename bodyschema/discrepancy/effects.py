@@ -36,8 +36,9 @@ Example
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -300,47 +301,13 @@ def predict_rows(
         raise ValueError(f"unknown effects {sorted(unknown)}; known: {list(EFFECT_NAMES)}")
     if rows is not None and "time_offset" in params:
         raise ValueError("a time offset shifts along the whole grid: predict it on all rows")
-
-    def pick(x: np.ndarray) -> np.ndarray:
-        return x if rows is None else x[rows]
-
     g = EFFECTS["gravity"].from_params(params.get("gravity")) if "gravity" in params else ref.gravity
-    kg = g.tobytes()
-    omega = ref.omega
-
-    def sf() -> np.ndarray:
-        return _memo(("sf", kg), ref, lambda: fx.specific_force(ref.R, ref.acc_world, g))
-
-    rv = None
-    if "mounting_rotation" in params:
-        rv = EFFECTS["mounting_rotation"].from_params(params["mounting_rotation"])
-
-        def rotated() -> tuple[np.ndarray, np.ndarray]:
-            # one call for both triads; each row of the product is that of the whole grid's
-            w, f = (
-                _stage(stages, ("omega",), lambda: pick(omega)),
-                _stage(stages, ("sf", kg), lambda: pick(sf())),
-            )
-            both = fx.rotate(np.concatenate([w, f]), rv)
-            return both[: len(w)], both[len(w) :]
-
-        gyro, acc = _stage(stages, ("rot", kg, rv.tobytes()), rotated)
-    else:
-        gyro = _stage(stages, ("omega",), lambda: pick(omega))
-        acc = _stage(stages, ("sf", kg), lambda: pick(sf()))
+    ev = _Evaluation(ref, rows, stages, g, g.tobytes())
+    gyro, acc, rv = _mounted(ev, params)
     r = None
     if "lever_arm" in params:
         r = EFFECTS["lever_arm"].from_params(params["lever_arm"])
-        key = ("wdot", _key(rv))
-
-        def full_gyro() -> np.ndarray:
-            # the angular acceleration differentiates along the whole grid
-            return omega if rv is None else fx.rotate(np.concatenate([omega, sf()]), rv)[: len(omega)]
-
-        wdot = _stage(
-            stages, key, lambda: pick(_memo(key, ref, lambda: fx.angular_acceleration(ref.t, full_gyro())))
-        )
-        acc = _stage(stages, ("lever", kg, _key(rv), r.tobytes()), lambda: fx.lever_arm(acc, gyro, wdot, r))
+        acc = _levered(ev, gyro, acc, rv, r)
     tau = b"-"
     if "time_offset" in params:
         seconds = float(EFFECTS["time_offset"].from_params(params["time_offset"])[0])
@@ -351,16 +318,76 @@ def predict_rows(
         gs = EFFECTS["gyro_scale"].from_params(params.get("gyro_scale"))
         gb = EFFECTS["gyro_bias"].from_params(params.get("gyro_bias"))
         g0 = gyro
-        gyro = _stage(
-            stages, ("gyro", _key(rv), tau, gs.tobytes(), gb.tobytes()), lambda: fx.affine(g0, gs, gb)
-        )
+        gyro = ev.stage(("gyro", _key(rv), tau, gs.tobytes(), gb.tobytes()), lambda: fx.affine(g0, gs, gb))
     if "acc_scale" in params or "acc_bias" in params:
         s_ = EFFECTS["acc_scale"].from_params(params.get("acc_scale"))
         b_ = EFFECTS["acc_bias"].from_params(params.get("acc_bias"))
         a0 = acc
-        acc = _stage(
-            stages,
-            ("acc", kg, _key(rv), _key(r), tau, s_.tobytes(), b_.tobytes()),
+        acc = ev.stage(
+            ("acc", ev.kg, _key(rv), _key(r), tau, s_.tobytes(), b_.tobytes()),
             lambda: fx.affine(a0, s_, b_),
         )
     return gyro, acc
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    """One :func:`predict_rows` call: the reference, the rows it is on, the caller's stages, gravity."""
+
+    ref: ReferenceMotion
+    rows: np.ndarray | None
+    stages: dict | None
+    g: np.ndarray
+    kg: bytes
+
+    def pick(self, x: np.ndarray) -> np.ndarray:
+        return x if self.rows is None else x[self.rows]
+
+    def sf(self) -> np.ndarray:
+        """The specific force in the sensor frame on the whole grid."""
+        ref = self.ref
+        return _memo(("sf", self.kg), ref, lambda: fx.specific_force(ref.R, ref.acc_world, self.g))
+
+    def stage(self, key: tuple, compute: Callable[[], Any]) -> Any:
+        return _stage(self.stages, key, compute)
+
+
+def _mounted(
+    ev: _Evaluation, params: Mapping[str, Mapping[str, object]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Both triads on the rows, turned by the mounting rotation when there is one (returned too)."""
+    omega = ev.ref.omega
+    if "mounting_rotation" not in params:
+        gyro = ev.stage(("omega",), lambda: ev.pick(omega))
+        acc = ev.stage(("sf", ev.kg), lambda: ev.pick(ev.sf()))
+        return gyro, acc, None
+    rv = EFFECTS["mounting_rotation"].from_params(params["mounting_rotation"])
+
+    def rotated() -> tuple[np.ndarray, np.ndarray]:
+        # one call for both triads; each row of the product is that of the whole grid's
+        w, f = (
+            ev.stage(("omega",), lambda: ev.pick(omega)),
+            ev.stage(("sf", ev.kg), lambda: ev.pick(ev.sf())),
+        )
+        both = fx.rotate(np.concatenate([w, f]), rv)
+        return both[: len(w)], both[len(w) :]
+
+    gyro, acc = ev.stage(("rot", ev.kg, rv.tobytes()), rotated)
+    return gyro, acc, rv
+
+
+def _levered(
+    ev: _Evaluation, gyro: np.ndarray, acc: np.ndarray, rv: np.ndarray | None, r: np.ndarray
+) -> np.ndarray:
+    """The specific force at lever arm ``r`` from the link's axis."""
+    ref, omega = ev.ref, ev.ref.omega
+    key = ("wdot", _key(rv))
+
+    def full_gyro() -> np.ndarray:
+        # the angular acceleration differentiates along the whole grid
+        return omega if rv is None else fx.rotate(np.concatenate([omega, ev.sf()]), rv)[: len(omega)]
+
+    wdot = ev.stage(
+        key, lambda: ev.pick(_memo(key, ref, lambda: fx.angular_acceleration(ref.t, full_gyro())))
+    )
+    return ev.stage(("lever", ev.kg, _key(rv), r.tobytes()), lambda: fx.lever_arm(acc, gyro, wdot, r))
