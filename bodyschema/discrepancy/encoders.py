@@ -470,6 +470,41 @@ def analyze_encoders(
     clock may be offset from the encoders' (``t`` against ``t_q`` in a multi-rate recording).
     """
     opts = options or EncoderOptions()
+    prob, chain, imus = _problem(chain, rec, opts)
+    x = prob.null.copy()
+    r = prob.residual(x)
+    prob.scale = np.stack(
+        [np.sqrt(np.mean(r[:, :, :3] ** 2, axis=(0, 2))), np.sqrt(np.mean(r[:, :, 3:] ** 2, axis=(0, 2)))],
+        axis=1,
+    )
+    r = prob.residual(x)
+    floor = tuple(float(np.mean((f / prob.scale[:, i]) ** 2)) for i, f in enumerate(opts.scale_floor))
+    before = {ch: float(np.sqrt(np.mean(_channel(r, ch) ** 2))) for ch in ("gyro", "acc")}
+    blocks = _blocks(len(prob.index), prob.rate, opts.block_s)
+    x, model, limits = _select(prob, x, blocks, opts, floor)
+    causes, after = _final(prob, x, model, blocks, opts, floor)
+    joint_names = {n for c in causes for n, _ in c.alternatives}
+    not_named = [
+        EncoderLimit(
+            prob.candidates[c].effect, _joint(chain, prob.candidates[c]), float(limits.get(c, np.inf))
+        )
+        for c in range(len(prob.candidates))
+        if c not in model and _name(prob, c) not in joint_names
+    ]
+    meta = {
+        "samples_used": len(prob.index),
+        "rate_hz": prob.rate,
+        "cutoff_hz": opts.cutoff,
+        "imu_names": imus,
+    }
+    return EncoderReport(causes, not_named, before, after, meta)
+
+
+def _problem(
+    chain: RobotChain, rec: Recording, opts: EncoderOptions
+) -> tuple[_Problem, RobotChain, list[str]]:
+    """The fitting problem of ``rec`` against ``chain``, the chain cut to the recording's IMUs, and those
+    IMUs; raises when the recording cannot be compared with the chain."""
     if rec.q is None:
         raise ValueError("the recording has no joint positions q")
     missing = [j for j in chain.joint_names if j not in rec.joint_names]
@@ -485,16 +520,15 @@ def analyze_encoders(
         raise ValueError("the IMU readings must be finite; fill or cut the gaps first")
     q = rec.q[:, [rec.joint_names.index(j) for j in chain.joint_names]]
     prob = _Problem(chain, rec.encoder_t, q, rec.t, meas, np.asarray(rec.gravity, dtype=np.float64), opts)
-    x = prob.null.copy()
-    r = prob.residual(x)
-    prob.scale = np.stack(
-        [np.sqrt(np.mean(r[:, :, :3] ** 2, axis=(0, 2))), np.sqrt(np.mean(r[:, :, 3:] ** 2, axis=(0, 2)))],
-        axis=1,
-    )
-    r = prob.residual(x)
-    floor = tuple(float(np.mean((f / prob.scale[:, i]) ** 2)) for i, f in enumerate(opts.scale_floor))
-    before = {ch: float(np.sqrt(np.mean(_channel(r, ch) ** 2))) for ch in ("gyro", "acc")}
-    blocks = _blocks(len(prob.index), prob.rate, opts.block_s)
+    return prob, chain, imus
+
+
+def _select(
+    prob: _Problem, x: np.ndarray, blocks: list[np.ndarray], opts: EncoderOptions, floor: tuple[float, float]
+) -> tuple[np.ndarray, list[int], dict[int, float]]:
+    """Forward selection: each round adds the candidate that passes its test by most and drops the ones
+    it explains away. Returns the parameters, the candidates named and each candidate's detection
+    limit in the last round."""
     model: list[int] = []
     dropped: set[int] = set()
     limits: dict[int, float] = {}
@@ -526,22 +560,7 @@ def analyze_encoders(
             dropped.update(weak)
             x[weak] = prob.null[weak]
             x = _refit(prob, x, model) if model else x
-    causes, after = _final(prob, x, model, blocks, opts, floor)
-    joint_names = {n for c in causes for n, _ in c.alternatives}
-    not_named = [
-        EncoderLimit(
-            prob.candidates[c].effect, _joint(chain, prob.candidates[c]), float(limits.get(c, np.inf))
-        )
-        for c in range(len(prob.candidates))
-        if c not in model and _name(prob, c) not in joint_names
-    ]
-    meta = {
-        "samples_used": len(prob.index),
-        "rate_hz": prob.rate,
-        "cutoff_hz": opts.cutoff,
-        "imu_names": imus,
-    }
-    return EncoderReport(causes, not_named, before, after, meta)
+    return x, model, limits
 
 
 def _joint(chain: RobotChain, c: _Candidate) -> str | None:
