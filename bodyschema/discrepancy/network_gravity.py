@@ -309,8 +309,6 @@ def gravity_case(
     kinematics; ``cutoff``, ``n_blocks``, ``alpha``, ``min_gain`` go
     to :func:`~bodyschema.discrepancy.selection.analyze`; other keywords to the training.
     """
-    from bodyschema.networks import train_sensor_networks
-
     if rec.q is None:
         raise ValueError("the gravity case needs joint positions q")
     g_norm = float(np.linalg.norm(rec.gravity))
@@ -319,92 +317,21 @@ def gravity_case(
     rec = rec.derived()
     assert rec.q is not None and rec.qd is not None and rec.qdd is not None
     gravity = np.asarray(rec.gravity, dtype=np.float64)
-    forms: dict[str, FormResult] = {}
-    nets: dict[str, Any] = {}
-    preds: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    truth = (rec.truth_parent_map, rec.truth_imu_map)  # read for the comparison only
-    for form in FORMS:
-        g = None if form == "eq11" else gravity
-        net, loss = train_sensor_networks(
-            rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, g, hidden=hidden, epochs=epochs, seed=seed, **train_kw
-        )
-        gp, ap = network_readings(net, rec.q, rec.qd, rec.qdd, g)
-        ra, rg = rec.acc - ap, rec.gyro - gp
-        dep, topo = _topology(rec, net, loss, samples, seed)
-        acc = {}
-        if truth[0] is not None and truth[1] is not None:
-            acc = topology_accuracy(topo.joint_parent, topo.imu_joint, truth[0], truth[1])
-        forms[form] = FormResult(
-            form=form,
-            acc_rms=float(_rms(ra)),
-            gyro_rms=float(_rms(rg)),
-            acc_rms_imu=[float(x) for x in _rms(ra, axis=(0, 2))],
-            gyro_rms_imu=[float(x) for x in _rms(rg, axis=(0, 2))],
-            loss=loss,
-            dependency=dep,
-            topology=topo,
-            accuracy=acc,
-        )
-        nets[form], preds[form] = net, (gp, ap)
+    train = {"hidden": hidden, "epochs": epochs, "seed": seed, **train_kw}
+    forms, nets, preds = _train_forms(rec, gravity, samples, train)
 
     # the cause of the Eq. 11 residual, per IMU, by the analyzer
     gp11, ap11 = preds["eq11"]
     chosen = _pick_imus(rec, rec.acc - ap11, imus, max_imus)
-    R11, R24 = _poses(nets["eq11"], rec.q), _poses(nets["eq24"], rec.q)
     gb, ab = _biases(nets["eq11"])
-    gdir24 = nets["eq24"].gravity_dir.detach().numpy()[:, 0].astype(np.float64)
-    gdir24 /= np.linalg.norm(gdir24, axis=1, keepdims=True)
+    eq11 = _Eq11(_poses(nets["eq11"], rec.q), gp11, ap11, gb, ab)
     kw = {"cutoff": cutoff, "n_blocks": n_blocks, "alpha": alpha, "min_gain": min_gain}
-    net_refs = {}
-    for imu in chosen:
-        k = rec.imu_names.index(imu)
-        net_refs[imu] = (
-            network_reference(rec.t, R11[:, k], gp11[:, k], ap11[:, k], gb[k], ab[k], cutoff),
-            rec.gyro[:, k] - gb[k],
-            rec.acc[:, k] - ab[k],
-        )
-
-    def eq24_angle(imu: str, v: np.ndarray) -> dict[str, float]:
-        # the fitted vector is in the Eq. 11 network's world frame: compare it with the Eq. 24 network's
-        # gravity through the sensor frame over the recording
-        k = rec.imu_names.index(imu)
-        s11 = np.einsum("tji,j->ti", R11[:, k], v / np.linalg.norm(v))
-        s24 = np.einsum("tji,j->ti", R24[:, k], gdir24[k])
-        return {"angle_to_eq24_deg": _median_angle(s11, s24)}
-
-    analyses = {"network": _analyse("network", net_refs, chosen, eq24_angle, kw)}
+    analyses = {"network": _network_analysis(rec, eq11, nets["eq24"], chosen, kw)}
     if references is not None:
-        kin_refs = {}
-        for imu in chosen:
-            if imu not in references:
-                raise ValueError(f"no reference motion for IMU {imu!r}")
-            r = references[imu]
-            k = rec.imu_names.index(imu)
-            kin_refs[imu] = (
-                ReferenceMotion(r.t, r.R, r.omega, r.acc_world, np.zeros(3)),
-                rec.gyro[:, k],
-                rec.acc[:, k],
-            )
-
-        def to_recording(imu: str, v: np.ndarray) -> dict[str, float]:
-            cos = float(v @ gravity / (np.linalg.norm(v) * g_norm))
-            return {"angle_to_recording_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))}
-
-        analyses["kinematics"] = _analyse("kinematics", kin_refs, chosen, to_recording, kw)
+        analyses["kinematics"] = _kinematics_analysis(rec, references, chosen, kw)
 
     worst = chosen[int(np.argmax([forms["eq11"].acc_rms_imu[rec.imu_names.index(i)] for i in chosen]))]
-    k = rec.imu_names.index(worst)
-    traces = {
-        "t": rec.t - rec.t[0],
-        "eq11": rec.acc[:, k] - ap11[:, k],
-        "eq24": rec.acc[:, k] - preds["eq24"][1][:, k],
-    }
-    fitted = {e: p for e, p in analyses["network"].reports[worst].params.items() if e != "noise"}
-    if fitted:
-        from bodyschema.discrepancy.effects import predict
-
-        ref = network_reference(rec.t, R11[:, k], gp11[:, k], ap11[:, k], gb[k], ab[k], cutoff=None)
-        traces["eq11_fitted"] = rec.acc[:, k] - ab[k] - predict(ref, fitted)[1]
+    traces = _traces(rec, eq11, preds["eq24"], analyses["network"].reports[worst].params, worst, cutoff)
     return GravityCase(
         forms=forms,
         imus=chosen,
@@ -423,6 +350,137 @@ def gravity_case(
         },
         traces=traces,
     )
+
+
+def _train_forms(
+    rec: Recording, gravity: np.ndarray, samples: int, train: dict[str, Any]
+) -> tuple[dict[str, FormResult], dict[str, Any], dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """Each form's networks trained on ``rec`` (same seed): its result, the networks and their readings."""
+    from bodyschema.networks import train_sensor_networks
+
+    assert rec.q is not None and rec.qd is not None and rec.qdd is not None
+    forms: dict[str, FormResult] = {}
+    nets: dict[str, Any] = {}
+    preds: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    truth = (rec.truth_parent_map, rec.truth_imu_map)  # read for the comparison only
+    for form in FORMS:
+        g = None if form == "eq11" else gravity
+        net, loss = train_sensor_networks(rec.q, rec.qd, rec.qdd, rec.gyro, rec.acc, g, **train)
+        gp, ap = network_readings(net, rec.q, rec.qd, rec.qdd, g)
+        ra, rg = rec.acc - ap, rec.gyro - gp
+        dep, topo = _topology(rec, net, loss, samples, train["seed"])
+        acc = {}
+        if truth[0] is not None and truth[1] is not None:
+            acc = topology_accuracy(topo.joint_parent, topo.imu_joint, truth[0], truth[1])
+        forms[form] = FormResult(
+            form=form,
+            acc_rms=float(_rms(ra)),
+            gyro_rms=float(_rms(rg)),
+            acc_rms_imu=[float(x) for x in _rms(ra, axis=(0, 2))],
+            gyro_rms_imu=[float(x) for x in _rms(rg, axis=(0, 2))],
+            loss=loss,
+            dependency=dep,
+            topology=topo,
+            accuracy=acc,
+        )
+        nets[form], preds[form] = net, (gp, ap)
+    return forms, nets, preds
+
+
+@dataclass(frozen=True)
+class _Eq11:
+    """The Eq. 11 networks as the analysis reads them: poses, readings and fitted biases."""
+
+    R: np.ndarray
+    gp: np.ndarray
+    ap: np.ndarray
+    gb: np.ndarray
+    ab: np.ndarray
+
+    def reference(self, rec: Recording, k: int, cutoff: float | None) -> ReferenceMotion:
+        """IMU ``k``'s motion as the Eq. 11 networks describe it."""
+        return network_reference(
+            rec.t, self.R[:, k], self.gp[:, k], self.ap[:, k], self.gb[k], self.ab[k], cutoff
+        )
+
+
+def _network_analysis(
+    rec: Recording, eq11: _Eq11, net24: Any, chosen: list[str], kw: dict[str, Any]
+) -> CauseAnalysis:
+    """The analyzer on the Eq. 11 networks' motion of each chosen IMU, its fitted gravity compared with
+    the Eq. 24 networks'."""
+    R24 = _poses(net24, rec.q)
+    gdir24 = net24.gravity_dir.detach().numpy()[:, 0].astype(np.float64)
+    gdir24 /= np.linalg.norm(gdir24, axis=1, keepdims=True)
+    net_refs = {}
+    for imu in chosen:
+        k = rec.imu_names.index(imu)
+        net_refs[imu] = (
+            eq11.reference(rec, k, kw["cutoff"]),
+            rec.gyro[:, k] - eq11.gb[k],
+            rec.acc[:, k] - eq11.ab[k],
+        )
+
+    def eq24_angle(imu: str, v: np.ndarray) -> dict[str, float]:
+        # the fitted vector is in the Eq. 11 network's world frame: compare it with the Eq. 24 network's
+        # gravity through the sensor frame over the recording
+        k = rec.imu_names.index(imu)
+        s11 = np.einsum("tji,j->ti", eq11.R[:, k], v / np.linalg.norm(v))
+        s24 = np.einsum("tji,j->ti", R24[:, k], gdir24[k])
+        return {"angle_to_eq24_deg": _median_angle(s11, s24)}
+
+    return _analyse("network", net_refs, chosen, eq24_angle, kw)
+
+
+def _kinematics_analysis(
+    rec: Recording, references: Mapping[str, ReferenceMotion], chosen: list[str], kw: dict[str, Any]
+) -> CauseAnalysis:
+    """The analyzer on the exact kinematics of each chosen IMU, its fitted gravity compared with the
+    recording's."""
+    gravity = np.asarray(rec.gravity, dtype=np.float64)
+    g_norm = float(np.linalg.norm(rec.gravity))
+    kin_refs = {}
+    for imu in chosen:
+        if imu not in references:
+            raise ValueError(f"no reference motion for IMU {imu!r}")
+        r = references[imu]
+        k = rec.imu_names.index(imu)
+        kin_refs[imu] = (
+            ReferenceMotion(r.t, r.R, r.omega, r.acc_world, np.zeros(3)),
+            rec.gyro[:, k],
+            rec.acc[:, k],
+        )
+
+    def to_recording(imu: str, v: np.ndarray) -> dict[str, float]:
+        cos = float(v @ gravity / (np.linalg.norm(v) * g_norm))
+        return {"angle_to_recording_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))}
+
+    return _analyse("kinematics", kin_refs, chosen, to_recording, kw)
+
+
+def _traces(
+    rec: Recording,
+    eq11: _Eq11,
+    pred24: tuple[np.ndarray, np.ndarray],
+    params: Mapping[str, Any],
+    worst: str,
+    cutoff: float | None,
+) -> dict[str, np.ndarray]:
+    """The accelerometer residual of IMU ``worst`` under each form, and under Eq. 11 with the effects
+    fitted to it."""
+    k = rec.imu_names.index(worst)
+    traces = {
+        "t": rec.t - rec.t[0],
+        "eq11": rec.acc[:, k] - eq11.ap[:, k],
+        "eq24": rec.acc[:, k] - pred24[1][:, k],
+    }
+    fitted = {e: p for e, p in params.items() if e != "noise"}
+    if fitted:
+        from bodyschema.discrepancy.effects import predict
+
+        ref = eq11.reference(rec, k, None)
+        traces["eq11_fitted"] = rec.acc[:, k] - eq11.ab[k] - predict(ref, fitted)[1]
+    return traces
 
 
 def _median_angle(a: np.ndarray, b: np.ndarray) -> float:
