@@ -315,19 +315,7 @@ def train_sensor_networks(
     K = gyro.shape[1]
     data = _Data.of(q, qd, qdd, gyro, acc, gravity)
     net = SensorNetworks(K, N, hidden=hidden, seed=seed)
-    warm = _start(net, data, warm_start if epochs is None else None, hidden)
-    if warm_start is not None and not warm:
-        log.info(
-            "sensor networks: cold start, the stored weights do not fit (%s IMUs x %s joints, %s; "
-            "now %d x %d, %s%s)",
-            warm_start.n_imus,
-            warm_start.n_joints,
-            warm_start.hidden,
-            K,
-            N,
-            tuple(hidden),
-            ", fixed epochs" if epochs is not None else "",
-        )
+    warm = _start(net, data, warm_start, hidden, epochs)
     per_epoch = max(1, math.ceil(T / batch_size))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     if warm:
@@ -394,15 +382,32 @@ class _Data:
 
 
 def _start(
-    net: SensorNetworks, data: _Data, warm_start: NetworkWeights | None, hidden: Sequence[int]
+    net: SensorNetworks,
+    data: _Data,
+    warm_start: NetworkWeights | None,
+    hidden: Sequence[int],
+    epochs: int | None,
 ) -> bool:
-    """Load ``warm_start`` into ``net`` when it fits (True), else start it from the data's means."""
+    """Load ``warm_start`` into ``net`` when it fits and training runs to convergence (True), else start
+    it from the data's means (and log why the weights given were not used)."""
     K, N = net.n_imus, net.n_joints
-    warm = warm_start is not None and warm_start.fits(K, N, hidden)
+    warm = warm_start is not None and epochs is None and warm_start.fits(K, N, hidden)
     if warm:
         assert warm_start is not None
         warm_start.load_into(net)
         return True
+    if warm_start is not None:
+        log.info(
+            "sensor networks: cold start, the stored weights do not fit (%s IMUs x %s joints, %s; "
+            "now %d x %d, %s%s)",
+            warm_start.n_imus,
+            warm_start.n_joints,
+            warm_start.hidden,
+            K,
+            N,
+            tuple(hidden),
+            ", fixed epochs" if epochs is not None else "",
+        )
     net.set_input_scaling(data.th.mean(0), data.th.std(0))
     with torch.no_grad():  # start biases at the measured means: the gyro mean is mostly bias
         net.gyro_bias.copy_(data.w_meas.mean(dim=1, keepdim=True))
