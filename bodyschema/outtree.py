@@ -74,46 +74,11 @@ class OutTree:
     ) -> None:
         joints = tuple(str(j) for j in joint_parent)
         jp = {str(j): (None if p is None else str(p)) for j, p in joint_parent.items()}
-        if node_of_joint is None:
-            nj = {j: link_label(j) for j in joints}
-        else:
-            nj = {str(j): str(n) for j, n in node_of_joint.items()}
-            if set(nj) != set(joints):
-                missing = sorted(set(joints) - set(nj))
-                extra = sorted(set(nj) - set(joints))
-                raise OutTreeError(
-                    f"node_of_joint must name one node per joint (missing {missing}, extra {extra})"
-                )
-        for j, p in jp.items():
-            if p is not None and p not in jp:
-                raise OutTreeError(f"joint {j!r} hangs under unknown joint {p!r}")
-            if p == j:
-                raise OutTreeError(f"joint {j!r} hangs under itself")
+        nj = _node_labels(joints, node_of_joint)
         labels = [nj[j] for j in joints]
-        if len(set(labels)) != len(labels):
-            dup = sorted({n for n in labels if labels.count(n) > 1})
-            raise OutTreeError(f"two joints carry the same node label: {dup}")
-        if str(root) in set(labels):
-            raise OutTreeError(f"node label {root!r} is the root label")
-        depth: dict[str, int] = {}
-        for j in joints:
-            chain: list[str] = []
-            cur: str | None = j
-            while cur is not None and cur not in depth:
-                if cur in chain:
-                    raise OutTreeError(f"joint {j!r} is on a cycle")
-                chain.append(cur)
-                cur = jp[cur]
-            base = 0 if cur is None else depth[cur]
-            for k, c in enumerate(reversed(chain)):
-                depth[c] = base + k + 1
-        sens: dict[str, tuple[str, ...]] = {}
-        if sensors is not None:
-            known = set(labels) | {str(root)}
-            for n, s in sensors.items():
-                if n not in known:
-                    raise OutTreeError(f"sensors given for unknown node {n!r}")
-                sens[str(n)] = tuple(str(x) for x in s)
+        _check_parents_and_labels(jp, labels, root)
+        depth = _depths(joints, jp)
+        sens = _sensor_map(sensors, labels, root)
         self._joints = joints
         self._joint_parent = jp
         self._node_of_joint = {j: nj[j] for j in joints}
@@ -321,3 +286,60 @@ class OutTree:
 
         walk(None, 1)
         return "\n".join(lines)
+
+
+def _node_labels(joints: tuple[str, ...], node_of_joint: Mapping[str, str] | None) -> dict[str, str]:
+    """Each joint's child node label: ``node_of_joint``'s, checked to name one per joint, or the default."""
+    if node_of_joint is None:
+        return {j: link_label(j) for j in joints}
+    nj = {str(j): str(n) for j, n in node_of_joint.items()}
+    if set(nj) != set(joints):
+        missing = sorted(set(joints) - set(nj))
+        extra = sorted(set(nj) - set(joints))
+        raise OutTreeError(f"node_of_joint must name one node per joint (missing {missing}, extra {extra})")
+    return nj
+
+
+def _check_parents_and_labels(jp: dict[str, str | None], labels: list[str], root: str) -> None:
+    """Raise when a joint hangs under an unknown joint or itself, or two nodes share a label."""
+    for j, p in jp.items():
+        if p is not None and p not in jp:
+            raise OutTreeError(f"joint {j!r} hangs under unknown joint {p!r}")
+        if p == j:
+            raise OutTreeError(f"joint {j!r} hangs under itself")
+    if len(set(labels)) != len(labels):
+        dup = sorted({n for n in labels if labels.count(n) > 1})
+        raise OutTreeError(f"two joints carry the same node label: {dup}")
+    if str(root) in set(labels):
+        raise OutTreeError(f"node label {root!r} is the root label")
+
+
+def _depths(joints: tuple[str, ...], jp: dict[str, str | None]) -> dict[str, int]:
+    """Each joint's depth (1: on the root); raises on a cycle."""
+    depth: dict[str, int] = {}
+    for j in joints:
+        chain: list[str] = []
+        cur: str | None = j
+        while cur is not None and cur not in depth:
+            if cur in chain:
+                raise OutTreeError(f"joint {j!r} is on a cycle")
+            chain.append(cur)
+            cur = jp[cur]
+        base = 0 if cur is None else depth[cur]
+        for k, c in enumerate(reversed(chain)):
+            depth[c] = base + k + 1
+    return depth
+
+
+def _sensor_map(
+    sensors: Mapping[str, Iterable[str]] | None, labels: list[str], root: str
+) -> dict[str, tuple[str, ...]]:
+    """The sensors on each node, checked to name known nodes only."""
+    sens: dict[str, tuple[str, ...]] = {}
+    if sensors is not None:
+        known = set(labels) | {str(root)}
+        for n, s in sensors.items():
+            if n not in known:
+                raise OutTreeError(f"sensors given for unknown node {n!r}")
+            sens[str(n)] = tuple(str(x) for x in s)
+    return sens
