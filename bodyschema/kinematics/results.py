@@ -122,26 +122,30 @@ class ImuKinematics:
     undetermined: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        def vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
-            return None if x is None else [round(float(v), nd) for v in np.ravel(x)]
-
         out: dict[str, Any] = {
             "joint": self.joint,
             "parent_imu": self.parent_imu,
-            "axis": vec(self.axis),
-            "lever_arm": vec(self.lever_arm),
+            "axis": _vec(self.axis),
+            "lever_arm": _vec(self.lever_arm),
             "axis_std_deg": _finite(self.axis_std_deg),
             "lever_arm_std_m": _finite(self.lever_arm_std_m),
             "gain": _finite(self.gain),
             "converged": self.converged,
-            "gyro_axis": vec(self.gyro_axis),
+            "gyro_axis": _vec(self.gyro_axis),
             "gyro_axis_std_deg": _finite(self.gyro_axis_std_deg),
         }
+        out |= self._gyro_json()
+        out |= self._frame_json()
+        return out
+
+    def _gyro_json(self) -> dict[str, Any]:
+        """The optional entries of the gyros' axis fit, in :meth:`to_json`'s order."""
+        out: dict[str, Any] = {}
         if self.gyro_axis_in_parent is not None:
-            out["gyro_axis_in_parent"] = vec(self.gyro_axis_in_parent)
+            out["gyro_axis_in_parent"] = _vec(self.gyro_axis_in_parent)
             out["gyro_axis_in_parent_std_deg"] = _finite(self.gyro_axis_in_parent_std_deg)
         if self.gyro_parent_axis is not None:
-            out["gyro_parent_axis"] = vec(self.gyro_parent_axis)
+            out["gyro_parent_axis"] = _vec(self.gyro_parent_axis)
         if self.parent_rank:
             out["parent_rank"] = self.parent_rank
         if math.isfinite(self.turn_about_parent_std_deg):
@@ -150,15 +154,20 @@ class ImuKinematics:
             out["undetermined"] = list(self.undetermined)
         if self.axis_converged and not self.converged:
             out["axis_converged"] = True
+        return out
+
+    def _frame_json(self) -> dict[str, Any]:
+        """The optional entries of backlash, the frame relative to the parent and the reason."""
+        out: dict[str, Any] = {}
         if math.isfinite(self.backlash_deg):
             out["backlash_deg"] = _finite(self.backlash_deg)
             out["backlash_std_deg"] = _finite(self.backlash_std_deg)
         if self.rotation_from_parent is not None:
-            out["rotation_from_parent"] = [vec(row) for row in self.rotation_from_parent]
+            out["rotation_from_parent"] = [_vec(row) for row in self.rotation_from_parent]
         if self.joint_origin_in_parent is not None:
-            out["joint_origin_in_parent"] = vec(self.joint_origin_in_parent)
+            out["joint_origin_in_parent"] = _vec(self.joint_origin_in_parent)
         if self.up_at_zero is not None:
-            out["up_at_zero"] = vec(self.up_at_zero)
+            out["up_at_zero"] = _vec(self.up_at_zero)
         if self.reason:
             out["reason"] = self.reason
         return out
@@ -347,6 +356,10 @@ class Kinematics:
             samples=int(d.get("samples", 0)),
             topology=topology,
         )
+
+
+def _vec(x: np.ndarray | None, nd: int = 6) -> list[float] | None:
+    return None if x is None else [round(float(v), nd) for v in np.ravel(x)]
 
 
 def _finite(x: float) -> float | None:
