@@ -212,6 +212,17 @@ class FrameBatch:
             check_names(self.robot, tuple(self.joint_names), tuple(self.imu_names))
         except TypeError:  # an unhashable name
             raise FrameError("joint and IMU names must be non-empty strings") from None
+        self._check_shapes()
+        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
+            v = getattr(self, name)
+            if v is not None:
+                check_values(name, v)
+        check_batch_stamps(self.t, "t")
+        if self.t_q is not None:
+            check_batch_stamps(self.t_q, "t_q")
+
+    def _check_shapes(self) -> None:
+        """Raise :class:`FrameError` when an array's shape disagrees with the stamps and the names."""
         T, N, K = self.t.shape[0] if self.t.ndim == 1 else -1, len(self.joint_names), len(self.imu_names)
         if T < 1:
             raise FrameError(f"t must have shape (T,) with T >= 1, got {self.t.shape}")
@@ -228,10 +239,3 @@ class FrameBatch:
             v = getattr(self, name)
             if v.shape != (T, K, 3):
                 raise FrameError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
-        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
-            v = getattr(self, name)
-            if v is not None:
-                check_values(name, v)
-        check_batch_stamps(self.t, "t")
-        if self.t_q is not None:
-            check_batch_stamps(self.t_q, "t_q")
