@@ -97,20 +97,10 @@ def draw_cases(
 ) -> list[list[Hidden]]:
     """Each effect alone at every factor on a random joint that observes it, then random pairs and
     triples of effects on distinct joints at the first factor."""
-    limits: dict[str, dict[str | None, float]] = {e: {} for e in ENCODER_EFFECTS}
-    for x in null.not_named:
-        if x.observable:
-            limits[x.effect][x.joint] = x.detection_limit
-    for c in null.causes:  # named by the null: a change of it is judged by its own limit
-        limits[c.effect][c.joint] = c.detection_limit
+    limits = _limits(null)
 
     def one(effect: str, factor: float, taken: set[str | None]) -> Hidden | None:
-        joints = [j for j in limits[effect] if j not in taken or j is None]
-        if not joints:
-            return None
-        j = joints[int(rng.integers(len(joints)))]
-        sign = 1.0 if effect == "backlash" else float(rng.choice([-1.0, 1.0]))
-        return Hidden(effect, j, sign * factor * limits[effect][j], factor)
+        return _draw(limits, effect, factor, taken, rng)
 
     cases: list[list[Hidden]] = []
     for f in factors:
@@ -130,6 +120,33 @@ def draw_cases(
                     taken.add(h.joint)
             cases.append(case)
     return cases
+
+
+def _limits(null: EncoderReport) -> dict[str, dict[str | None, float]]:
+    """Per effect, each joint that observes it and the smallest change the null run could detect there."""
+    limits: dict[str, dict[str | None, float]] = {e: {} for e in ENCODER_EFFECTS}
+    for x in null.not_named:
+        if x.observable:
+            limits[x.effect][x.joint] = x.detection_limit
+    for c in null.causes:  # named by the null: a change of it is judged by its own limit
+        limits[c.effect][c.joint] = c.detection_limit
+    return limits
+
+
+def _draw(
+    limits: dict[str, dict[str | None, float]],
+    effect: str,
+    factor: float,
+    taken: set[str | None],
+    rng: np.random.Generator,
+) -> Hidden | None:
+    """``effect`` at ``factor`` times its limit on a random joint not ``taken`` (None: none left)."""
+    joints = [j for j in limits[effect] if j not in taken or j is None]
+    if not joints:
+        return None
+    j = joints[int(rng.integers(len(joints)))]
+    sign = 1.0 if effect == "backlash" else float(rng.choice([-1.0, 1.0]))
+    return Hidden(effect, j, sign * factor * limits[effect][j], factor)
 
 
 def score(rep: EncoderReport, null: EncoderReport, hidden: list[Hidden]) -> dict[str, object]:
