@@ -31,17 +31,19 @@ setup-browser:
 run: setup
 	$(BIN)/bodyhealth serve --demo --port $(PORT)
 
-## test: set up and run every test (slow ones included)
-test: setup setup-browser
+## test: set up, lint, and run every test (slow ones included)
+test: setup setup-browser lint
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15
 
 ## test-fast: skip the slow and end-to-end tests while developing
 test-fast: setup
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow and not e2e"
 
+## lint: ruff (style, plus the size rules: C901 branches, PLR0915 statements) and the import layers
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 
 ## bench: every benchmark; results go to docs/bench/
 bench: setup
