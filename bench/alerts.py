@@ -515,6 +515,7 @@ def run(args: argparse.Namespace) -> Path:
     short = opts.runs < FULL_RUNS or opts.healthy_seconds < FULL_HEALTHY_S
     options = {k: v for k, v in asdict(opts).items() if k not in ("token", "out", "name")}
     data = {
+        "name": opts.name,
         "command": _command(args),
         "machine": machine_note(),
         "cores": sorted(os.sched_getaffinity(0)),

@@ -303,7 +303,7 @@ def markdown(data: Mapping[str, Any]) -> str:
     ]
     for r in data["runs"]:
         lines += _run_lines(r)
-    lines += ["![Baseline and alert times per run against the targets](alerts.png)", ""]
+    lines += [f"![Baseline and alert times per run against the targets]({data.get('name', 'alerts')}.png)", ""]
     return "\n".join(lines)
 
 

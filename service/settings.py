@@ -142,10 +142,12 @@ class Settings(BaseSettings):
         "intervals and at most confirm_timeout_max_seconds",
     )
     confirm_timeout_max_seconds: float = Field(
-        180.0,
+        150.0,
         gt=0,
-        description="upper bound of the derived confirm_timeout_seconds: with the fast screen's ~60 s "
-        "to see a change (a 30 s window, hysteresis), damage is an alert within 5 minutes even when "
+        description="upper bound of the derived confirm_timeout_seconds. The budget: 5 minutes from "
+        "damage to alert, less the fast screen's time to see a change (a 30 s window and 2 cycles of "
+        "hysteresis: up to 90 s when cycles slow to 15 s on a loaded machine), less 4 slow cycles for "
+        "the timeout to be noticed and stored; so damage is an alert within 5 minutes even when "
         "training gets no CPU",
     )
     baseline_unconfirmed_cycles: int = Field(

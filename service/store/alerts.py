@@ -97,7 +97,7 @@ class AlertsMixin(StoreBase):
         _check_state(state)
         imu, joint = _split_part(part)
         wall_time = float(wall_time)
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             cond = (Alert.robot_id == rid) & (Alert.kind == kind) & (Alert.part == part)
             row = s.scalar(
@@ -173,7 +173,7 @@ class AlertsMixin(StoreBase):
             raise ValueError(f"unknown alert fields {sorted(bad)}; allowed: {sorted(self._ALERT_FIELDS)}")
         if "state" in fields:
             _check_state(fields["state"])
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             row = s.get(Alert, int(id))
             if row is None:
                 raise UnknownAlert(id)

@@ -102,7 +102,7 @@ class FramesMixin(RobotsMixin):
         rows: list[dict[str, Any]] = []
         imu_last: dict[tuple[int, str], float] = {}
         pending: list[tuple[RegisteredRobot, PendingChunk]] = []
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             s.info[FRAMES_ONLY] = True  # frames, clocks and parts: nothing a status is judged on
             for ch in chunks:
                 known = self._register_robot(s, ch.robot)

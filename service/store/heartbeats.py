@@ -22,7 +22,7 @@ class HeartbeatsMixin(StoreBase):
         """Record that ``component`` was alive at ``wall_time``."""
         stmt = self._insert(Heartbeat).values(component=component, wall_time=float(wall_time))
         stmt = stmt.on_conflict_do_update(index_elements=["component"], set_={"wall_time": float(wall_time)})
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             s.execute(stmt)
 
     def last_heartbeat(self, component: str) -> float | None:

@@ -78,7 +78,7 @@ class KinematicsMixin(StoreBase):
 
         The first row under a baseline is its geometry baseline. With ``latest``, the row replaces every
         later one under that baseline (never the first): the newest estimate, kept to be served."""
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             if latest:
                 first = s.scalar(_rows(rid, baseline_id).with_only_columns(KinematicsRow.id).limit(1))
@@ -118,7 +118,7 @@ class KinematicsMixin(StoreBase):
         values: dict[str, Any] = {"data": data}
         if wall_time is not None:
             values.update(wall_time=float(wall_time), window_end_t=window_end_t)
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             s.execute(update(KinematicsRow).where(KinematicsRow.id == int(kinematics_id)).values(**values))
 
     def kinematics_baseline(self, robot: str, baseline_id: int) -> StoredKinematics | None:

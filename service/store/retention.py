@@ -49,7 +49,7 @@ class RetentionMixin(StoreBase):
         pinned: dict[str, list[WindowPin]] = {}
         for p in self.window_pins.active():
             pinned.setdefault(p.robot, []).append(p)
-        with self._write_lock, self._session() as s, s.begin():
+        with self._writing() as s:
             robots = s.execute(
                 select(Robot.id, Robot.name, Robot.last_frame_t, Robot.epoch, Robot.epoch_start_t)
             ).all()

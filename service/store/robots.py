@@ -177,7 +177,7 @@ class RobotsMixin(StoreBase):
             raise ValueError("robot name must be a non-empty string")
         with self._write_lock:
             try:
-                with self._session() as s, s.begin():
+                with self._writing() as s:
                     known = self._register_robot(s, name)
                     s.execute(
                         update(Robot).where(Robot.id == known.id).values(simulated=True, catalog=catalog)
@@ -191,7 +191,7 @@ class RobotsMixin(StoreBase):
         clean = {str(k): float(v) for k, v in excitation.items()}
         if any(not math.isfinite(v) for v in clean.values()):
             raise ValueError("excitation values must be finite")
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, name)
             s.execute(update(Robot).where(Robot.id == rid).values(excitation=clean))
 
@@ -199,7 +199,7 @@ class RobotsMixin(StoreBase):
         """Record what the worker waits on for robot ``name`` (JSON: its waits, since when, and its
         retrains in the training queue), replacing what it said before. A row of its own per robot, in
         one short transaction that no worker lock guards: the status routes read it."""
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, name)
             s.execute(update(Robot).where(Robot.id == rid).values(waiting=dict(waiting)))
 

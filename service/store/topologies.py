@@ -64,7 +64,7 @@ class TopologiesMixin(StoreBase):
 
     def save_topology(self, robot: str, topo: Topology, wall_time: float, window_end_t: float | None) -> int:
         """Keep a learned topology and thin the history behind it (one transaction); returns its id."""
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             tid = int(
                 s.scalar(
@@ -188,7 +188,7 @@ class TopologiesMixin(StoreBase):
     ) -> int:
         """Make ``topo`` the robot's baseline (the previous ones stay as history); returns its id."""
         _check_source(source)
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             return _insert_baseline(s, rid, topo, source, wall_time, window_end_t)
 
@@ -218,7 +218,7 @@ class TopologiesMixin(StoreBase):
         """
         _check_source(source)
         now = time.time() if wall_time is None else float(wall_time)
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             if topo is None:
                 newest = _topology_rows(s, rid, 1, "fast") or _topology_rows(s, rid, 1, None)

@@ -118,7 +118,7 @@ class WeightsMixin(StoreBase):
         """Keep a new version of ``robot``'s ``method`` weights (a blob of :func:`pack_weights` or the
         weights themselves) and drop all but the newest :data:`KEEP`; returns its version."""
         blob = weights if isinstance(weights, bytes) else pack_weights(weights)
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             where = (NetworkWeightsRow.robot_id == rid, NetworkWeightsRow.method == method)
             version = int(
@@ -149,7 +149,7 @@ class WeightsMixin(StoreBase):
         learned, so they are that baseline's weights. Returns the rows changed."""
         if window_end_t is None:
             return 0
-        with self._session() as s, s.begin():
+        with self._writing() as s:
             rid = robot_id(s, robot)
             res = s.execute(
                 update(NetworkWeightsRow)
