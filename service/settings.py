@@ -151,11 +151,11 @@ class Settings(BaseSettings):
         "training gets no CPU",
     )
     baseline_unconfirmed_cycles: int = Field(
-        8,
+        6,
         ge=0,
         description="cycles the fast screen's body must hold, with no network answer from a window "
-        "that ended after it first held, before it is adopted as a baseline marked fast-unconfirmed; "
-        "0 = wait for the networks",
+        "that ended after it first held, before it is adopted as a baseline marked fast-unconfirmed "
+        "(twice the baseline_repeat_k an agreed baseline needs); 0 = wait for the networks",
     )
     baseline_unconfirmed_seconds: float = Field(
         60.0,
