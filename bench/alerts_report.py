@@ -303,7 +303,10 @@ def markdown(data: Mapping[str, Any]) -> str:
     ]
     for r in data["runs"]:
         lines += _run_lines(r)
-    lines += [f"![Baseline and alert times per run against the targets]({data.get('name', 'alerts')}.png)", ""]
+    lines += [
+        f"![Baseline and alert times per run against the targets]({data.get('name', 'alerts')}.png)",
+        "",
+    ]
     return "\n".join(lines)
 
 

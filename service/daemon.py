@@ -183,6 +183,12 @@ class Daemon:
         log.info("service stopped", extra={"steps": steps})
 
     def _stop_worker(self) -> None:
+        # The worker stops after its current robot; that robot's estimate is ended with the child
+        # rather than waited for (seconds on a loaded machine), and the next start estimates afresh.
+        if self.worker is not None:
+            self.worker.request_stop()
+        if self._estimates is not None:
+            self._estimates.abort()
         if self.worker is not None:
             self.worker.stop()
         if self._estimates is not None:

@@ -30,6 +30,7 @@ without a training cluster (:mod:`service.training`); with one, they train there
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -100,6 +101,21 @@ class EstimatorProcess:
             pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+
+    def abort(self) -> None:
+        """End the child now, an estimate in flight with it: its caller gets ``BrokenProcessPool``. A
+        stopping service uses it so that SIGTERM is not held by a long estimate (the next call would
+        start another child)."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        # ProcessPoolExecutor ends busy children only from Python 3.14 (terminate_workers); until then
+        # its process table is the one handle on them.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            with contextlib.suppress(OSError):
+                proc.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> EstimatorProcess:
         return self

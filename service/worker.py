@@ -210,10 +210,14 @@ class Worker(AlertPath):
         self._thread = threading.Thread(target=self._loop, name="bodyhealth-worker", daemon=True)
         self._thread.start()
 
-    def stop(self, timeout: float = 30.0) -> None:
-        """Ask the thread to stop after the current robot and wait for it."""
+    def request_stop(self) -> None:
+        """Ask the thread to stop after the current robot, without waiting for it."""
         self._stop.set()
         self._wake.set()
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Ask the thread to stop after the current robot and wait for it."""
+        self.request_stop()
         if self._thread is not None:
             self._thread.join(timeout)
             self._thread = None
@@ -356,6 +360,9 @@ class Worker(AlertPath):
                 except UnknownRobot:
                     continue
                 except Exception:
+                    if self._stop.is_set():  # its estimate was ended by the stop: nothing went wrong
+                        log.debug("robot's cycle ended by the stop", extra={"robot": info.name})
+                        break
                     self.metrics.cycle_errors.inc()
                     log.exception("worker cycle failed for robot", extra={"robot": info.name})
             self._count_alerts([info.name for info in robots])

@@ -63,6 +63,31 @@ def test_the_child_answers_as_the_thread_and_is_replaced_when_it_dies() -> None:
     assert not _alive(first)
 
 
+def test_abort_ends_an_estimate_in_flight_and_the_next_call_gets_a_new_child() -> None:
+    """A stopping service does not wait for a long estimate: abort ends the child, the caller's wait
+    raises at once, and the child is gone."""
+    with EstimatorProcess() as est:
+        first = est.run(os.getpid)
+        errors: list[BaseException] = []
+
+        def call() -> None:
+            try:
+                est.run(time.sleep, 60.0)
+            except BaseException as err:
+                errors.append(err)
+
+        th = threading.Thread(target=call)
+        th.start()
+        time.sleep(0.5)  # the sleep is in the child now
+        t0 = time.monotonic()
+        est.abort()
+        th.join(30.0)
+        assert not th.is_alive() and time.monotonic() - t0 < 30.0
+        assert len(errors) == 1 and isinstance(errors[0], BrokenProcessPool)
+        assert not _alive(first)
+        assert est.run(os.getpid) not in (first, os.getpid())
+
+
 def test_the_childs_blas_runs_on_one_thread() -> None:
     """numpy's and scipy's BLAS in the child, each limited to one thread (the parent's are not: on a
     machine of two or more cores they run on every core)."""
