@@ -42,6 +42,7 @@ from bodyschema.conditions import check_p_minus
 from bodyschema.convert import tree_to_topology
 from bodyschema.depmatrix import DependencyMatrix
 from bodyschema.fast import FastFit, FastOptions, fast_fit, fast_options, fit_path
+from bodyschema.network_options import NetworkOptions, split_network_options
 from bodyschema.outtree import OutTree
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
@@ -71,13 +72,16 @@ def estimate_topology(
     *,
     timer: Callable[[], float] | None = None,
     imu_delay: float | None = None,
+    network: NetworkOptions | None = None,
     **kw: Any,
 ) -> Topology:
     """Learn the joint tree and IMU placement of ``rec`` with ``method`` (see :data:`METHODS`).
 
-    Keyword arguments go to the method's estimator (e.g. ``epochs=``, ``seed=`` for the networks;
-    ``options=`` a :class:`~bodyschema.fast.FastOptions` and any of its fields, ``fit_ratio=``, for
-    ``fast``). ``timer`` is the caller's clock (the service passes
+    ``network`` is how the sensor networks train (:class:`~bodyschema.network_options.NetworkOptions`);
+    its fields may also be given by name (``epochs=``, ``seed=``), replacing those in ``network``.
+    Other keyword arguments go to the method's estimator (``options=`` a
+    :class:`~bodyschema.fast.FastOptions` and any of its fields, ``fit_ratio=``, for ``fast``).
+    ``timer`` is the caller's clock (the service passes
     ``time.process_time``: CPU time, all threads); ``seconds`` in the result is what it measured around
     the estimate, 0 without one. This package reads no clock itself, and nothing in the estimate
     depends on it.
@@ -93,7 +97,7 @@ def estimate_topology(
     The sensor-network methods take ``warm_start=`` (:class:`bodyschema.networks.NetworkWeights`);
     :func:`fit_topology` also returns the weights trained.
     """
-    return fit_topology(rec, method, timer=timer, imu_delay=imu_delay, **kw).topology
+    return fit_topology(rec, method, timer=timer, imu_delay=imu_delay, network=network, **kw).topology
 
 
 def fit_topology(
@@ -102,6 +106,7 @@ def fit_topology(
     *,
     timer: Callable[[], float] | None = None,
     imu_delay: float | None = None,
+    network: NetworkOptions | None = None,
     **kw: Any,
 ) -> TopologyFit:
     """:func:`estimate_topology`, and the trained networks' weights (None for ``fast`` and ``mlp``).
@@ -122,7 +127,7 @@ def fit_topology(
     if method == "fast":
         found = _fast_found(rec, timed, fast_opts)
     else:
-        found = _network_found(rec, method, kw)
+        found = _network_found(rec, method, network, kw)
     topo = topology_from_dependency(
         found.dependency,
         rec.imu_names,
@@ -214,21 +219,25 @@ def _fast_found(rec: Recording, timed: FastFit | None, fast_opts: FastOptions | 
     )
 
 
-def _network_found(rec: Recording, method: str, kw: dict[str, Any]) -> _Found:
+def _network_found(rec: Recording, method: str, network: NetworkOptions | None, kw: dict[str, Any]) -> _Found:
     from bodyschema.dependency import network_dependency
 
     excitation = np.sqrt(np.mean(rec.qd**2, axis=0))
     if method == "mlp":
+        # the MLP baseline has defaults of its own: it is given the keywords as they came, and trains
+        # a fixed budget (the paper's), never to a flat loss
         kw.pop("warm_start", None)
-    res = network_dependency(rec, method=method, **kw)
-    bound = kw.get("epochs") or kw.get("max_epochs", 200)
-    training = {"epochs": float(len(res.loss))}
-    training |= {
-        # the MLP baseline trains a fixed budget (the paper's); the sensor networks to a flat loss
-        "converged": float(method != "mlp" and kw.get("epochs") is None and len(res.loss) < bound),
-    }
-    if method != "mlp":
-        training["warm"] = float(res.warm)
+        res = network_dependency(rec, method=method, **{**(network.keywords() if network else {}), **kw})
+        training = {"epochs": float(len(res.loss)), "converged": 0.0}
+    else:
+        opts = split_network_options(kw, network)
+        res = network_dependency(rec, method=method, **opts.keywords(), **kw)
+        bound = opts.epochs or opts.max_epochs
+        training = {
+            "epochs": float(len(res.loss)),
+            "converged": float(opts.epochs is None and len(res.loss) < bound),
+            "warm": float(res.warm),
+        }
     if res.loss and np.isfinite(res.loss[-1]):  # JSON (and PostgreSQL's JSON) has no NaN
         training["loss"] = float(res.loss[-1])
     return _Found(

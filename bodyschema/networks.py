@@ -38,16 +38,19 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from bodyschema.network_options import NetworkOptions, network_options
 from bodyschema.network_weights import NetworkWeights
 from bodyschema.threads import set_torch_threads
 from bodyschema.training import Schedule, epoch_schedule, train_epochs, warm_plateau
 
 __all__ = [
+    "NetworkOptions",  # re-exported: how these networks train
     "NetworkWeights",  # re-exported: the weights of these networks
     "SensorNetworks",
     "batched_layers",
@@ -268,22 +271,17 @@ def train_sensor_networks(
     gyro: np.ndarray,
     acc: np.ndarray,
     gravity: np.ndarray | None,
-    hidden: Sequence[int] = (32, 32, 32),
-    epochs: int | None = None,
-    batch_size: int = 64,
-    lr: float = 1e-2,
-    gyro_weight: float = 1.0,
-    input_sparsity: float = 0.0,
-    seed: int = 0,
-    progress: bool = False,
-    max_epochs: int = 200,
-    plateau_tol: float = 0.01,
+    options: NetworkOptions | None = None,
+    *,
     warm_start: NetworkWeights | None = None,
     on_epoch: Callable[[SensorNetworks, int, float], bool] | None = None,
+    **fields: Any,
 ) -> tuple[SensorNetworks, list[float]]:
     """Fit one pose network per IMU on a recording's arrays; returns the model and the loss per epoch.
 
     ``gravity`` None trains the gravity-free form (Eq. 11) — right only for data without gravity.
+    ``options`` are the training settings (:class:`~bodyschema.network_options.NetworkOptions`); any of
+    its fields may also be given by name (``epochs=5``), replacing the value in ``options``.
 
     ``epochs`` None (the default) trains to convergence (:class:`bodyschema.training.Plateau`): a
     two-epoch warm-up to ``lr``, then the rate is cut to 0.3x whenever the epoch loss has not improved
@@ -309,19 +307,20 @@ def train_sensor_networks(
     Threads follow :func:`set_torch_threads`; a bar (:func:`bodyschema.progress.progress`) is shown
     when ``progress``, and the loss is logged every 10 epochs either way.
     """
+    o = network_options(options, **fields)
     set_torch_threads()
-    torch.manual_seed(int(seed))
+    torch.manual_seed(int(o.seed))
     T, N = q.shape
     K = gyro.shape[1]
     data = _Data.of(q, qd, qdd, gyro, acc, gravity)
-    net = SensorNetworks(K, N, hidden=hidden, seed=seed)
-    warm = _start(net, data, warm_start, hidden, epochs)
-    per_epoch = max(1, math.ceil(T / batch_size))
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    net = SensorNetworks(K, N, hidden=o.hidden, seed=o.seed)
+    warm = _start(net, data, warm_start, o.hidden, o.epochs)
+    per_epoch = max(1, math.ceil(T / o.batch_size))
+    opt = torch.optim.Adam(net.parameters(), lr=o.lr)
     if warm:
-        schedule = warm_plateau(opt, lr, per_epoch, plateau_tol)
+        schedule = warm_plateau(opt, o.lr, per_epoch, o.plateau_tol)
     else:
-        schedule = epoch_schedule(opt, lr, per_epoch, epochs, plateau_tol)
+        schedule = epoch_schedule(opt, o.lr, per_epoch, o.epochs, o.plateau_tol)
     net.warm = warm
     if warm and on_epoch is not None:
         # what the stored weights read from this window before any step (epoch -1): a watcher that
@@ -329,15 +328,15 @@ def train_sensor_networks(
         on_epoch(net, -1, math.nan)
     history = train_epochs(
         opt,
-        _batch_loss(net, data, gyro_weight, input_sparsity),
+        _batch_loss(net, data, o.gyro_weight, o.input_sparsity),
         T,
-        epochs=int(epochs) if epochs is not None else int(max_epochs),
-        batch_size=batch_size,
-        seed=seed,
+        epochs=int(o.epochs) if o.epochs is not None else int(o.max_epochs),
+        batch_size=o.batch_size,
+        seed=o.seed,
         name="sensor networks",
         desc=f"sensor networks ({K} IMUs)",
         schedule=schedule if on_epoch is None else _Watched(schedule, lambda e, loss: on_epoch(net, e, loss)),
-        show_progress=progress,
+        show_progress=o.progress,
         logger=log,
     )
     return net, history
