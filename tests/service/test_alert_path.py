@@ -21,10 +21,10 @@ from fastapi.testclient import TestClient
 
 from bodyschema.recording import Recording
 from service.api import create_app
+from service.retrain import RetrainQueueEntry
 from service.settings import Settings
 from service.status import robot_status
 from service.store import Store, open_store
-from service.training import RetrainQueueEntry
 from service.worker import Worker, next_wait
 from tests.bodyschema.test_health import synth
 from tests.service.test_worker import GOOD, MOVED, ByMethod, feed
@@ -32,7 +32,7 @@ from tests.service.test_worker import GOOD, MOVED, ByMethod, feed
 
 class StalledQueue:
     """A training queue on a machine that gives training no CPU: every retrain asked for waits, none
-    finishes. Reports its entries as :meth:`service.training.RemoteRetrains.queue_status` does."""
+    finishes. Reports its entries as :meth:`service.retrain.RemoteRetrains.queue_status` does."""
 
     fault: str | None = None
 

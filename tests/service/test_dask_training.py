@@ -36,10 +36,17 @@ from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
 from service.daemon import Daemon
 from service.metrics import Metrics
-from service.retrain_task import RetrainJob, RetrainResult, job_key, run_retrain
+from service.retrain import (
+    NetworkOptions,
+    RemoteRetrains,
+    RetrainJob,
+    RetrainResult,
+    TrainingOptions,
+    job_key,
+    run_retrain,
+)
 from service.settings import Settings
 from service.store import Store, open_store
-from service.training import RemoteRetrains, TrainingOptions
 from service.worker import Worker
 from tests.bodyschema.test_health import synth
 from tests.ports import free_port
@@ -126,7 +133,7 @@ def _cycle_until(worker: Worker, done: Callable[[], bool], timeout: float, what:
 
 
 def _worker(store: Store, settings: Settings, cluster: TrainingCluster, epochs: int = EPOCHS) -> Worker:
-    options = TrainingOptions(seed=SEED, estimator_options=(("epochs", epochs),))
+    options = TrainingOptions(network=NetworkOptions(seed=SEED, epochs=epochs))
     metrics = Metrics()
     remote = RemoteRetrains(cluster, store, settings.window_seconds, options=options, metrics=metrics)
     return Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=metrics)
@@ -315,7 +322,7 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
     daemon = Daemon(
         settings,
         estimator=Scripted(GOOD),
-        training=TrainingOptions(seed=SEED, estimator_options=(("epochs", 2),)),
+        training=TrainingOptions(network=NetworkOptions(seed=SEED, epochs=2)),
     )
     gc.unfreeze()  # what an earlier test of this process froze
     t0 = time.monotonic()
@@ -394,7 +401,12 @@ def test_task_reads_only_what_its_job_names(tmp_path: Path) -> None:
     assert info is not None and info.last_frame_t is not None
     end = info.last_frame_t
     job = RetrainJob(
-        url, "arm", "network", window_end=end, window_seconds=WINDOW, seed=SEED, options=(("epochs", 2),)
+        url,
+        "arm",
+        "network",
+        window_end=end,
+        window_seconds=WINDOW,
+        network=NetworkOptions(seed=SEED, epochs=2),
     )
     res = run_retrain(job)
     assert res.key == job_key(job) and res.pid == os.getpid() and res.window_end == end
@@ -415,7 +427,7 @@ def test_retrains_start_warm_from_the_weights_of_the_current_baseline(
     cluster = TrainingCluster(ClusterOptions(scheduler=dask_cluster.scheduler_address))
     try:
         rec = synth(np.random.default_rng(6), seconds=24)  # one body; three windows of it
-        options = TrainingOptions(seed=SEED, estimator_options=(("max_epochs", 40),))  # to convergence
+        options = TrainingOptions(network=NetworkOptions(seed=SEED, max_epochs=40))  # to convergence
         metrics = Metrics()
         remote = RemoteRetrains(cluster, store, WINDOW, options=options, metrics=metrics)
         settings = _settings(db_url, baseline_repeat_k=1000)  # no baseline unless set here

@@ -20,7 +20,7 @@ import pytest
 from bodyschema.estimate import estimate_topology
 from bodyschema.health import signal_health
 from service.estimation import EstimatorProcess
-from service.retrain_task import lower_priority
+from service.retrain import lower_priority
 from simulators.kinematic_tree import random_robot_recording
 
 REPO = Path(__file__).resolve().parents[2]

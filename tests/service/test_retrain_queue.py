@@ -26,16 +26,11 @@ from fastapi.testclient import TestClient
 from service.api import create_app
 from service.cluster import ClusterOptions, TrainingCluster
 from service.metrics import Metrics
+from service.retrain import NetworkOptions, RemoteRetrains, RetrainLimits, RetrainQueueEntry, TrainingOptions
+from service.retrain.queue import ASSUMED_RETRAIN_SECONDS
 from service.settings import Settings
 from service.store import Store, open_store
 from service.store.pins import WindowPin
-from service.training import (
-    ASSUMED_RETRAIN_SECONDS,
-    RemoteRetrains,
-    RetrainLimits,
-    RetrainQueueEntry,
-    TrainingOptions,
-)
 from service.worker import Worker
 from tests.bodyschema.test_health import synth
 from tests.service.test_store import stream
@@ -191,7 +186,7 @@ def test_a_queued_retrain_trains_on_its_window_while_retention_passes_it(
     client = Client(one_thread, set_as_default=False)
     metrics = Metrics()
     limits = RetrainLimits(max_queued=1, max_wall_seconds=MAX_WALL)
-    options = TrainingOptions(seed=SEED, estimator_options=(("epochs", 2),))
+    options = TrainingOptions(network=NetworkOptions(seed=SEED, epochs=2))
     remote = RemoteRetrains(cluster, store, WINDOW, options=options, metrics=metrics, limits=limits)
     try:
         end = feed(store, synth(np.random.default_rng(3), seconds=8)) - 0.01  # last frame 7.99
