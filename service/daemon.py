@@ -19,7 +19,7 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +31,9 @@ from service.ingest.base import Source
 from service.ingest.farm import FarmDamage, FarmSource
 from service.ingest.pipeline import CommitLog, Pipeline
 from service.metrics import Metrics
-from service.retrain_task import shareable_url
+from service.retrain import RemoteRetrains, RetrainLimits, TrainingOptions, shareable_url
 from service.settings import Settings
 from service.store import Store
-from service.training import RemoteRetrains, RetrainLimits, TrainingOptions
 from service.worker import Estimator, Worker
 
 __all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage"]
@@ -137,16 +136,7 @@ class Daemon:
         self.cluster = TrainingCluster(ClusterOptions.from_settings(s))
         if s.dask_scheduler:
             self.cluster.start()  # an external scheduler: connect now, so /readyz can report it
-        # the embedded cluster's retrains yield the CPU to the API and ingest; an external one is left be
-        embedded = not s.dask_scheduler
-        options = replace(
-            self.training or TrainingOptions(),
-            nice=s.training_nice if embedded else 0,
-            idle=s.training_idle and embedded,
-        )
-        if s.imu_filter_delay is not None and "imu_delay" not in dict(options.estimator_options):
-            extra = (("imu_delay", s.imu_filter_delay),)
-            options = replace(options, estimator_options=options.estimator_options + extra)
+        options = TrainingOptions.from_settings(s, self.training)
         limits = RetrainLimits.from_settings(s)
         return RemoteRetrains(
             self.cluster, self.store, s.window_seconds, options=options, metrics=metrics, limits=limits

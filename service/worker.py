@@ -38,7 +38,7 @@ One cycle, for every robot the store knows:
 6. a heartbeat to the store, which ``/readyz`` checks.
 
 The sensor-network methods run in another process when the worker is given a
-:class:`~service.training.RemoteRetrains` (the service's default: a Dask cluster, docs/service.md
+:class:`~service.retrain.RemoteRetrains` (the service's default: a Dask cluster, docs/service.md
 "Training on Dask"): the cycle only marks them wanted, submits them, and stores the results of those
 that finished since the last cycle; it never waits for one. Without it they run here, in the cycle.
 
@@ -76,9 +76,9 @@ from service.monitor.confirmation import NetworkAsks
 from service.monitor.drift import FRAME_KEY, GeometryDrift
 from service.monitor.onset import estimate_after
 from service.monitor.state import RobotState
+from service.retrain import RemoteRetrains
 from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
-from service.training import RemoteRetrains
 from service.worker_alerts import AlertPath, CycleResult
 
 __all__ = [
