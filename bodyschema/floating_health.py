@@ -46,6 +46,7 @@ from bodyschema.stance_chains import (
     foot_forces,
     stance_chains,
 )
+from bodyschema.stance_tilt import TiltModel, TiltOptions, tilt_hypotheses, tilt_model, tilt_test
 
 __all__ = ["FloatingBaseline", "FloatingOptions", "floating_baseline", "floating_diff"]
 
@@ -59,6 +60,7 @@ class FloatingOptions:
     p_false: float = 1e-3
     still_seconds: float = 1.0
     chains: ChainOptions = field(default_factory=ChainOptions)
+    tilt: TiltOptions = field(default_factory=TiltOptions)
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,7 @@ class FloatingBaseline:
     imu_run: np.ndarray
     force_threshold: np.ndarray | None
     chains: tuple[_Chain, ...]
+    tilt: TiltModel | None = None
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -144,6 +147,7 @@ def floating_baseline(rec: Recording, opts: FloatingOptions | None = None) -> Fl
     forces, _ = foot_forces(rec)
     thr = None
     chains: list[_Chain] = []
+    tilt = None
     res = stance_chains(rec, opts.chains)
     if forces is not None:
         from bodyschema.contacts import force_contacts
@@ -151,8 +155,11 @@ def floating_baseline(rec: Recording, opts: FloatingOptions | None = None) -> Fl
         c = force_contacts(forces, rate, p_false=opts.chains.p_false)
         thr = c.threshold
         chains = _chain_models(rec, res, c.down, opts)
+        if chains and rec.n_imus:
+            legs = [(ch.key, ch.columns, ch.axes) for ch in chains]
+            tilt = tilt_model(rec.q, rec.acc[:, 0], c.down, rate, legs, opts.tilt)
     return FloatingBaseline(
-        rec.joint_names, rec.imu_names, quantum, moving, jerk, still, rep, run, thr, tuple(chains)
+        rec.joint_names, rec.imu_names, quantum, moving, jerk, still, rep, run, thr, tuple(chains), tilt
     )
 
 
@@ -295,6 +302,38 @@ def _chain_checks(cur: Recording, base: FloatingBaseline, opts: FloatingOptions)
     return out
 
 
+def _tilt_checks(cur: Recording, base: FloatingBaseline, opts: FloatingOptions) -> list[Finding]:
+    """The stance feet's gravity against the base IMU's (:mod:`bodyschema.stance_tilt`): one finding,
+    the most likely of an IMU turned on its mount or a chain joint offset, when the window's tilt
+    residual is beyond the baseline's spread."""
+    forces, _ = foot_forces(cur)
+    model = base.tilt
+    if model is None or forces is None or base.force_threshold is None or cur.n_imus < 1:
+        return []
+    if forces.shape[1] != base.force_threshold.shape[0]:
+        return []
+    down = forces > base.force_threshold
+    acc = cur.acc[:, 0]
+    got = tilt_test(model, cur.q, acc, down, cur.sample_rate, opts.tilt)
+    if got is None or got[0] <= got[1]:
+        return []
+    t2, crit, m, S, stance = got
+    hyp = tilt_hypotheses(model, cur.q, acc, stance, m, S, opts.tilt)
+    kind, label, part, _, p = hyp[0]
+    total = sum(h[4] for h in hyp)
+    conf = p / total if total > 0 else 0.0
+    # joints with parallel axes (hip pitch, knee, ankle pitch) tilt the foot alike: name the rivals
+    rivals = [cur.joint_names[h[2]] for h in hyp[1:] if h[0] == "offset" and h[4] >= 0.1 * p]
+    detail = (
+        f"stance feet's gravity off the IMU's (T² {t2:.1f} > {crit:.1f} at p={opts.tilt.p_false:g}); "
+        f"{label} fits best (chi-square p {p:.3g})"
+        + (f"; an offset on {', '.join(rivals)} fits nearly as well" if rivals else "")
+    )
+    if kind == "imu":
+        return [Finding("imu_rotated", imu=cur.imu_names[0], confidence=conf, detail=detail)]
+    return [Finding("encoder_fault", joint=cur.joint_names[part], confidence=conf, detail=detail)]
+
+
 def floating_diff(
     baseline: Recording | FloatingBaseline, current: Recording, opts: FloatingOptions | None = None
 ) -> Diff:
@@ -308,4 +347,6 @@ def floating_diff(
     found = _dead_imus(cur, base, opts)
     enc = _encoders(cur, base, opts)
     chain = [f for f in _chain_checks(cur, base, opts) if f.joint not in {e.joint for e in enc}]
-    return Diff(findings=tuple(found + enc + chain))
+    seen = {f.part for f in enc + chain}
+    tilt = [f for f in _tilt_checks(cur, base, opts) if f.part not in seen]
+    return Diff(findings=tuple(found + enc + chain + tilt))
