@@ -74,6 +74,7 @@ from service.metrics import Metrics
 from service.monitor.baseline import BaselineAdoption
 from service.monitor.confirmation import NetworkAsks
 from service.monitor.drift import FRAME_KEY, GeometryDrift
+from service.monitor.floating import FloatingBase
 from service.monitor.onset import estimate_after
 from service.monitor.state import RobotState
 from service.retrain import RemoteRetrains
@@ -166,6 +167,9 @@ class Worker(AlertPath):
         self.asks = NetworkAsks(self.settings, clock, self._want_network)
         self.adoption = BaselineAdoption(store, self.settings, clock, self.asks)
         self.geometry = GeometryDrift(store, self.settings, self.metrics, self.compute, clock)
+        self.floating = FloatingBase(
+            store, self.settings, self.tracker, clock, self._store_alerts, self._write_waits, min_samples
+        )
         #: ``time.monotonic()`` when the running cycle began (None between cycles) and the last ended.
         self._cycle_began: float | None = None
         self._cycle_ended: float | None = None
@@ -478,6 +482,8 @@ class Worker(AlertPath):
         window_end = float(rec.t[-1])
         # velocity jumps at stops read as contradictions to the estimators
         learn = self.compute(drop_impacts, rec)
+        if self.floating.takes(robot, rec, learn, res):  # floating base, or too short for a fixed fit
+            return res
         fast = self._learn(robot, st, learn, res)
         if fast is None:
             return res

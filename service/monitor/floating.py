@@ -1,0 +1,196 @@
+"""Floating-base robots in the worker: one IMU on a base that no encoder moves.
+
+The fixed-base path (learn a topology, diff it against the baseline) has nothing to place on a walking
+robot: its single IMU rides the base, and after the velocity jumps of every foot strike are dropped a
+window keeps a handful of samples (``need at least 50 samples``). Such a robot takes this path:
+
+* **Which robots.** A window the floating-base rule marks floating
+  (:func:`bodyschema.stance_chains.floating_base_rule`: a ``floating_base`` flag or foot forces). The
+  store keeps ``t``, ``q``, ``acc`` and ``gyro`` only, so a window read back from it carries neither;
+  a robot with exactly one IMU whose joints jump in velocity in so many samples that fewer than
+  ``min_samples`` are left after :func:`~bodyschema.impacts.drop_impacts` (contacts at every step) is
+  then taken as floating too: the fixed-base fit cannot apply to it. The decision sticks to the robot
+  until the worker restarts, so a window that happens to keep enough samples does not flip it back.
+* **Baseline.** :func:`bodyschema.floating_health.floating_baseline` on one healthy window
+  ``baseline_repeat_k`` times as long as the judged ones, taken once that much device time is stored.
+  One window, not K equal results: the floating checks' tolerances are extremes of the baseline (the
+  longest hold of each encoder while the body moves, each joint's whole travel, the IMU's longest
+  repeated reading), and extremes learned on K windows' worth of motion bound what any one later
+  window of the same motion shows; K windows apart would each give smaller ones and need a rule to
+  merge them. The baseline lives in the worker (it is not a topology; the store has no row for it),
+  so a restart learns it again.
+* **Judging.** Every later full window: :func:`~bodyschema.floating_health.floating_diff` → findings →
+  the worker's tracker (pending, then active after ``alert_hysteresis_m`` cycles) → alerts in the
+  store, like the fixed path's findings.
+* **Status.** What the robot's checks cannot decide is said, not raised: the wait entry names the
+  rule that applied, the baseline's state, and the checks left undetermined (encoder offsets and a
+  turned IMU need a stance chain: no foot forces in the frames, or point feet, which fix no
+  rotation). A fixed-base robot whose window is too short after dropping impacts gets an
+  ``undetermined: ...`` skip instead of an estimator error.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from bodyschema.floating_health import FloatingBaseline, FloatingOptions, floating_baseline, floating_diff
+from bodyschema.recording import Recording
+from bodyschema.stance_chains import floating_base_rule
+from service.alert_path import Waits
+from service.alerts import AlertTracker, Evidence, Transition
+from service.settings import Settings
+from service.store import Store
+from service.worker_alerts import CycleResult
+
+__all__ = ["FloatingBase", "FloatingRobot"]
+
+log = logging.getLogger("service.worker")
+
+
+@dataclass
+class FloatingRobot:
+    """What the worker keeps for one floating-base robot: the rule that marked it, since when (wall
+    time), and the baseline once learned (with the device time its window ended)."""
+
+    rule: str
+    since: float
+    baseline: FloatingBaseline | None = None
+    baseline_end: float | None = None
+    baseline_at: float | None = None
+
+
+def _undetermined(base: FloatingBaseline) -> str:
+    """The checks the baseline leaves undetermined, and why ('' when every check runs)."""
+    if base.chains or base.tilt is not None:
+        return ""
+    if base.force_threshold is None:
+        why = "the frames carry no foot forces, so no contact phase and no stance chain"
+    else:
+        why = "no stance chain on the baseline (point feet fix no rotation, or no single-limb stance)"
+    return f"encoder offsets and a turned IMU undetermined: {why}"
+
+
+class FloatingBase:
+    """The floating-base path of the worker's cycle (module doc).
+
+    ``store_alerts`` and ``write_waits`` are the worker's own (the same alert path and status record
+    as the fixed path); ``tracker`` is its alert tracker.
+    """
+
+    def __init__(
+        self,
+        store: Store,
+        settings: Settings,
+        tracker: AlertTracker,
+        clock: Callable[[], float],
+        store_alerts: Callable[[str, list[Transition]], None],
+        write_waits: Callable[[str, Waits], None],
+        min_samples: int = 50,
+        options: FloatingOptions | None = None,
+    ) -> None:
+        self.store = store
+        self.settings = settings
+        self.tracker = tracker
+        self.clock = clock
+        self.store_alerts = store_alerts
+        self.write_waits = write_waits
+        self.min_samples = min_samples
+        self.options = options or FloatingOptions()
+        self.robots: dict[str, FloatingRobot] = {}
+
+    # ------------------------------------------------------------------------------ the rule
+    def rule(self, robot: str, rec: Recording, learn: Recording) -> str | None:
+        """Why ``robot`` is taken as floating-base (None: it is not), from its window ``rec`` and the
+        same window with impacts dropped, ``learn`` (module doc)."""
+        known = self.robots.get(robot)
+        if (
+            known is not None
+            and known.baseline is not None
+            and (known.baseline.joint_names != rec.joint_names or known.baseline.imu_names != rec.imu_names)
+        ):
+            del self.robots[robot]  # other parts: judged again from scratch
+            known = None
+        if known is not None:
+            return known.rule
+        floating, why = floating_base_rule(rec)
+        if floating:
+            return why
+        if rec.n_imus == 1 and learn.n_samples < self.min_samples:
+            return (
+                f"one IMU, and velocity jumps at contacts in all but {learn.n_samples} of {rec.n_samples} "
+                "samples: a fixed-base topology cannot be fitted"
+            )
+        return None
+
+    # ----------------------------------------------------------------------------- the cycle
+    def takes(self, robot: str, rec: Recording, learn: Recording, res: CycleResult) -> bool:
+        """Run the cycle of ``robot`` here when it is floating-base, or when its window is too short
+        for the fixed-base fit (``res.skipped`` says why); False: the fixed path goes on."""
+        why = self.rule(robot, rec, learn)
+        if why is None:
+            if learn.n_samples >= self.min_samples:
+                return False
+            res.skipped = (
+                f"undetermined: {learn.n_samples} of {rec.n_samples} samples left after dropping the "
+                f"velocity jumps at impacts; the fixed-base fit needs {self.min_samples}"
+            )
+            return True
+        fr = self.robots.get(robot)
+        if fr is None:
+            fr = self.robots[robot] = FloatingRobot(why, self.clock())
+            log.info("floating base: the floating-base checks judge this robot", extra={"robot": robot})
+        waits = Waits()
+        if fr.baseline is None:
+            self._learn(robot, fr, res, waits)
+        else:
+            self._judge(robot, fr, rec, res, waits)
+        self.write_waits(robot, waits)
+        return True
+
+    def _learn(self, robot: str, fr: FloatingRobot, res: CycleResult, waits: Waits) -> None:
+        """Learn the baseline once ``baseline_repeat_k`` windows of device time are stored."""
+        k, window = self.settings.baseline_repeat_k, self.settings.window_seconds
+        span = k * window
+        rec = self.store.read_window(robot, span)
+        have = 0.0 if rec is None else rec.duration
+        if rec is None or have < 0.8 * span or rec.q is None:
+            what = f"floating base ({fr.rule}): baseline from {span:g} s of frames ({have:.0f} s so far)"
+            waits.add(what, fr.since)
+            res.skipped = f"undetermined: {what}"
+            return
+        fr.baseline = floating_baseline(rec, self.options)
+        fr.baseline_end, fr.baseline_at = float(rec.t[-1]), self.clock()
+        self.tracker.forget(robot)
+        res.baseline_set = True
+        self._say(fr, waits)
+        log.info(
+            "floating-base baseline learned",
+            extra={"robot": robot, "seconds": round(have, 1), "undetermined": _undetermined(fr.baseline)},
+        )
+
+    def _judge(self, robot: str, fr: FloatingRobot, rec: Recording, res: CycleResult, waits: Waits) -> None:
+        """``rec`` against the baseline, the findings through the tracker into the store."""
+        assert fr.baseline is not None
+        self._say(fr, waits)
+        if rec.duration < 0.8 * self.settings.window_seconds:
+            res.skipped = f"undetermined: the window holds {rec.duration:.1f} s of frames"
+            return
+        try:
+            res.diff = floating_diff(fr.baseline, rec, self.options)
+        except ValueError as err:  # the robot's parts changed under the baseline
+            res.skipped = f"undetermined: {err}"
+            return
+        changes = self.tracker.update(robot, res.diff.findings, evidence=Evidence(now=self.clock()))
+        res.pending = [t for t in changes if t.state == "pending"]
+        res.transitions = [t for t in changes if t.state != "pending"]
+        self.store_alerts(robot, changes)
+
+    @staticmethod
+    def _say(fr: FloatingRobot, waits: Waits) -> None:
+        """The status line of a robot with a floating baseline: the rule and what stays undetermined."""
+        assert fr.baseline is not None and fr.baseline_at is not None
+        gap = _undetermined(fr.baseline)
+        what = f"floating base ({fr.rule}): judged by the floating-base checks, not a fixed-base topology"
+        waits.add(what + (f"; {gap}" if gap else ""), fr.baseline_at)
