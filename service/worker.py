@@ -64,7 +64,6 @@ from typing import Any
 from bodyschema.diff import diff_bodies, is_ambiguous
 from bodyschema.findings import Finding
 from bodyschema.health import BaselineFingerprints, baseline_fingerprints, signal_health
-from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording
 from bodyschema.timing import LagHint, measured_lag
 from bodyschema.topology import Topology
@@ -74,7 +73,7 @@ from service.metrics import Metrics
 from service.monitor.baseline import BaselineAdoption
 from service.monitor.confirmation import NetworkAsks
 from service.monitor.drift import FRAME_KEY, GeometryDrift
-from service.monitor.floating import FloatingBase
+from service.monitor.floating import FloatingBase, impacts_dropped
 from service.monitor.onset import estimate_after
 from service.monitor.state import RobotState
 from service.retrain import RemoteRetrains
@@ -481,7 +480,7 @@ class Worker(AlertPath):
         self._baseline_seen(robot, st, base)
         window_end = float(rec.t[-1])
         # velocity jumps at stops read as contradictions to the estimators
-        learn = self.compute(drop_impacts, rec)
+        learn = self.compute(impacts_dropped, rec)  # None: nothing left
         if self.floating.takes(robot, rec, learn, res):  # floating base, or too short for a fixed fit
             return res
         fast = self._learn(robot, st, learn, res)

@@ -36,7 +36,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from bodyschema.floating_health import FloatingBaseline, FloatingOptions, floating_baseline, floating_diff
-from bodyschema.recording import Recording
+from bodyschema.impacts import drop_impacts
+from bodyschema.recording import Recording, RecordingError
 from bodyschema.stance_chains import floating_base_rule
 from service.alert_path import Waits
 from service.alerts import AlertTracker, Evidence, Transition
@@ -44,7 +45,7 @@ from service.settings import Settings
 from service.store import Store
 from service.worker_alerts import CycleResult
 
-__all__ = ["FloatingBase", "FloatingRobot"]
+__all__ = ["FloatingBase", "FloatingRobot", "impacts_dropped"]
 
 log = logging.getLogger("service.worker")
 
@@ -59,6 +60,15 @@ class FloatingRobot:
     baseline: FloatingBaseline | None = None
     baseline_end: float | None = None
     baseline_at: float | None = None
+
+
+def impacts_dropped(rec: Recording) -> Recording | None:
+    """:func:`~bodyschema.impacts.drop_impacts` of ``rec``, None when it leaves no sample (a walking
+    robot's joints jump in velocity at every contact: a short window can lose all of them)."""
+    try:
+        return drop_impacts(rec)
+    except RecordingError:
+        return None
 
 
 def _undetermined(base: FloatingBaseline) -> str:
@@ -101,7 +111,7 @@ class FloatingBase:
         self.robots: dict[str, FloatingRobot] = {}
 
     # ------------------------------------------------------------------------------ the rule
-    def rule(self, robot: str, rec: Recording, learn: Recording) -> str | None:
+    def rule(self, robot: str, rec: Recording, learn: Recording | None) -> str | None:
         """Why ``robot`` is taken as floating-base (None: it is not), from its window ``rec`` and the
         same window with impacts dropped, ``learn`` (module doc)."""
         known = self.robots.get(robot)
@@ -117,23 +127,25 @@ class FloatingBase:
         floating, why = floating_base_rule(rec)
         if floating:
             return why
-        if rec.n_imus == 1 and learn.n_samples < self.min_samples:
+        kept = 0 if learn is None else learn.n_samples
+        if rec.n_imus == 1 and kept < self.min_samples:
             return (
-                f"one IMU, and velocity jumps at contacts in all but {learn.n_samples} of {rec.n_samples} "
+                f"one IMU, and velocity jumps at contacts in all but {kept} of {rec.n_samples} "
                 "samples: a fixed-base topology cannot be fitted"
             )
         return None
 
     # ----------------------------------------------------------------------------- the cycle
-    def takes(self, robot: str, rec: Recording, learn: Recording, res: CycleResult) -> bool:
+    def takes(self, robot: str, rec: Recording, learn: Recording | None, res: CycleResult) -> bool:
         """Run the cycle of ``robot`` here when it is floating-base, or when its window is too short
         for the fixed-base fit (``res.skipped`` says why); False: the fixed path goes on."""
         why = self.rule(robot, rec, learn)
         if why is None:
-            if learn.n_samples >= self.min_samples:
+            kept = 0 if learn is None else learn.n_samples
+            if kept >= self.min_samples:
                 return False
             res.skipped = (
-                f"undetermined: {learn.n_samples} of {rec.n_samples} samples left after dropping the "
+                f"undetermined: {kept} of {rec.n_samples} samples left after dropping the "
                 f"velocity jumps at impacts; the fixed-base fit needs {self.min_samples}"
             )
             return True
