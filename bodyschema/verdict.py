@@ -39,7 +39,7 @@ from typing import Any
 
 from bodyschema.topology import Topology
 
-__all__ = ["DECIDED", "PartVerdict", "Verdict", "combine", "decided_parts"]
+__all__ = ["DECIDED", "PartVerdict", "Verdict", "alone", "combine", "decided_parts"]
 
 #: A method decides a part when its confidence in it is above this (and its candidates agree).
 DECIDED = 0.5
@@ -60,6 +60,12 @@ class PartVerdict:
     network_decided: bool
     confidence: float
     move: tuple[str, ...] = ()
+
+    @property
+    def contradicted(self) -> bool:
+        """Both methods decided the part and their answers differ: the one case where a method's
+        decided answer is refuted by the other, not merely unconfirmed."""
+        return self.fast_decided and self.network_decided and self.fast != self.network
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -134,6 +140,24 @@ def _move(part: str, fast: Topology, net: Topology, fd: bool, nd: bool) -> tuple
 def _check_same_body(fast: Topology, net: Topology) -> None:
     if set(fast.joint_parent) != set(net.joint_parent) or set(fast.imu_joint) != set(net.imu_joint):
         raise ValueError("the two topologies name different joints or IMUs; they are not of one robot")
+
+
+def alone(fast: Topology) -> dict[str, PartVerdict]:
+    """Per part, what one method says while the other has not answered: ``decided`` is that method's
+    own decision (its answer stands unconfirmed, never agreed), the other's answer None, and ``move``
+    the joints that would decide the parts it leaves open (as :func:`combine` names them).
+
+    >>> t = Topology({"j1": None, "j2": "j1"}, {"i1": "j1"}, method="fast", undetermined=("j2",))
+    >>> p = alone(t)["joint:j2"]
+    >>> p.decided, p.network, p.move
+    (False, None, ('j2',))
+    """
+    out: dict[str, PartVerdict] = {}
+    for p, d in decided_parts(fast).items():
+        a, c = _answer(fast, p), fast.confidence.get(p, 1.0)
+        move = () if d else _move(p, fast, fast, False, False)
+        out[p] = PartVerdict(p, d, a, a, None, d, False, float(c if d else min(c, DECIDED)), move)
+    return out
 
 
 def combine(fast: Topology, network: Topology) -> Verdict:

@@ -28,6 +28,15 @@ robot's retrains in the training queue, ``queue``), as the worker last wrote it
 without them (``baseline_networks``, :func:`service.alert_path.baseline_verdict`): one they
 contradict makes an otherwise healthy robot undetermined.
 
+Two methods, one verdict (``methods``, :func:`methods_verdict`): per part of the body (``joint:J``,
+``imu:k``) what the newest fast topology and the newest sensor-network topology say together
+(:func:`bodyschema.verdict.combine`). While the networks have not answered (none stored, one of
+other joints or IMUs, or one older than the baseline that shows another body) the parts rest on the
+fast method alone, *unconfirmed*: that alone never makes a robot undetermined (the fast screen
+answers every cycle, the networks may take minutes). A part both methods decide with different
+answers is *contradicted*: an otherwise healthy robot is undetermined, with both answers and the
+joints whose motion would decide (added to ``decide_by``).
+
 Example
 -------
 >>> from bodyschema.topology import Topology
@@ -59,16 +68,23 @@ from bodyschema.diff import (
 )
 from bodyschema.findings import ALERT_KINDS, Diff
 from bodyschema.topology import Topology
+from bodyschema.verdict import PartVerdict, alone, combine
 from service.alert_path import baseline_verdict
 from service.store import AlertRecord, Store, TopologyRecord
 
 __all__ = [
     "MAX_ALTERNATIVES",
+    "PART_VERDICTS",
     "STATUSES",
+    "Basis",
+    "MethodsVerdict",
+    "PartVerdictValue",
     "RobotStatus",
     "StatusValue",
+    "contradiction_text",
     "decide_by",
     "judge",
+    "methods_verdict",
     "robot_status",
     "robot_statuses",
     "trees_fit",
@@ -77,11 +93,55 @@ __all__ = [
 
 StatusValue = Literal["healthy", "damaged", "undetermined"]
 STATUSES: tuple[str, ...] = ("healthy", "damaged", "undetermined")
+#: A part's verdict: both methods decided it alike; only the fast method answered and decided it;
+#: anything else (a method left it open, or the two contradict each other).
+PART_VERDICTS: tuple[str, ...] = ("agreed", "unconfirmed", "undetermined")
+PartVerdictValue = Literal["agreed", "unconfirmed", "undetermined"]
+#: What a :class:`MethodsVerdict` rests on.
+Basis = Literal["fast+network", "fast", ""]
 
 #: Alternative trees carried in one answer; the count (``trees_fit``) is always complete as far as the
 #: estimator listed them, the trees themselves are bounded so a badly under-instrumented robot cannot
 #: blow up every poll of the dashboard.
 MAX_ALTERNATIVES = 8
+
+
+@dataclass(frozen=True)
+class MethodsVerdict:
+    """The fast method and the sensor networks on each part of the body (module doc).
+
+    ``basis`` is ``"fast+network"`` when both answered, ``"fast"`` when the parts rest on the fast
+    method alone (``note`` says why), ``""`` when the fast method has learned nothing. ``fast_id`` and
+    ``network_id`` are the topologies compared; ``network_stale`` is set when the networks' newest
+    topology was put aside as older than the baseline.
+    """
+
+    basis: Basis = ""
+    parts: tuple[PartVerdict, ...] = ()
+    note: str = ""
+    fast_id: int | None = None
+    network_id: int | None = None
+    network_window_end_t: float | None = None
+    network_stale: bool = False
+
+    def verdict(self, p: PartVerdict) -> PartVerdictValue:
+        """One of :data:`PART_VERDICTS` for ``p``."""
+        if not p.decided:
+            return "undetermined"
+        return "agreed" if self.basis == "fast+network" else "unconfirmed"
+
+    @property
+    def contradicted(self) -> tuple[PartVerdict, ...]:
+        """The parts both methods decided with different answers."""
+        return tuple(p for p in self.parts if p.contradicted)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """How many parts have each verdict, and how many of the undetermined ones are contradicted."""
+        out = dict.fromkeys(PART_VERDICTS, 0)
+        for p in self.parts:
+            out[self.verdict(p)] += 1
+        return out | {"contradicted": len(self.contradicted)}
 
 
 @dataclass(frozen=True)
@@ -97,7 +157,8 @@ class RobotStatus:
     answer was read from a store. ``network`` is the robot's newest sensor-network topology (when
     another method is judged): what the last retrain learned, and how it trained. ``waiting`` and
     ``queue`` are what the worker waits on and the robot's retrains in the training queue (module
-    doc); ``baseline_networks`` what the networks say of a fast-unconfirmed baseline.
+    doc); ``baseline_networks`` what the networks say of a fast-unconfirmed baseline; ``methods`` the
+    two methods' verdict per part.
     """
 
     robot: str
@@ -117,6 +178,7 @@ class RobotStatus:
     waiting: tuple[dict[str, Any], ...] = ()
     queue: tuple[dict[str, Any], ...] = ()
     baseline_networks: str = ""
+    methods: MethodsVerdict = MethodsVerdict()
 
     @property
     def timing(self) -> dict[str, float | None]:
@@ -276,6 +338,9 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
     cur = store.latest_topology(robot, method=method or "fast")
     if cur is None and method is None:
         cur = store.latest_topology(robot)
+    fast = cur if method in (None, "fast") else store.latest_topology(robot, method="fast")
+    if fast is not None and fast.method != "fast":
+        fast = None  # the fallback to any method: no fast topology was learned
     return _judged(
         robot,
         cur,
@@ -284,6 +349,82 @@ def robot_status(store: Store, robot: str, method: str | None = None) -> RobotSt
         store.alerts(robot, state="pending"),
         store.latest_topology(robot, method="network"),
         store.waiting(robot).get(robot, {}),
+        fast,
+    )
+
+
+def _stale(net: TopologyRecord, base: TopologyRecord | None) -> bool:
+    """The networks' topology is older than the baseline (window ends where both have one, else wall
+    times: an operator's approval has no window) and shows another body: it was learned of the body
+    before the one the baseline records (a repair, a re-approval). One of the baseline's body is not
+    stale: a baseline adopted from the networks' answer is stamped after the answer it came from."""
+    if base is None or net.topology.same_structure(base.topology):
+        return False
+    if net.window_end_t is not None and base.window_end_t is not None:
+        return net.window_end_t < base.window_end_t
+    return net.wall_time < base.wall_time
+
+
+def _fast_alone(
+    fast: TopologyRecord, net: TopologyRecord | None, base: TopologyRecord | None
+) -> tuple[str, bool]:
+    """Why the networks' topology ``net`` cannot be set beside ``fast`` ("" when it can), and
+    whether that is because it is stale."""
+    if net is None:
+        return "the sensor networks have not answered yet", False
+    if _stale(net, base):
+        return (
+            f"the sensor networks' newest topology {net.id} is stale: older than the baseline, it "
+            "shows another body",
+            True,
+        )
+    f, n = fast.topology, net.topology
+    if set(f.joint_parent) != set(n.joint_parent) or set(f.imu_joint) != set(n.imu_joint):
+        return f"the sensor networks' newest topology {net.id} names other joints or IMUs", False
+    return "", False
+
+
+def methods_verdict(
+    fast: TopologyRecord | None, net: TopologyRecord | None, base: TopologyRecord | None = None
+) -> MethodsVerdict:
+    """The two methods' verdict per part from the newest fast topology ``fast`` and the newest
+    network topology ``net``, ``base`` the baseline (module doc)."""
+    if fast is None:
+        return MethodsVerdict(note="the fast method has learned nothing yet: no part is judged")
+    why, stale = _fast_alone(fast, net, base)
+    net_id, net_end = (net.id, net.window_end_t) if net is not None else (None, None)
+    if why:
+        parts = tuple(alone(fast.topology).values())
+        note = f"the verdict rests on the fast method alone and is unconfirmed: {why}"
+        return MethodsVerdict("fast", parts, note, fast.id, net_id, net_end, stale)
+    assert net is not None
+    parts = tuple(combine(fast.topology, net.topology).parts.values())
+    v = MethodsVerdict("fast+network", parts, "", fast.id, net_id, net_end)
+    c = v.counts
+    note = (
+        f"fast topology {fast.id} and network topology {net.id}: {c['agreed']} of {len(parts)} "
+        f"parts agreed, {c['undetermined']} undetermined ({c['contradicted']} contradicted)"
+    )
+    return dataclasses.replace(v, note=note)
+
+
+def _where(p: PartVerdict, answer: str | None) -> str:
+    if p.part.startswith("joint:"):
+        return f"parent {answer or 'base'}"
+    return f"on {answer or 'the base link'}"
+
+
+def contradiction_text(p: PartVerdict) -> str:
+    """A contradicted part as a sentence: both answers and what would decide.
+
+    >>> p = PartVerdict("joint:j2", False, "j1", "j1", None, True, True, 0.5, ("j1", "j2"))
+    >>> contradiction_text(p)[65:]  # doctest: +ELLIPSIS
+    'joint:j2 (fast: parent j1; networks: parent base): to decide, move ...: j1, j2'
+    """
+    return (
+        f"the fast method and the sensor networks contradict each other on {p.part} "
+        f"(fast: {_where(p, p.fast)}; networks: {_where(p, p.network)}): to decide, move each of "
+        f"these joints on its own with the others still: {', '.join(p.move)}"
     )
 
 
@@ -295,28 +436,36 @@ def _judged(
     pending: Sequence[AlertRecord],
     net: TopologyRecord | None,
     waiting: dict[str, Any] | None = None,
+    fast: TopologyRecord | None = None,
 ) -> RobotStatus:
     """:func:`judge`, with the newest network topology beside it when there is one, what the worker
-    waits on, and what the networks say of a baseline adopted without them (module doc)."""
+    waits on, what the networks say of a baseline adopted without them, and the two methods' verdict
+    per part on the newest fast topology ``fast`` (module doc)."""
     st = judge(robot, cur, base, active, pending)
     waits = tuple((waiting or {}).get("waits") or ())
     changed = any(a.kind in STRUCTURAL_KINDS for a in (*active, *pending))
     verdict, why = baseline_verdict(base, net, changed)
+    methods = methods_verdict(fast, net, base)
     reasons = list(st.reasons)
     if why:
         reasons.append(why)
+    reasons.extend(contradiction_text(p) for p in methods.contradicted)
     reasons.extend(wait_text(w) for w in waits)
-    status = st.status
-    if verdict == "contradicted" and status == "healthy":
+    status, decide = st.status, st.decide_by
+    if (verdict == "contradicted" or methods.contradicted) and status == "healthy":
         status, reasons = "undetermined", reasons[1:]  # "one tree fits ... matches the baseline" no more
+    if methods.contradicted:
+        decide = tuple(sorted({*decide, *(m for p in methods.contradicted for m in p.move)}))
     return dataclasses.replace(
         st,
         status=status,
         reasons=tuple(reasons),
+        decide_by=decide,
         network=net,
         waiting=waits,
         queue=tuple((waiting or {}).get("queue") or ()),
         baseline_networks=verdict,
+        methods=methods,
     )
 
 
@@ -345,6 +494,7 @@ def robot_statuses(
     """
     cur = store.latest_topologies(method or "fast")
     anyway = store.latest_topologies() if method is None else {}
+    fast = cur if method in (None, "fast") else store.latest_topologies("fast")
     net = store.latest_topologies("network")
     bases = store.baselines()
     waiting = store.waiting()
@@ -359,6 +509,7 @@ def robot_statuses(
             pending.get(robot, []),
             net.get(robot),
             waiting.get(robot, {}),
+            fast.get(robot),
         )
         # compared, never hashed: alert records compare by value (their finding too)
         key = (
@@ -368,6 +519,7 @@ def robot_statuses(
             tuple(args[3]),
             _record_key(args[4]),
             args[5],
+            _record_key(args[6]),
         )
         hit = kept.get(robot)
         if hit is not None and hit[0] == key:
