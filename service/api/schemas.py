@@ -16,7 +16,7 @@ from bodyschema.lever_pool import POOL_KEY
 from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
 from service.frames import ACC_LIMIT, GYRO_LIMIT, NAME_PATTERN, NAME_RULE, Q_LIMIT, T_LIMIT
-from service.status import MAX_ALTERNATIVES, RobotStatus
+from service.status import MAX_ALTERNATIVES, MethodsVerdict, RobotStatus
 from service.store import AlertRecord, RobotInfo, StoredKinematics, TopologyRecord
 
 __all__ = [
@@ -31,6 +31,8 @@ __all__ = [
     "KeyValueOut",
     "KinematicsOut",
     "KinematicsPair",
+    "MethodsOut",
+    "PartOut",
     "RetrainOut",
     "RobotOut",
     "StatusOut",
@@ -263,6 +265,98 @@ class RetrainOut(BaseModel):
         )
 
 
+class PartOut(BaseModel):
+    """One part of the body schema as the fast method and the sensor networks judge it together."""
+
+    part: str = Field(
+        description="joint:<name> (the joint it hangs under) or imu:<name> (the joint whose link carries it)"
+    )
+    verdict: Literal["agreed", "unconfirmed", "undetermined"] = Field(
+        description="agreed: both methods decided it alike; unconfirmed: the networks have not answered "
+        "and the fast method alone decided it; undetermined: a method left it open or the two contradict "
+        "each other"
+    )
+    fast: str | None = Field(
+        description="the fast method's answer: a joint name, null for the base (base link)"
+    )
+    network: str | None = Field(
+        description="the sensor networks' answer, null for the base (base link) or when they have not "
+        "answered (see methods.basis)"
+    )
+    fast_decided: bool = Field(description="the fast method decided this part (its candidate trees agree)")
+    network_decided: bool = Field(
+        description="the sensor networks decided this part (candidates agree, held-out confidence above 0.5)"
+    )
+    contradicted: bool = Field(
+        description="both methods decided this part with different answers: the robot is not healthy on it"
+    )
+    confidence: float = Field(
+        description="agreed: the larger of the two methods' confidences; otherwise at most 0.5"
+    )
+    move: list[str] = Field(
+        default_factory=list,
+        description="joints whose motion, each on its own with the others still, would decide this part "
+        "(empty when agreed)",
+    )
+
+
+class MethodsOut(BaseModel):
+    """What the two methods (fast, sensor networks) add up to over every part: what they were compared
+    on, and how many parts have each verdict."""
+
+    basis: Literal["fast+network", "fast", ""] = Field(
+        description="fast+network: both answered and are compared; fast: the verdict rests on the fast "
+        "method alone and is unconfirmed (note says why); empty: the fast method has learned nothing"
+    )
+    note: str = Field(description="the verdict in a sentence; why the networks' answer is not used")
+    fast_topology_id: int | None = Field(None, description="the fast topology compared")
+    network_topology_id: int | None = Field(
+        None, description="the sensor networks' newest topology (compared unless basis is fast)"
+    )
+    network_window_end_t: float | None = Field(None, description="device time the networks' window ended, s")
+    network_stale: bool = Field(
+        False,
+        description="the networks' newest topology is older than the baseline and shows another body, "
+        "so it is not used",
+    )
+    agreed: int = Field(0, description="parts both methods decided alike")
+    unconfirmed: int = Field(0, description="parts only the fast method answered and decided")
+    undetermined: int = Field(0, description="parts left open by a method, or contradicted")
+    contradicted: int = Field(
+        0, description="of the undetermined: parts both methods decided with different answers"
+    )
+
+    @classmethod
+    def of(cls, m: MethodsVerdict) -> MethodsOut:
+        c = m.counts
+        return cls(
+            basis=m.basis,
+            note=m.note,
+            fast_topology_id=m.fast_id,
+            network_topology_id=m.network_id,
+            network_window_end_t=m.network_window_end_t,
+            network_stale=m.network_stale,
+            **c,
+        )
+
+
+def _parts(m: MethodsVerdict) -> list[PartOut]:
+    return [
+        PartOut(
+            part=p.part,
+            verdict=m.verdict(p),
+            fast=p.fast,
+            network=p.network,
+            fast_decided=p.fast_decided,
+            network_decided=p.network_decided,
+            contradicted=p.contradicted,
+            confidence=round(float(p.confidence), 6),
+            move=list(p.move),
+        )
+        for p in m.parts
+    ]
+
+
 class StatusOut(BaseModel):
     """The monitoring answer for one robot: ``healthy``, ``damaged`` or ``undetermined``, and why.
 
@@ -319,6 +413,16 @@ class StatusOut(BaseModel):
     baseline_networks: str = Field(
         "", description="of a fast-unconfirmed baseline: agree, contradicted or unconfirmed"
     )
+    parts: list[PartOut] = Field(
+        default_factory=list,
+        description="every joint and IMU as the newest fast topology and the newest sensor-network "
+        "topology judge it together: the verdict, both answers, the confidence, the joints to move",
+    )
+    methods: MethodsOut = Field(
+        default_factory=lambda: MethodsOut(basis="", note=""),
+        description="what the parts' verdicts rest on (both methods, or the fast one alone) and how "
+        "many parts have each verdict",
+    )
 
     @classmethod
     def of(cls, st: RobotStatus) -> StatusOut:
@@ -348,6 +452,8 @@ class StatusOut(BaseModel):
             training_queue=list(st.queue),
             baseline_source=st.baseline.source if st.baseline is not None else None,
             baseline_networks=st.baseline_networks,
+            parts=_parts(st.methods),
+            methods=MethodsOut.of(st.methods),
         )
 
 
