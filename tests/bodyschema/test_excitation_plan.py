@@ -13,6 +13,7 @@ from bodyschema.excitation_plan import (
     JointLimits,
     PlanOptions,
     check_limits,
+    cubic_motion,
     finite_differences,
     maximal_groups,
     plan_excitation,
@@ -209,3 +210,51 @@ def test_a_range_away_from_zero_is_checked_as_it_is() -> None:
     assert check_limits(plan, lim) == [] and plan.q.max() <= -0.2
     over = type(plan)(plan.joint_names, plan.rate, plan.t, plan.q + 0.2, plan.excited, plan.method, None, 1.0)
     assert check_limits(over, lim) and "position" in check_limits(over, lim)[0]
+
+
+def _unexplained_speed_sq(q: np.ndarray, rate: float) -> np.ndarray:
+    """Per joint, the RMS of ``q̇²`` left after regressing it on ``1, cos q, sin q``: what informs a
+    lever arm's centripetal term beside gravity turning with the joint (module docstring)."""
+    v = np.gradient(q, 1 / rate, axis=0)
+    out = []
+    for j in range(q.shape[1]):
+        X = np.c_[np.ones(len(q)), np.cos(q[:, j]), np.sin(q[:, j])]
+        y = v[:, j] ** 2
+        out.append(np.sqrt(np.mean((y - X @ np.linalg.lstsq(X, y, rcond=None)[0]) ** 2)))
+    return np.array(out)
+
+
+def test_cubic_starts_and_stops_at_rest_with_its_derivatives() -> None:
+    t = np.arange(20001) * 1e-3
+    freq, delay = np.array([0.15, 0.2, 0.25]), np.array([0.0, 0.4, 1.0])
+    d, v, a = cubic_motion(t, freq, delay, 20.0)
+    assert np.allclose(np.gradient(d, t, axis=0)[1:-1], v[1:-1], atol=1e-4)
+    assert np.allclose(np.gradient(v, t, axis=0)[1:-1], a[1:-1], atol=1e-2)
+    for j in range(3):
+        moving = np.flatnonzero(np.abs(v[:, j]) > 0)
+        first, last = t[moving[0]], t[moving[-1]]
+        assert first == pytest.approx(delay[j], abs=2e-3)
+        # it stops at its last return to the centre: a whole number of half periods
+        assert ((last - delay[j]) * 2 * freq[j]) % 1 == pytest.approx(0, abs=1e-2) or (
+            ((last - delay[j]) * 2 * freq[j]) % 1 == pytest.approx(1, abs=1e-2)
+        )
+        assert last <= 20.0 and abs(d[-1, j]) < 1e-12
+        assert np.abs(d[moving[[0, -1]], j]).max() < 1e-6 and np.abs(a[moving[[0, -1]], j]).max() < 0.05
+
+
+def test_the_cubic_informs_lever_arms_more_than_the_free_series() -> None:
+    lim = _limits(5, vel=1.0, acc=4.0, half=2.0)
+    plans = {
+        shape: plan_excitation(lim, np.zeros(5), 60.0, options=PlanOptions(shape=shape))
+        for shape in ("cubic", "free")
+    }
+    for plan in plans.values():
+        _assert_within(plan, lim)
+        assert np.allclose(plan.q[0], 0.0) and np.allclose(plan.q[-1], 0.0, atol=1e-9)
+    cubic, free = (_unexplained_speed_sq(plans[s].q, 100.0) for s in ("cubic", "free"))
+    assert cubic.min() > 0.25 and free.max() < 0.24, (cubic, free)
+    # the same tree-deciding prefix first, then back at rest at the start pose: the cubic follows
+    assert plans["cubic"].decide_s == plans["free"].decide_s == 5.0
+    between = round((5.0 + PlanOptions().ramp) * 100)
+    assert np.abs(plans["cubic"].q[between]).max() < 1e-9
+    assert np.ptp(plans["cubic"].q[:between], axis=0).min() > 0.3
