@@ -4,7 +4,7 @@ Computed here from what the store holds (newest topology, baseline, alerts) by
 :func:`service.status.robot_status` (kept while only frames were committed:
 :func:`service.api.cache.cached_status`), so the answer is the same whether or not a worker runs in
 this process, and it is never more certain than the stored evidence (the rule is in
-:mod:`service.status`).
+:mod:`service.status`, the two methods' verdict per part too).
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ router = APIRouter(prefix="/api/v1/robots/{robot}", tags=["status"], responses=r
     "/status",
     response_model=StatusOut,
     summary="healthy, damaged or undetermined, with the reasons, the trees that fit and what would decide",
+    description="Also each joint's and IMU's verdict from the fast method and the sensor networks "
+    "together (`parts`: agreed, unconfirmed while the networks have not answered, or undetermined, "
+    "with both answers and the joints to move; `methods`: what that rests on). A part the two "
+    "methods contradict keeps the robot from `healthy`.",
 )
 async def status(
     robot: RobotName,
