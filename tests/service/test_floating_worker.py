@@ -1,0 +1,98 @@
+"""The worker on a floating-base robot: the iCub walking log's frames in a real store.
+
+The store keeps no foot forces, so the robot is taken as floating-base because dropping the velocity
+jumps at its contacts leaves too few samples for a fixed-base fit (:mod:`service.monitor.floating`).
+The baseline is learned on ``baseline_repeat_k`` windows of frames; untouched windows raise nothing;
+a frozen knee encoder raises a pending ``encoder_fault`` alert on the knee.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from bodyschema.faults import inject, parse_fault
+from bodyschema.recording import Recording
+from service.frames import FrameBatch
+from service.settings import Settings
+from service.store import Store, open_store
+from service.worker import Worker
+from tests.robot_data import MAPS, ROBOTS
+from tests.service.test_worker import ticking
+
+LOG = ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat"
+ROBOT = "icub"
+
+pytestmark = pytest.mark.slow
+
+
+def _icub() -> Recording:
+    from sim2real.robot_logs import import_log
+
+    if not LOG.is_file():
+        pytest.skip(f"robot log missing: {LOG}")
+    return import_log(LOG, MAPS / "icub-walking.toml", "mat")[0]
+
+
+def _feed(store: Store, rec: Recording) -> None:
+    """``rec``'s frames into the store in 1 s batches (what a live source writes)."""
+    n = round(rec.sample_rate)
+    for s in range(0, rec.n_samples, n):
+        sl = slice(s, s + n)
+        batch = FrameBatch(
+            ROBOT, rec.t[sl], rec.joint_names, rec.q[sl], rec.imu_names, rec.acc[sl], rec.gyro[sl]
+        )
+        store.write(batch)
+
+
+def _no_fixed_fit(rec: Recording, method: str) -> None:
+    raise AssertionError("a floating-base robot must not reach the fixed-base estimator")
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Iterator[Store]:
+    s = open_store(f"sqlite:///{tmp_path / 'f.db'}")
+    yield s
+    s.close()
+
+
+def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
+    rec = _icub()
+    settings = Settings(
+        database_url="sqlite://",
+        window_seconds=10.0,
+        baseline_repeat_k=3,
+        alert_hysteresis_m=2,
+        worker_interval_seconds=0.05,
+    )
+    worker = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
+    t0 = float(rec.t[0])
+
+    _feed(store, rec.window(t0, t0 + 30))
+    res = worker.run_cycle()[ROBOT]
+    assert res.baseline_set and res.skipped == ""
+    fr = worker.floating.robots[ROBOT]
+    assert fr.rule.startswith("one IMU, and velocity jumps at contacts")
+    assert fr.baseline is not None and fr.baseline.force_threshold is None  # no foot forces stored
+    waits = store.waiting(ROBOT)[ROBOT]["waits"]
+    assert len(waits) == 1 and "judged by the floating-base checks" in waits[0]["what"]
+    assert "encoder offsets and a turned IMU undetermined" in waits[0]["what"]
+
+    for s in (30, 40, 50):  # untouched windows: judged, nothing found, no alert
+        _feed(store, rec.window(t0 + s, t0 + s + 10))
+        res = worker.run_cycle()[ROBOT]
+        assert res.skipped == "" and res.diff is not None, s
+        assert res.diff.findings == (), s
+    assert store.alerts(ROBOT) == []
+
+    bad = inject(rec.window(t0 + 60, t0 + 80), parse_fault("encoder_frozen:joint=l_knee"))
+    _feed(store, bad.window(t0 + 60, t0 + 70))
+    res = worker.run_cycle()[ROBOT]
+    assert res.diff is not None
+    assert [(f.kind, f.part) for f in res.diff.findings] == [("encoder_fault", "joint:l_knee")]
+    assert [(t.kind, t.part, t.state) for t in res.pending] == [("encoder_fault", "joint:l_knee", "pending")]
+    alerts = store.alerts(ROBOT)
+    assert [(a.kind, a.part, a.state) for a in alerts] == [("encoder_fault", "joint:l_knee", "pending")]
+    assert worker.metrics.cycle_errors._value.get() == 0
