@@ -2,7 +2,7 @@
 
 A retrain trains networks for tens of CPU seconds; inside the service process it competes with ingest
 and the API for the interpreter. The service therefore hands it to Dask distributed
-(:mod:`service.retrain_task`) and only collects the result. Two ways to have a cluster:
+(:mod:`service.retrain.task`) and only collects the result. Two ways to have a cluster:
 
 * **embedded** (default): a :class:`distributed.LocalCluster` of worker *processes* (one thread
   each: torch trains on one thread, :func:`bodyschema.threads.set_torch_threads`), ``workers`` of them
