@@ -73,7 +73,7 @@ from service.metrics import Metrics
 from service.monitor.baseline import BaselineAdoption
 from service.monitor.confirmation import NetworkAsks
 from service.monitor.drift import FRAME_KEY, GeometryDrift
-from service.monitor.floating import FloatingBase, impacts_dropped
+from service.monitor.floating import FloatingBase
 from service.monitor.onset import estimate_after
 from service.monitor.state import RobotState
 from service.retrain import RemoteRetrains
@@ -480,7 +480,7 @@ class Worker(AlertPath):
         self._baseline_seen(robot, st, base)
         window_end = float(rec.t[-1])
         # velocity jumps at stops read as contradictions to the estimators
-        learn = self.compute(impacts_dropped, rec)  # None: nothing left
+        learn = self.floating.learn_window(self.compute, rec)  # None: no sample left
         if self.floating.takes(robot, rec, learn, res):  # floating base, or too short for a fixed fit
             return res
         fast = self._learn(robot, st, learn, res)

@@ -12,8 +12,13 @@ window keeps a handful of samples (``need at least 50 samples``). Such a robot t
   :func:`~bodyschema.impacts.drop_impacts` is then taken as floating too. A fixed-base arm's jumps
   are its rare stops; when most samples sit beside one, the jumps are the motion itself (a contact
   at every step: the iCub's 10 s windows keep 0 to 40 %, the Go1's 90 %), and the fixed-base fit
-  cannot apply. The decision sticks to the robot
-  until the worker restarts, so a window that happens to keep enough samples does not flip it back.
+  cannot apply. A robot with one IMU that keeps its samples (point feet strike softly: the Go1) is
+  taken as floating when the fixed-base fit of ``baseline_repeat_k`` cycles in a row hangs the IMU on
+  no joint and decides nothing (several trees fit) while the IMU turns faster than
+  :attr:`~bodyschema.health.HealthThresholds.motion_rad_s` RMS: on a fixed base the root does not
+  turn, so a turning IMU on it rides a base that moves without an encoder. The decision sticks to the
+  robot until the worker restarts, so a window that happens to keep enough samples does not flip it
+  back.
 * **Baseline.** :func:`bodyschema.floating_health.floating_baseline` on one healthy window
   ``baseline_repeat_k`` times as long as the judged ones, taken once that much device time is stored.
   One window, not K equal results: the floating checks' tolerances are extremes of the baseline (the
@@ -37,18 +42,24 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
+import numpy as np
+
+from bodyschema.diff import is_ambiguous
+from bodyschema.findings import Diff
 from bodyschema.floating_health import FloatingBaseline, FloatingOptions, floating_baseline, floating_diff
+from bodyschema.health import HealthThresholds
 from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording, RecordingError
 from bodyschema.stance_chains import floating_base_rule
+from bodyschema.topology import Topology
 from service.alert_path import Waits
 from service.alerts import AlertTracker, Evidence, Transition
 from service.settings import Settings
 from service.store import Store
-from service.worker_alerts import CycleResult
 
-__all__ = ["FloatingBase", "FloatingRobot", "impacts_dropped"]
+__all__ = ["CycleResult", "FloatingBase", "FloatingRobot"]
 
 log = logging.getLogger("service.worker")
 
@@ -65,13 +76,25 @@ class FloatingRobot:
     baseline_at: float | None = None
 
 
-def impacts_dropped(rec: Recording) -> Recording | None:
-    """:func:`~bodyschema.impacts.drop_impacts` of ``rec``, None when it leaves no sample (a walking
-    robot's joints jump in velocity at every contact: a short window can lose all of them)."""
-    try:
-        return drop_impacts(rec)
-    except RecordingError:
+class CycleResult(Protocol):
+    """The fields of the worker's :class:`~service.worker_alerts.CycleResult` this path fills (a
+    protocol: :mod:`service.worker_alerts` imports the monitor steps, not the other way round)."""
+
+    skipped: str
+    baseline_set: bool
+    diff: Diff | None
+    pending: list[Transition]
+    transitions: list[Transition]
+
+
+def _turning_root(rec: Recording, fit: Topology) -> float | None:
+    """The single IMU's RMS rate (rad/s) when ``fit`` hangs it on no joint, decides nothing, and the
+    IMU turns faster than a link must to count as turning (None otherwise)."""
+    if rec.n_imus != 1 or fit.imu_joint.get(rec.imu_names[0], "") is not None or not is_ambiguous(fit):
         return None
+    g = rec.gyro[:, 0]
+    rms = float(np.sqrt(np.mean(np.sum((g - g.mean(axis=0)) ** 2, axis=1))))
+    return rms if rms > HealthThresholds().motion_rad_s else None
 
 
 def _undetermined(base: FloatingBaseline) -> str:
@@ -112,6 +135,18 @@ class FloatingBase:
         self.min_samples = min_samples
         self.options = options or FloatingOptions()
         self.robots: dict[str, FloatingRobot] = {}
+        #: per robot, the cycles in a row whose fixed-base fit left its one IMU turning on the root
+        self.root_streak: dict[str, tuple[int, int]] = {}  # (newest fast topology's id, streak)
+
+    @staticmethod
+    def learn_window(compute: Callable[..., Recording], rec: Recording) -> Recording | None:
+        """:func:`~bodyschema.impacts.drop_impacts` of ``rec`` through the worker's ``compute``; None
+        when it leaves no sample (a walking robot's joints jump in velocity at every contact: a short
+        window can lose all of them)."""
+        try:
+            return compute(drop_impacts, rec)
+        except RecordingError:
+            return None
 
     # ------------------------------------------------------------------------------ the rule
     def rule(self, robot: str, rec: Recording, learn: Recording | None) -> str | None:
@@ -136,7 +171,23 @@ class FloatingBase:
                 f"one IMU, and velocity jumps at contacts in all but {kept} of {rec.n_samples} "
                 "samples: a fixed-base topology cannot be fitted"
             )
-        return None
+        return self._root_rule(robot, rec)
+
+    def _root_rule(self, robot: str, rec: Recording) -> str | None:
+        """The rule for a one-IMU robot whose fixed-base fits keep hanging a turning IMU on no joint
+        (module doc), from the newest fast topology the fixed path stored (None: not floating)."""
+        newest = self.store.latest_topology(robot, method="fast") if rec.n_imus == 1 else None
+        rms = None if newest is None else _turning_root(rec, newest.topology)
+        seen, n = self.root_streak.get(robot, (-1, 0))
+        if newest is not None and newest.id != seen:  # a new fit since the last cycle: counted once
+            n = 0 if rms is None else n + 1
+            self.root_streak[robot] = (newest.id, n)
+        if rms is None or n < self.settings.baseline_repeat_k:
+            return None
+        return (
+            f"the fixed-base fit of {n} cycles in a row hangs the one IMU on no joint and decides "
+            f"nothing, yet it turns at {rms:.2f} rad/s RMS: a fixed base does not turn"
+        )
 
     # ----------------------------------------------------------------------------- the cycle
     def takes(self, robot: str, rec: Recording, learn: Recording | None, res: CycleResult) -> bool:
