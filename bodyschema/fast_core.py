@@ -285,13 +285,16 @@ class _TimedTerms:
 
     ``apply(x, axis)`` low-passes and picks the fit samples of every regressor and of the gyro alike,
     after the products are formed (the models stay exact); ``sigma`` (K,) is the in-band gyro noise
-    per sample, ``floor_add`` (K,) the error model's other variance, ``n_eff`` the independent
-    observations per fit sample, ``undetermined`` (N,) the joints the band cannot see.
+    per sample, ``floor_add`` (K,) the error model's other variance, ``rate_var`` (N,) what each
+    joint's derived rate leaves per gyro channel in a model that uses it (only those models carry it:
+    the on-base and same-link tests compare gyros alone), ``n_eff`` the independent observations per
+    fit sample, ``undetermined`` (N,) the joints the band cannot see.
     """
 
     apply: Callable[..., np.ndarray]
     sigma: np.ndarray
     floor_add: np.ndarray
+    rate_var: np.ndarray
     n_eff: float
     undetermined: np.ndarray
 
@@ -304,8 +307,9 @@ def _identity(x: np.ndarray, axis: int = -1) -> np.ndarray:
 class _Signals:
     """The data as the tests see them. ``gyroT`` (K, 3, T) is unfiltered (products are formed first);
     ``gb`` the banded gyro, ``gc`` it centred, ``Tb`` its sample count; ``floor`` (K,) the variance a
-    right model leaves besides the noise ``sigma``; ``cos_q``, ``sin_q``, ``qda`` (T, Na) the signals
-    of the ``active`` (determined) joints."""
+    right model leaves besides the noise ``sigma``, and ``rate_var`` (Na,) what each active joint's
+    derived rate adds to it in a model that uses that joint (zero on synced data); ``cos_q``,
+    ``sin_q``, ``qda`` (T, Na) the signals of the ``active`` (determined) joints."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -316,6 +320,7 @@ class _Signals:
     gc: np.ndarray
     Tb: int
     floor: np.ndarray
+    rate_var: np.ndarray
     excitation: np.ndarray
     undetermined: np.ndarray
     active: np.ndarray
@@ -386,6 +391,7 @@ def _signals(
     else:
         undetermined = timed.undetermined
     active = np.flatnonzero(~undetermined)
+    rate_var = np.zeros(len(active)) if timed is None else np.asarray(timed.rate_var, dtype=float)[active]
     return _Signals(
         q=q,
         qd=qd,
@@ -396,6 +402,7 @@ def _signals(
         gc=gc,
         Tb=Tb,
         floor=floor,
+        rate_var=rate_var,
         excitation=excitation,
         undetermined=undetermined,
         active=active,
@@ -487,7 +494,7 @@ def _one_hinge_tests(sig: _Signals, grp: _Groups) -> tuple[np.ndarray, np.ndarra
             ex = _explained(F, grp.Yg).reshape(Na, G, 3).sum(-1)  # (Na, G)
             dof = max(sig.Tb - F.shape[1] - 1, 1)
             s2[:, h, :] = ((grp.ysq[None, :] - ex) / (3 * dof)).T
-            ratio[:, h, :] = s2[:, h, :] / exp_var[:, None]
+            ratio[:, h, :] = s2[:, h, :] / (exp_var[:, None] + sig.rate_var[None, :])
         for g in range(G):
             ratio[g, g, :] = np.inf
             s2[g, g, :] = np.inf
@@ -579,7 +586,7 @@ def _two_hinge_ratios(sig: _Signals, grp: _Groups, pairs: list[tuple[int, int]])
             dof = max(sig.Tb - F.shape[1] - 1, 1)
             hs = np.arange(G + 1)[h_slice]
             par_var = np.where(hs == world, 0.0, grp.sig_g[hs % G] ** 2)[:, None]
-            ev = grp.sig_g[None, :] ** 2 + sig.floor[grp.rep][None, :] + par_var
+            ev = grp.sig_g[None, :] ** 2 + sig.floor[grp.rep][None, :] + par_var + sig.rate_var[[a, b]].sum()
             r2[:, h_slice, i] = (((grp.ysq[None, :] - ex) / (3 * dof)) / ev).T
         for g in range(G):
             r2[g, g, i] = np.inf
@@ -638,7 +645,8 @@ def _edge_confidence(
         h, js, r = parent_of[g]
         child_edges = {(y, yjs[0]) for y, yjs, _ in nbrs[g] if y != h and len(yjs) == 1}
         p_best = 1 if h == world else 12 if len(js) == 1 else 40
-        s2_best = max(r * (sig_g[g] ** 2 + floor[rep[g]] + (0 if h == world else sig_g[h] ** 2)), 1e-30)
+        own = sig_g[g] ** 2 + floor[rep[g]] + sig.rate_var[list(js)].sum()
+        s2_best = max(r * (own + (0 if h == world else sig_g[h] ** 2)), 1e-30)
         lam = np.inf
         for h2 in range(G + 1):
             p2 = 1 if h2 == world else 12

@@ -68,13 +68,18 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
        :func:`bodyschema.timing.choose_band` from the rates and ``imu_bandwidth`` when not given),
        then are thinned to 2.5 samples per band period;
     5. the model tests are those of :mod:`bodyschema.fast` with an **error model** in place of a tolerance:
-       the expected residual variance of a right model is the in-band gyro noise (white noise scaled by
-       the band's share of the spectrum) + the in-band derivative noise of the encoder positions
-       (quantization and noise, :func:`bodyschema.timing.derivative_noise`, largest over the joints) +
-       a relative model error ``ε²·RMS²`` with ``ε² = model_tol² + (2π f_rms δ)² + (1 - |H_imu(fc)|)²``
-       (``δ`` the lag's uncertainty: the scatter of the per-quarter lags about their line, at least a
-       quarter ms; ``f_rms`` the gyro's RMS frequency in band; ``H_imu`` a first-order roll-off at
-       ``imu_bandwidth``, or at the IMU Nyquist frequency when not stated). A model is accepted when
+       the expected residual variance of a right model, per gyro channel, is the in-band gyro noise
+       (white noise scaled by the band's share of the spectrum) + a relative model error ``ε²·RMS²``
+       with ``ε² = model_tol² + (2π f_rms δ)² + (1 - |H_imu(fc)|)²`` (``δ`` the lag's uncertainty: the
+       scatter of the per-quarter lags about their line, at least :data:`LAG_RESOLUTION`; ``f_rms`` the
+       gyro's RMS frequency in band; ``H_imu`` a first-order roll-off at ``imu_bandwidth``, or at the
+       IMU Nyquist frequency when not stated) + ``n_j² / 3`` for each joint ``j`` whose derived rate the
+       model uses (``n_j`` its in-band error, quantization and noise,
+       :func:`bodyschema.timing.rate_noise`; it enters as ``e n_j`` with ``|e| = 1``, spread over three
+       channels). The on-base and same-link models compare gyros alone and carry no ``n_j``. A joint
+       is tested when its in-band rate RMS is ``min_excitation_snr`` times each per-channel std a right
+       model leaves (gyro noise, the model error at :data:`LAG_RESOLUTION`, its own ``n_j / √3``);
+       else it is undetermined. A model is accepted when
        its residual variance is below ``fit_ratio`` times that (a variance-ratio test), and rival models
        are ranked by BIC with the effective sample size of the band-limited residuals,
        ``2 fc`` independent values per second and channel.
@@ -257,18 +262,22 @@ def _first_lag(data: _TimedGrid, max_lag: float) -> _Lag:
     return _Lag(lag_mid, 0.0, float(tk.mean()))
 
 
+#: The finest lag uncertainty claimed, s: the scatter of the per-segment lags, never under this.
+LAG_RESOLUTION = 0.25e-3
+
+
 @dataclass(frozen=True)
 class _ErrorModel:
     """Step 5's error model: in-band gyro noise ``sigma`` (K,), the gyro's in-band RMS ``rms`` and RMS
-    frequency ``f_rms`` (K,), the IMU filter's gain variation ``roll`` (K,), the encoders' derivative
-    noise variance ``qd_var``, the independent observations per fit sample ``n_eff`` and the joints
-    the band cannot see, ``undetermined`` (N,)."""
+    frequency ``f_rms`` (K,), the IMU filter's gain variation ``roll`` (K,), what each joint's derived
+    rate leaves per gyro channel ``rate_var`` (N,), the independent observations per fit sample
+    ``n_eff`` and the joints the band cannot see, ``undetermined`` (N,)."""
 
     sigma: np.ndarray
     rms: np.ndarray
     f_rms: np.ndarray
     roll: np.ndarray
-    qd_var: float
+    rate_var: np.ndarray
     n_eff: float
     undetermined: np.ndarray
 
@@ -282,7 +291,7 @@ def _error_model(q: np.ndarray, data: _TimedGrid, lag: _Lag, opts: FastOptions) 
     share = min(1.0, fc / (f_imu / 2))
     sigma_raw = noise_level(data.gyro_g[data.ok])
     sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0) * np.sqrt(share)
-    qd_noise = tm.derivative_noise(tm.position_noise(q), data.f_enc, fc)
+    qd_noise = tm.rate_noise(q, data.f_enc, fc)
     gc = data.gyro_b.reshape(len(data.keep), K, 3)
     gc = gc - gc.mean(axis=0)
     rms = np.sqrt(np.mean(gc * gc, axis=(0, 2)))
@@ -296,13 +305,19 @@ def _error_model(q: np.ndarray, data: _TimedGrid, lag: _Lag, opts: FastOptions) 
     qdb = data.band(data.qd_s(data.grid - lag.at(data.grid)), axis=0)
     excitation = np.sqrt(np.mean(qdb * qdb, axis=0))
     sigma_ref = float(np.median(sigma_b)) if K else 0.0
+    # a joint's rate error n enters a model through e n (|e| = 1, the axis), spread over the three
+    # channels a test averages: n² / 3 per channel, as the gyro noise leaves σ² per channel and the
+    # model error ε² RMS² (at the lag's resolution, LAG_RESOLUTION). A joint is tested when its rate
+    # RMS is min_excitation_snr times each of these per-channel stds.
+    rate_var = qd_noise**2 / 3.0
+    eps2 = opts.model_tol**2 + (2 * np.pi * f_rms * LAG_RESOLUTION) ** 2 + roll**2
+    model_ref = float(np.median(eps2 * rms**2)) if K else 0.0
     undetermined = excitation < np.maximum(
-        max(opts.min_excitation, opts.min_excitation_snr * sigma_ref), opts.min_excitation_snr * qd_noise
+        max(opts.min_excitation, opts.min_excitation_snr * max(sigma_ref, np.sqrt(model_ref))),
+        opts.min_excitation_snr * np.sqrt(rate_var),
     )
-    active = ~undetermined
-    qd_var = float(np.max(qd_noise[active] ** 2)) if active.any() else 0.0
     n_eff = min(1.0, 2 * fc * step / f_imu)
-    return _ErrorModel(sigma_b, rms, f_rms, roll, qd_var, n_eff, undetermined)
+    return _ErrorModel(sigma_b, rms, f_rms, roll, rate_var, n_eff, undetermined)
 
 
 def _fit_at(data: _TimedGrid, err: _ErrorModel, lag: _Lag, lag_unc: float, opts: FastOptions) -> FastFit:
@@ -313,7 +328,8 @@ def _fit_at(data: _TimedGrid, err: _ErrorModel, lag: _Lag, lag_unc: float, opts:
     timed = _TimedTerms(
         apply=data.band,
         sigma=err.sigma,
-        floor_add=eps2 * err.rms**2 + err.qd_var,
+        floor_add=eps2 * err.rms**2,
+        rate_var=err.rate_var,
         n_eff=err.n_eff,
         undetermined=err.undetermined,
     )
@@ -343,7 +359,7 @@ def _refined_lag(
         return _Lag(float(ys[0]), lag.drift, lag.t_mid), 2e-3
     drift, lag_mid = np.polyfit(xs - lag.t_mid, ys, 1)
     resid = ys - (lag_mid + drift * (xs - lag.t_mid))
-    return _Lag(lag_mid, drift, lag.t_mid), max(0.25e-3, float(np.sqrt(np.mean(resid**2))))
+    return _Lag(lag_mid, drift, lag.t_mid), max(LAG_RESOLUTION, float(np.sqrt(np.mean(resid**2))))
 
 
 def _shift_window(
