@@ -10,7 +10,9 @@ multi-rate (encoders on their own stamps ``t_q``) and single-clock (one ``t``, p
 
 Per shape: the fast estimator's verdict (exact, undetermined, confidently wrong as in ``bench
 realism``), the joints an undetermined answer names to move, and what the data say about joints that
-hardly moved (true in-band rate RMS under 0.05 rad/s: jammed against a link or a limit). Then
+hardly moved (:func:`still_joints`: true rate RMS in the comparison band, over the span the estimator
+fits, under 0.05 rad/s: jammed against a link or a limit, so undeterminable by this motion), and the
+exact count over the robots whose joints all moved. Then
 :func:`bodyschema.kinematics.estimate_kinematics` on the true tree: the angle between each IMU's
 answered axis and the model's (``axis``, the accelerometer-frame answer; ``gyro axis``, the gyro's
 reading) and the distance between its lever arm and the model's, both in the IMU's frame. CPU seconds on
@@ -29,7 +31,7 @@ import numpy as np
 from bench import RESULTS_DIR, fmt, machine_note, map_jobs, write_results
 from sim2real.figures import save_figure
 
-__all__ = ["SHAPES", "add_arguments", "conditions", "run"]
+__all__ = ["SHAPES", "add_arguments", "conditions", "run", "still_joints"]
 
 SHAPES = ("multi-rate", "single-clock")
 
@@ -40,10 +42,15 @@ ABOUT = (
     "three IMUs per link with MPU-6050 errors at the datasheet's limits, 100 Hz. Robot i's sensing follows "
     "a fixed pattern: skew 2-10 ms for odd i; no quantization, 14 or 12 bits per turn by i // 2; the 42 Hz "
     "low-pass (4.8 ms) where i // 6 is odd. Each robot's samples are estimated in both shapes: multi-rate "
-    "(encoders on `t_q`) and single-clock (one `t`, positions only). *Hardly moved*: true rate RMS under "
-    "0.05 rad/s (jammed against a link or a limit). Kinematics run on the true tree; errors are against "
+    "(encoders on `t_q`) and single-clock (one `t`, positions only). *Hardly moved*: true rate RMS in the "
+    "comparison band, over the span the estimator fits (a joint that settles into a jam in the first "
+    "tenths of a second counts as jammed), under 0.05 rad/s (jammed against a link or a limit): "
+    "undeterminable by this motion, so *all moved* counts the robots without such a joint. Kinematics "
+    "run on the true tree; errors are against "
     "the model in each IMU's frame: *axis* is the accelerometer-frame answer, *gyro axis* the gyro's "
-    "reading, *lever arm* the perpendicular one."
+    "reading, *lever arm* the perpendicular one; the *accelerometer cross-axis floor* is the angle by "
+    "which each IMU's drawn accelerometer cross-axis terms turn its axis once the gains are fitted "
+    "(`axis_floor_deg`): the answer is in the accelerometer's frame, taken as square."
 )
 
 #: A joint whose true rate RMS stays under this hardly moved (rad/s).
@@ -76,6 +83,27 @@ def conditions(index: int, rng: np.random.Generator) -> dict[str, Any]:
     return {"skew": skew, "encoder_bits": bits, "dlpf": bool((index // 6) % 2)}
 
 
+def still_joints(qd_true: np.ndarray, names: Any, rate: float, dlpf: bool) -> list[str]:
+    """The joints whose true rate ``qd_true`` (T, N), sampled at ``rate``, hardly moved where the fast
+    estimator looks: RMS under :data:`STILL_RAD_S` in its comparison band
+    (:func:`bodyschema.timing.choose_band`, the stated low-pass's band when ``dlpf``), over the samples
+    it fits (``max_lag`` plus the band's edge margin in from each end).
+
+    >>> t = np.arange(3000) / 100
+    >>> qd = np.stack([np.sin(t), 0.01 * np.sin(t), np.where(t < 0.2, 5.0, 0.0)], axis=1)
+    >>> still_joints(qd, ["a", "b", "c"], 100.0, False)
+    ['b', 'c']
+    """
+    from bodyschema import timing as tm
+    from bodyschema.fast import FastOptions
+
+    fc = tm.choose_band(rate, rate, tm.DLPF_GYRO[3][0] if dlpf else None)
+    cut = int(np.ceil((FastOptions().max_lag + tm.edge_margin(fc)) * rate))
+    band = tm.lowpass(qd_true, rate, fc)[cut : len(qd_true) - cut]
+    rms = np.sqrt(np.mean(band**2, axis=0))
+    return [n for n, r in zip(names, rms, strict=True) if r < STILL_RAD_S]
+
+
 def _verdict(topo: Any, rec: Any) -> str:
     if not topo.unique or topo.undetermined:
         return "undetermined"
@@ -88,8 +116,24 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def _kinematics(rec: Any) -> dict[str, Any]:
-    """Axis and lever-arm errors of every IMU the kinematics answers, on the true tree."""
+def axis_floor_deg(acc_S: np.ndarray, axis: np.ndarray) -> float:
+    """The angle (deg) by which an accelerometer with sensitivity matrix ``acc_S`` shows a joint axis
+    ``axis`` (unit, in the IMU's frame) once its gains are fitted: its cross-axis terms alone.
+
+    Each reading divided by its own gain is ``f + C f`` (``C`` the cross-axis terms over the gains);
+    gravity turns about ``axis`` in the IMU's frame, so in the reading it keeps constant the component
+    along ``(I + C)⁻ᵀ axis``: the axis the accelerometer's frame can show, taken as square.
+
+    >>> round(axis_floor_deg(np.eye(3) + 0.02 * np.eye(3)[[1, 2, 0]], np.array([1.0, 0, 0])), 2)
+    1.15
+    """
+    Sg = np.asarray(acc_S, dtype=float) / np.diag(acc_S)[:, None]
+    return _angle_deg(np.linalg.solve(Sg.T, axis), axis)
+
+
+def _kinematics(rec: Any, acc_S: np.ndarray) -> dict[str, Any]:
+    """Axis and lever-arm errors of every IMU the kinematics answers, on the true tree, and the axis
+    floor its accelerometer's cross-axis terms set (:func:`axis_floor_deg`)."""
     from bodyschema.kinematics import estimate_kinematics
     from bodyschema.topology import Topology
 
@@ -97,12 +141,13 @@ def _kinematics(rec: Any) -> dict[str, Any]:
     start = time.process_time()
     kin = estimate_kinematics(rec, truth)
     cpu = time.process_time() - start
-    axis, gyro, lever, conv = [], [], [], []
+    axis, gyro, lever, conv, floor = [], [], [], [], []
     for k, name in enumerate(rec.imu_names):
         e = kin.imus.get(name)
         if e is None or e.axis is None:
             continue
         axis.append(round(_angle_deg(e.axis, rec.extra["truth_axis"][k]), 3))
+        floor.append(round(axis_floor_deg(acc_S[k], rec.extra["truth_axis"][k]), 3))
         gyro.append(
             round(_angle_deg(e.gyro_axis, rec.extra["truth_axis"][k]), 3) if e.gyro_axis is not None else None
         )
@@ -115,6 +160,7 @@ def _kinematics(rec: Any) -> dict[str, Any]:
         conv.append(bool(e.converged))
     return {
         "axis_deg": axis,
+        "axis_floor_deg": floor,
         "gyro_axis_deg": gyro,
         "lever_mm": lever,
         "converged": conv,
@@ -135,8 +181,7 @@ def _robot_task(
     cond = conditions(index, np.random.default_rng([seed, index, 1]))
     opts = GeneratorOptions(joints=joints, seconds=seconds, sensing=SensingSpec(**cond))
     gen = generate(seed * 100_003 + index, opts)
-    rms = np.sqrt(np.mean(gen.qd_true**2, axis=0))
-    still = [n for n, r in zip(gen.multi.joint_names, rms, strict=True) if r < STILL_RAD_S]
+    still = still_joints(gen.qd_true, gen.multi.joint_names, opts.rate, cond["dlpf"])
     rows = []
     for shape, rec in zip(SHAPES, (gen.multi, gen.single), strict=True):
         row: dict[str, Any] = {
@@ -158,7 +203,7 @@ def _robot_task(
                 row["verdict"], row["named"], row["error"] = "undetermined", [], str(exc)
             row["cpu_s"] = round(time.process_time() - start, 3)
             if kinematics:
-                row.update(_kinematics(rec))
+                row.update(_kinematics(rec, gen.imu_errors.acc_S))
         rows.append(row)
     return rows
 
@@ -175,9 +220,12 @@ def _summary(rows: list[dict]) -> dict[str, Any]:
         if not sel:
             continue
         skew = [abs(r["skew_err_ms"]) for r in sel if r["verdict"] == "exact" and "skew_err_ms" in r]
+        moved = [r for r in sel if not r["still_joints"]]
         s: dict[str, Any] = {
             "robots": len(sel),
             **{v: sum(r["verdict"] == v for r in sel) for v in ("exact", "undetermined", "wrong")},
+            "robots_all_moved": len(moved),
+            "exact_all_moved": sum(r["verdict"] == "exact" for r in moved),
             "named_joints": sum(len(r["named"]) for r in sel),
             "still_joints": sum(len(r["still_joints"]) for r in sel),
             "max_abs_skew_err_ms_where_exact": round(max(skew), 3) if skew else None,
@@ -190,6 +238,7 @@ def _summary(rows: list[dict]) -> dict[str, Any]:
                 imus=len(axis),
                 converged=sum(conv),
                 axis_deg_median=_median(axis),
+                axis_floor_deg_median=_median([a for r in sel for a in r["axis_floor_deg"]]),
                 gyro_axis_deg_median=_median([a for r in sel for a in r["gyro_axis_deg"]]),
                 lever_mm_median=_median([x for r in sel for x in r["lever_mm"]]),
                 axis_deg_median_converged=_median(
@@ -231,13 +280,14 @@ def _markdown(summary: dict, rows: list[dict], command: str) -> str:
         "",
         ABOUT,
         "",
-        "| shape | exact | undetermined | **confidently wrong** | joints named to move | joints that hardly "
-        "moved | max skew error where exact, ms | CPU s (mean) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| shape | exact | undetermined | **confidently wrong** | exact where all moved | joints named to "
+        "move | joints that hardly moved | max skew error where exact, ms | CPU s (mean) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for shape, s in summary.items():
         lines.append(
-            f"| {shape} | {s['exact']} | {s['undetermined']} | **{s['wrong']}** | {s['named_joints']} | "
+            f"| {shape} | {s['exact']} | {s['undetermined']} | **{s['wrong']}** | "
+            f"{s['exact_all_moved']} of {s['robots_all_moved']} | {s['named_joints']} | "
             f"{s['still_joints']} | {fmt(s['max_abs_skew_err_ms_where_exact'])} | {s['cpu_s_mean']:.2f} |"
         )
     if any("axis_deg_median" in s for s in summary.values()):
@@ -245,14 +295,16 @@ def _markdown(summary: dict, rows: list[dict], command: str) -> str:
             "",
             "Kinematics on the true tree (errors against the model, in each IMU's frame):",
             "",
-            "| shape | IMUs answered | converged | axis median, deg | gyro axis median, deg "
-            "| lever arm median, mm | converged: axis, deg | converged: lever arm, mm | CPU s (mean) |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+            "| shape | IMUs answered | converged | axis median, deg | accelerometer cross-axis floor, "
+            "deg | gyro axis median, deg | lever arm median, mm | converged: axis, deg | converged: "
+            "lever arm, mm | CPU s (mean) |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for shape, s in summary.items():
             lines.append(
                 f"| {shape} | {s['imus']} | {s['converged']} | {fmt(s['axis_deg_median'])} | "
-                f"{fmt(s['gyro_axis_deg_median'])} | {fmt(s['lever_mm_median'], '.1f')} | "
+                f"{fmt(s['axis_floor_deg_median'])} | {fmt(s['gyro_axis_deg_median'])} | "
+                f"{fmt(s['lever_mm_median'], '.1f')} | "
                 f"{fmt(s['axis_deg_median_converged'])} | {fmt(s['lever_mm_median_converged'], '.1f')} | "
                 f"{s['kin_cpu_s_mean']:.1f} |"
             )
@@ -279,7 +331,12 @@ def _markdown(summary: dict, rows: list[dict], command: str) -> str:
 
 def _cell(row: dict) -> str:
     if row["verdict"] == "undetermined" and row["named"]:
-        return f"undetermined (move {', '.join(row['named'])})"
+        still = [j for j in row["named"] if j in row["still_joints"]]
+        move = [j for j in row["named"] if j not in still]
+        parts = ([f"move {', '.join(move)}"] if move else []) + (
+            [f"{', '.join(still)} undeterminable by this motion"] if still else []
+        )
+        return f"undetermined ({'; '.join(parts)})"
     return "**wrong**" if row["verdict"] == "wrong" else row["verdict"]
 
 
