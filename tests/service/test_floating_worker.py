@@ -96,3 +96,32 @@ def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
     alerts = store.alerts(ROBOT)
     assert [(a.kind, a.part, a.state) for a in alerts] == [("encoder_fault", "joint:l_knee", "pending")]
     assert worker.metrics.cycle_errors._value.get() == 0
+
+
+def test_go1_is_floating_once_its_fixed_base_fits_keep_a_turning_imu_on_no_joint(store: Store) -> None:
+    """The Go1's point feet strike softly: its windows keep their samples, the fixed-base fit runs and
+    hangs the trunk IMU on no joint; after ``baseline_repeat_k`` such cycles it is floating-base."""
+    from sim2real.robot_logs import import_log
+
+    path = ROBOTS / "go1-trot" / "go1.csv"
+    if not path.is_file():
+        pytest.skip(f"robot log missing: {path}")
+    rec = import_log(path, MAPS / "go1-trot.toml", "csv")[0]
+    settings = Settings(database_url="sqlite://", window_seconds=10.0, baseline_repeat_k=3)
+    worker = Worker(store, settings, clock=ticking())
+    t0, span = float(rec.t[0]), float(rec.t[-1] - rec.t[0]) + 1 / rec.sample_rate
+    results = []
+    for c in range(6):  # 10 s per cycle, the 25 s log looped on in device time
+        for s in range(10 * c, 10 * c + 10):
+            loop, at = divmod(float(s), span)
+            part = rec.window(t0 + at, t0 + at + 1.0)
+            off = loop * span
+            store.write(
+                FrameBatch("go1", part.t + off, rec.joint_names, part.q, rec.imu_names, part.acc, part.gyro)
+            )
+        results.append(worker.run_cycle()["go1"])
+    assert [r.baseline_set for r in results] == [False, False, False, True, False, False]
+    assert worker.floating.robots["go1"].rule.startswith("the fixed-base fit of 3 cycles in a row")
+    assert [r.diff.findings if r.diff else None for r in results[4:]] == [(), ()]
+    assert store.alerts("go1") == []
+    assert worker.metrics.cycle_errors._value.get() == 0
