@@ -228,7 +228,6 @@ class FloatingBase:
             return
         fr.baseline = floating_baseline(rec, self.options)
         fr.baseline_end, fr.baseline_at = float(rec.t[-1]), self.clock()
-        self.tracker.forget(robot)
         res.baseline_set = True
         self._say(fr, waits)
         log.info(
