@@ -39,7 +39,7 @@ from typing import Any
 
 from bodyschema.topology import Topology
 
-__all__ = ["DECIDED", "PartVerdict", "Verdict", "alone", "combine", "decided_parts"]
+__all__ = ["DECIDED", "PartVerdict", "Verdict", "alone", "combine", "contradicts", "decided_parts"]
 
 #: A method decides a part when its confidence in it is above this (and its candidates agree).
 DECIDED = 0.5
@@ -196,3 +196,19 @@ def combine(fast: Topology, network: Topology) -> Verdict:
         training=dict(network.training),
     )
     return Verdict(topo, parts)
+
+
+def contradicts(network: Topology, fast: Topology) -> list[str]:
+    """The parts both decide with different answers (none when the two name different parts): what
+    makes a network answer, even an ambiguous one, a word against the fast body.
+
+    >>> a = Topology({"j1": None, "j2": "j1"}, {"i1": "j2"}, method="fast")
+    >>> b = Topology({"j1": None, "j2": None}, {"i1": "j2"}, method="network")
+    >>> contradicts(b, a)
+    ['joint:j2']
+    """
+    try:
+        v = combine(fast, network)
+    except ValueError:
+        return []
+    return [p for p, pv in v.parts.items() if pv.contradicted]

@@ -24,10 +24,12 @@ what, since when, and where the robot's retrains stand in the training queue.
 from __future__ import annotations
 
 import logging
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from bodyschema.diff import is_ambiguous
+from bodyschema.verdict import contradicts
 from service.settings import Settings
 from service.store import TopologyRecord
 
@@ -93,37 +95,46 @@ def confirm_timeout(settings: Settings, queue: list[dict[str, Any]]) -> float:
 
 
 def baseline_verdict(
-    base: TopologyRecord | None, net: TopologyRecord | None, changed: bool = False
+    base: TopologyRecord | None, net: TopologyRecord | None, changed: Collection[str] = ()
 ) -> tuple[str, str]:
     """What the sensor networks' newest topology ``net`` says of a baseline adopted without them
-    (source ``fast-unconfirmed``): ``agree``, ``contradicted`` (a unique network body from a window
-    that ended after the baseline's, of another structure, while the fast screen sees the baseline's
-    body: ``changed`` False) or ``unconfirmed`` (no such answer yet, or the body changed since:
-    ``changed``, then the networks' other body is the change, not the baseline's error), with a
-    sentence; ``("", "")`` for any other baseline."""
+    (source ``fast-unconfirmed``): ``agree``, ``contradicted`` or ``unconfirmed``, with a sentence;
+    ``("", "")`` for any other baseline.
+
+    Contradicted: ``net``, from a window that ended after the baseline's, decides a part against it
+    (a unique body of another structure, or an ambiguous one whose every tree places a part
+    elsewhere), on a part the robot's open structural alerts (``changed``: their parts) do not already
+    say changed; there the networks' other body is the change, not the baseline's error."""
     if base is None or base.source != "fast-unconfirmed":
         return "", ""
+    late = (
+        "the baseline was adopted from the fast screen while the sensor networks were late; "
+        "they have not answered on a window after it yet"
+    )
     if (
         net is None
-        or is_ambiguous(net.topology)
         or net.window_end_t is None
         or base.window_end_t is None
         or net.window_end_t < base.window_end_t
     ):
-        return "unconfirmed", (
-            "the baseline was adopted from the fast screen while the sensor networks were late; "
-            "they have not answered on a window after it yet"
-        )
-    if net.topology.same_structure(base.topology):
+        return "unconfirmed", late
+    unique = not is_ambiguous(net.topology)
+    if unique and net.topology.same_structure(base.topology):
         return "agree", "the sensor networks' newest topology agrees with the fast-unconfirmed baseline"
-    if changed:
+    against = set(contradicts(net.topology, base.topology))
+    if unique and not against:  # another structure, though no single part decided against it
+        against = {"the body's structure"}
+    if not against:
+        return "unconfirmed", late
+    against -= set(changed)
+    if not against:
         return "unconfirmed", (
             "the baseline was adopted from the fast screen while the sensor networks were late; their "
             "newest topology differs from it as the robot's open alerts say the body changed"
         )
     return "contradicted", (
-        f"the baseline (fast-unconfirmed) is contradicted by the sensor networks' topology {net.id}: "
-        "the alerts against it are in doubt; approve a baseline"
+        f"the baseline (fast-unconfirmed) is contradicted by the sensor networks' topology {net.id} on "
+        f"{', '.join(sorted(against))}: the alerts against it are in doubt; approve a baseline"
     )
 
 

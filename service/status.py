@@ -443,7 +443,7 @@ def _judged(
     per part on the newest fast topology ``fast`` (module doc)."""
     st = judge(robot, cur, base, active, pending)
     waits = tuple((waiting or {}).get("waits") or ())
-    changed = any(a.kind in STRUCTURAL_KINDS for a in (*active, *pending))
+    changed = {a.part for a in (*active, *pending) if a.kind in STRUCTURAL_KINDS}
     verdict, why = baseline_verdict(base, net, changed)
     methods = methods_verdict(fast, net, base)
     reasons = list(st.reasons)

@@ -132,7 +132,7 @@ class AlertPath:
         ``res.diff``'s structural findings (:func:`~service.monitor.confirmation.confirm`)."""
         assert res.diff is not None
         net = self.store.latest_topology(robot, method="network")
-        changed = any(f.kind in STRUCTURAL_KINDS for f in res.diff.findings)
+        changed = {f.part for f in res.diff.findings if f.kind in STRUCTURAL_KINDS}
         verdict, why = baseline_verdict(base, net, changed)
         if verdict == "contradicted":  # the fast screen sees the baseline, the networks another body
             waits.add(f"baseline: an operator's approval ({why})", base.wall_time)

@@ -16,6 +16,7 @@ import numpy as np
 from bodyschema.diff import is_ambiguous
 from bodyschema.health import SignalHealth
 from bodyschema.topology import Topology
+from bodyschema.verdict import contradicts
 from service.monitor.confirmation import NetworkAsks
 from service.monitor.state import RobotState
 from service.settings import Settings
@@ -114,7 +115,8 @@ class BaselineAdoption:
         """True when the fast screen's body held ``baseline_unconfirmed_cycles`` cycles, its complete
         streak waited ``baseline_unconfirmed_seconds`` (wall), and the sensor networks have not answered
         on a window that ended after it first held (a network answer from after it that disagrees is
-        not late: it is the authority's word, and the streak waits)."""
+        not late: it is the authority's word, and the streak waits; so is an ambiguous one that decides
+        a part against the streak's body: every tree it lists says otherwise)."""
         need = self.settings.baseline_unconfirmed_cycles
         if not need or state.streak.n < need:
             return False
@@ -122,13 +124,11 @@ class BaselineAdoption:
         if waited < self.settings.baseline_unconfirmed_seconds:
             return False
         start = np.inf if state.streak.start is None else state.streak.start
-        answered = (
-            net is not None
-            and not is_ambiguous(net.topology)
-            and net.window_end_t is not None
-            and net.window_end_t >= start
-        )
-        return not answered
+        if net is None or net.window_end_t is None or net.window_end_t < start:
+            return True
+        if not is_ambiguous(net.topology):
+            return False  # a unique answer from after the streak began: the authority's word
+        return not contradicts(net.topology, state.streak.topologies[-1])
 
     def waiting(self, state: RobotState) -> tuple[str, float] | None:
         """What a robot whose streak waits for the networks waits on, and since when (wall time)."""

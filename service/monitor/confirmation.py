@@ -12,9 +12,10 @@ import dataclasses
 import logging
 from collections.abc import Callable
 
-from bodyschema.diff import STRUCTURAL_KINDS, diff_bodies, is_ambiguous
+from bodyschema.diff import STRUCTURAL_KINDS
 from bodyschema.findings import Diff, Finding
 from bodyschema.topology import Topology
+from bodyschema.verdict import decided_parts
 from service.alerts import Evidence
 from service.monitor.state import RobotState
 from service.settings import Settings
@@ -98,7 +99,7 @@ def confirm(
     state.first_seen = {k: t for k, t in state.first_seen.items() if k in seen}
     if not structural:
         return diff, evidence
-    net_parts = _changed_parts(baseline, net)
+    answers = _network_answers(net)
     keep: list[Finding] = []
     waiting: set[tuple[str, str]] = set()
     confirmed: set[tuple[str, str]] = set()
@@ -107,16 +108,20 @@ def confirm(
         if f.kind not in STRUCTURAL_KINDS:
             keep.append(f)
             continue
-        since = state.first_seen.setdefault((f.kind, f.part), window_end)
-        if net is None or net_parts is None or net.window_end_t is None or net.window_end_t < since:
+        key = (f.kind, f.part)
+        since = state.first_seen.setdefault(key, window_end)
+        if net is None or answers is None or net.window_end_t is None or net.window_end_t < since:
             keep.append(f)
-            waiting.add((f.kind, f.part))
+            waiting.add(key)
             asks.ask(robot, state, net, since, f"to confirm {f.kind} {f.part}")
-        elif f.part in net_parts:
+            continue
+        if f.part not in answers:  # the networks answered but left this part open: unconfirmed
             keep.append(f)
-            confirmed.add((f.kind, f.part))
-        else:
-            withdrawn[(f.kind, f.part)] = (
+            waiting.add(key)
+            continue
+        said, before = answers[f.part], _answer(baseline, f.part)
+        if said == before:
+            withdrawn[key] = (
                 f"the sensor networks' topology {net.id} (window ending at t = {net.window_end_t:.1f} s) "
                 f"shows no change of {f.part}"
             )
@@ -124,6 +129,12 @@ def confirm(
                 "finding withdrawn: the sensor networks see no change there",
                 extra={"robot": robot, "kind": f.kind, "part": f.part, "network_topology": net.id},
             )
+        elif f.to is None or said == f.to:
+            keep.append(f)
+            confirmed.add(key)
+        else:  # both see a change, each to another place: where to is undetermined, not confirmed
+            keep.append(_where_to_undetermined(f, said, net.id))
+            waiting.add(key)
     return Diff(findings=tuple(keep), reasons=diff.reasons), dataclasses.replace(
         evidence,
         waiting=frozenset(waiting),
@@ -133,8 +144,27 @@ def confirm(
     )
 
 
-def _changed_parts(baseline: Topology, net: TopologyRecord | None) -> set[str] | None:
-    """The parts ``net`` differs from ``baseline`` on structurally (None: no unique network body)."""
-    if net is None or is_ambiguous(net.topology):
+def _answer(topo: Topology, part: str) -> str | None:
+    kind, name = part.split(":", 1)
+    return (topo.joint_parent if kind == "joint" else topo.imu_joint).get(name)
+
+
+def _network_answers(net: TopologyRecord | None) -> dict[str, str | None] | None:
+    """The parts the networks' topology ``net`` decides, with its answer for each (None: no network
+    topology). Every tree it lists must agree on a part, at a confidence above one half
+    (:func:`bodyschema.verdict.decided_parts`): an ambiguous answer still decides what all its trees
+    share."""
+    if net is None:
         return None
-    return {f.part for f in diff_bodies(baseline, net.topology).findings if f.kind in STRUCTURAL_KINDS}
+    topo = net.topology
+    return {p: _answer(topo, p) for p, d in decided_parts(topo).items() if d}
+
+
+def _where_to_undetermined(f: Finding, said: str | None, net_id: int) -> Finding:
+    """``f`` without the new place the sensor networks contradict (they put the part on ``said``):
+    the change stands, where the part went is undetermined."""
+    note = (
+        f"the fast screen puts it under {f.to}, the sensor networks' topology {net_id} under {said}: "
+        f"where it went is undetermined; move {f.to} and {said} apart to decide"
+    )
+    return dataclasses.replace(f, to=None, detail=f"{f.detail}; {note}" if f.detail else note)

@@ -3,8 +3,7 @@ newest sensor-network topology say together, on real stores with stored topologi
 
 The last third checks the worker's baseline and alert path against the same rule (a baseline or an
 alert never rests on one method's decided answer that the other contradicts): what holds is tested
-as it is; the cases the path does not cover yet are ``xfail(strict=True)`` with what is missing, so
-they turn into failures the day the path covers them and the mark must go.
+as it is.
 """
 
 from __future__ import annotations
@@ -288,14 +287,14 @@ def test_a_fast_baseline_the_networks_contradict_afterwards_is_flagged_twice() -
 
 
 def test_a_fast_baseline_the_ambiguous_networks_contradict_on_a_part_is_not_healthy(store: Store) -> None:
-    """:func:`baseline_verdict` calls this ``unconfirmed`` (an ambiguous network topology is no answer
-    to it); the parts verdict sees the networks decide joint:j3 against the fast method."""
+    """Every tree the ambiguous network topology lists hangs j3 elsewhere: :func:`baseline_verdict`
+    calls the baseline contradicted on that part, and the parts verdict sees the same."""
     frames(store)
     store.set_baseline("arm", BODY, "fast-unconfirmed", wall_time=100.0, window_end_t=10.0)
     store.save_topology("arm", BODY, 101.0, 11.0)
     store.save_topology("arm", AMBIGUOUS_OTHER, 102.0, 12.0)
     st = robot_status(store, "arm")
-    assert st.baseline_networks == "unconfirmed"
+    assert st.baseline_networks == "contradicted"
     assert st.status == "undetermined"
     assert [p.part for p in st.methods.contradicted] == ["joint:j3"]
 
@@ -352,13 +351,6 @@ def test_without_a_network_answer_the_fast_body_is_adopted_marked_unconfirmed(st
     assert base is not None and base.source == "fast-unconfirmed"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="missing in service/monitor/baseline.py: BaselineAdoption.networks_late counts an ambiguous "
-    "network topology as no answer, so the fast body is adopted fast-unconfirmed although every tree "
-    "the networks list hangs j3 under j1 (they decide joint:j3 against it); the status flags it "
-    "(test above), the worker does not wait",
-)
 def test_a_baseline_waits_while_the_ambiguous_networks_decide_a_part_against_it(store: Store) -> None:
     assert offer_cycles(store, AMBIGUOUS_OTHER) == [False] * 5
 
@@ -389,24 +381,12 @@ def test_a_fast_finding_waits_for_a_network_window_after_it() -> None:
     assert ev.waiting == {("imu_moved", "imu:imu2")} and not ev.withdrawn and asked == ["arm"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="missing in service/monitor/confirmation.py: confirm() checks that the networks changed the "
-    "part, not that they changed it to the fast method's answer: imu_moved imu2 j3 → j2 is confirmed "
-    "while the networks put imu2 on j1, so the alert's 'to' rests on the fast method alone",
-)
 def test_a_fast_finding_the_networks_place_elsewhere_is_not_confirmed() -> None:
     elsewhere = Topology(dict(BODY.joint_parent), {**BODY.imu_joint, "imu2": "j1"})
     ev, _ = confirmed(MOVED, net_of(elsewhere))
     assert not ev.confirmed
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="missing in service/monitor/confirmation.py: an ambiguous network topology gives no parts "
-    "(_changed_parts is None), so the finding waits and stands unconfirmed after the timeout even when "
-    "every tree the networks list keeps imu2 on j3, as in the baseline",
-)
 def test_a_fast_finding_the_ambiguous_networks_decide_against_is_withdrawn() -> None:
     keep = Topology(
         dict(BODY.joint_parent),
