@@ -46,6 +46,9 @@ CYCLE, STARTUP = 1.0, 15.0
 
 T = TypeVar("T")
 
+#: About 20 s of wall time on an idle machine, 30-40 s on a loaded one.
+pytestmark = pytest.mark.slow
+
 
 class WeakJoint(Observable):
     """The farm's default motion with one joint's amplitude scaled down: the data cannot place it."""
