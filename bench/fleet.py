@@ -5,7 +5,7 @@ with a window of data recorded on the ``robot`` sensing preset, a baseline and t
 earlier training under it, as a running service has them after its first retrains. Then, for each
 cluster size (``--workers``), a local Dask cluster of that many worker processes (one thread each, the
 service's embedded cluster) retrains every robot once through the service's own path
-(:class:`service.training.RemoteRetrains`: jobs naming robot and window, the task reads the window and
+(:class:`service.retrain.RemoteRetrains`: jobs naming robot and window, the task reads the window and
 the weights from the store, the results and new weights are stored). Once every job is submitted (their
 windows are then fixed: the robots' newest 30 s), this process runs beside the training:
 
@@ -236,7 +236,7 @@ def _round(
     ``submitted()`` is called once every job is on the cluster (their windows are fixed then)."""
     from service.cluster import ClusterOptions, TrainingCluster, local_cluster
     from service.metrics import Metrics
-    from service.training import RemoteRetrains, RetrainLimits
+    from service.retrain import RemoteRetrains, RetrainLimits
 
     cluster = local_cluster(workers)
     tc = TrainingCluster(ClusterOptions(scheduler=cluster.scheduler_address))
@@ -284,8 +284,8 @@ def _round(
 
 def _training(seed: int) -> Any:
     """The embedded cluster's training options for ``seed``: the service's priority settings."""
+    from service.retrain import TrainingOptions
     from service.settings import Settings
-    from service.training import TrainingOptions
 
     s = Settings(database_url="sqlite://")
     return TrainingOptions(seed=seed, nice=s.training_nice, idle=s.training_idle)

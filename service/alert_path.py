@@ -51,7 +51,7 @@ CONFIRM_FACTOR = 3.0
 
 
 class QueueSource(Protocol):
-    """The training queue as :class:`~service.training.RemoteRetrains` reports it."""
+    """The training queue as :class:`~service.retrain.RemoteRetrains` reports it."""
 
     def queue_status(self) -> list[Any]: ...
 

@@ -11,7 +11,7 @@ service's time, long enough to triple the API's latency tail. The child is start
 
 A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
 robot, and the next cycle tries again. The network methods come here only when the service runs
-without a training cluster (:mod:`service.training`); with one, they train there.
+without a training cluster (:mod:`service.retrain`); with one, they train there.
 
 >>> import numpy as np
 >>> from bodyschema.recording import Recording

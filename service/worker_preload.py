@@ -21,7 +21,7 @@ from typing import Any
 import bodyschema.estimate
 import bodyschema.health
 import bodyschema.timing  # noqa: F401
-import service.retrain_task
+import service.retrain.task
 import service.store
 import service.store.weights  # noqa: F401
 from bodyschema.threads import set_torch_threads

@@ -1,11 +1,11 @@
 """``/api/v1/robots/{robot}/topology`` and ``/baseline``: learned bodies and the baseline.
 
 A retrain runs an estimator (the sensor networks: seconds of CPU each) from the worker's next cycle —
-as a task on the Dask cluster when the service has one (:mod:`service.training`), never on the
+as a task on the Dask cluster when the service has one (:mod:`service.retrain`), never on the
 request's thread — so each robot accepts at most one retrain request per
 ``retrain_min_interval_seconds``; more are 429 with ``Retry-After`` (:class:`RetrainLimiter`, one per
 app on ``app.state.retrain_limiter``). A cluster retrain is also 429 while the training queue is full
-(``max_retrains_queued``, :meth:`service.training.RemoteRetrains.admit`), with ``Retry-After`` the
+(``max_retrains_queued``, :meth:`service.retrain.RemoteRetrains.admit`), with ``Retry-After`` the
 expected seconds until a retrain in it finishes; a request for one already waiting or in flight is
 answered by that one.
 """
@@ -71,7 +71,7 @@ class RetrainLimiter:
 
 @runtime_checkable
 class RetrainQueue(Protocol):
-    """The worker's cluster retrains (:class:`service.training.RemoteRetrains`), as the route sees them."""
+    """The worker's cluster retrains (:class:`service.retrain.RemoteRetrains`), as the route sees them."""
 
     def admit(self, robot: str, method: str) -> float:
         """0 when the retrain is wanted now, else the seconds until the queue has room for it."""

@@ -190,7 +190,7 @@ class FramesMixin(RobotsMixin):
     ) -> Recording | None:
         """The latest ``seconds`` of device time: samples with ``end - seconds < t <= end``, of the
         robot's current device clock epoch (or of ``epoch``: a window named by its end and epoch reads
-        back the same samples in another process, see :mod:`service.retrain_task`).
+        back the same samples in another process, see :mod:`service.retrain.task`).
 
         ``end`` defaults to the robot's last frame. IMUs silent in the whole window are left out; an IMU
         heard in only part of it is left out too (``partial_imus="drop"``) or kept with NaN where it

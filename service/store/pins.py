@@ -1,7 +1,7 @@
 """Window pins: frames a queued retrain will read are kept by retention until it has read them.
 
 A retrain is submitted naming its window by robot, device clock epoch and end
-(:mod:`service.retrain_task`); it may wait on the cluster for longer than the retention keeps frames,
+(:mod:`service.retrain.task`); it may wait on the cluster for longer than the retention keeps frames,
 above all when the robots' clocks run faster than the wall clock (a farm at ``--speed 10``). The
 retrain's owner pins the window on submission and unpins it when the result is collected (or the task
 failed or was cancelled); :meth:`service.store.retention.RetentionMixin.prune` keeps every chunk that
@@ -9,7 +9,7 @@ overlaps a pinned window.
 
 Every pin expires ``ttl`` seconds of monotonic wall time after it was made, so a task whose future is
 lost (its owner crashed between submit and collect) cannot keep frames forever; the owner derives the
-bound from its settings (:class:`service.training.RetrainLimits`). Pins live in the process that
+bound from its settings (:class:`service.retrain.RetrainLimits`). Pins live in the process that
 prunes (the service's ingest writer and the worker share one :class:`~service.store.Store`); they are
 not stored in the database.
 
