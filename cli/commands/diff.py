@@ -1,8 +1,8 @@
 """``bodyhealth diff BASELINE.npz CURRENT.npz [--json]``: the monitoring diff, offline.
 
 Both recordings are estimated with the same method, the current one's signal health is judged with the
-baseline as layout, and :func:`bodyschema.diff.diff_bodies` names the differences: docs/design.md §2 diff JSON
-with ``--json``, a readable listing otherwise.
+baseline as layout, and :func:`bodyschema.diff.diff_bodies` names the differences: the diff JSON
+(docs/design.md, exchange formats) with ``--json``, a readable listing otherwise.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diff",
         help="compare the body learned from two recordings (baseline, current): typed damage findings",
-        description="Learn the body from each recording and list what changed (docs/design.md §2 diff JSON "
-        "with --json).",
+        description="Learn the body from each recording and list what changed (with --json: the diff JSON "
+        "of docs/design.md, exchange formats).",
     )
     p.add_argument("baseline", help="recording (.npz) of the healthy body")
     p.add_argument("current", help="recording (.npz) to check")
-    p.add_argument("--json", action="store_true", help="print the docs/design.md §2 diff JSON")
+    p.add_argument("--json", action="store_true", help="print the diff JSON (docs/design.md)")
     p.add_argument("--method", choices=METHODS, default="fast", help="topology estimator (default fast)")
     p.add_argument(
         "--exit-code",
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def format_diff(diff: dict[str, Any]) -> str:
-    """A readable listing of a docs/design.md §2 diff JSON.
+    """A readable listing of a diff JSON (docs/design.md, exchange formats).
 
     >>> print(format_diff({"changed": True, "findings": [
     ...     {"kind": "imu_moved", "imu": "imu3", "from": "j2", "to": "j4", "confidence": 0.97}]}))

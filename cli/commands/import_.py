@@ -1,4 +1,4 @@
-"""``bodyhealth import FORMAT FILE --out rec.npz``: convert measured data into a docs/design.md §2 recording.
+"""``bodyhealth import FORMAT FILE --out rec.npz``: convert measured data into a recording.
 
 Formats: ``broad`` (a BROAD trial, HDF5: one IMU plus optical motion capture; see :mod:`sim2real.broad`),
 ``rosbag`` (a ROS 1 ``.bag``, or a ROS 2 bag directory, ``.mcap`` or ``.db3``: IMU and joint-state

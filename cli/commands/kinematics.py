@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "kinematics",
         help="learn joint axes and IMU lever arms from a recording",
         description="Estimate each joint's axis and each IMU's lever arm from the gyros, accelerometers "
-        "and encoders of a docs/design.md §2 recording, on the learned (or given) joint tree.",
+        "and encoders of a recording (docs/recording-format.md), on the learned (or given) joint tree.",
     )
     p.add_argument("recording", type=Path, metavar="REC.npz")
     p.add_argument(

@@ -1,7 +1,7 @@
 """``bodyhealth sim2real REC.npz``: what the simulation gets wrong about a measured IMU, and why.
 
-Prints the causes in order with parameters, uncertainty and held-out gain (``--json``: the docs/design.md §2
-discrepancy JSON), writes the extended IMU model in the simulator's format (``--out``), and a report
+Prints the causes in order with parameters, uncertainty and held-out gain (``--json``: the discrepancy
+JSON of docs/design.md), writes the extended IMU model in the simulator's format (``--out``), and a report
 with residual plots before/after (``--report DIR``). ``--transfer OTHER.npz ...`` checks the fitted
 model end to end on recordings that were not used for the fit.
 

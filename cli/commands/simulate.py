@@ -12,7 +12,7 @@ __all__ = ["register"]
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
-        help="simulate a robot with IMUs and write a docs/design.md §2 recording (.npz)",
+        help="simulate a robot with IMUs and write a recording (docs/recording-format.md) (.npz)",
         description="ROBOT is a catalog name (see `bodyhealth robots`) or an MJCF/URDF file "
         "(instrumented with 2 IMUs per link when it has none).",
     )

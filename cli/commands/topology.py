@@ -1,7 +1,7 @@
 """``bodyhealth topology REC.npz [--method M] [--json] [--plot tree.png]``: learn a robot's body schema.
 
-Prints the learned joint tree with the IMUs on each link (or the docs/design.md §2 topology JSON with
-``--json``); ``--plot`` draws the tree, next to the ground truth when the recording carries one.
+Prints the learned joint tree with the IMUs on each link (or, with ``--json``, the topology JSON of
+docs/design.md); ``--plot`` draws the tree, next to the ground truth when the recording carries one.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "topology",
         help="learn the joint tree and IMU placement from a recording",
         description="Learn which joint hangs under which and which IMU rides which link, from the "
-        "encoders and IMUs of a docs/design.md §2 recording.",
+        "encoders and IMUs of a recording (docs/recording-format.md).",
     )
     p.add_argument("recording", type=Path, metavar="REC.npz")
     p.add_argument(
@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="fast (gyro tests, ~1 s), network (the paper's sensor networks), network-paper "
         "(with the paper's variance statistic), mlp (the paper's baseline); default fast",
     )
-    p.add_argument("--json", action="store_true", help="print the docs/design.md §2 topology JSON")
+    p.add_argument("--json", action="store_true", help="print the topology JSON (docs/design.md)")
     p.add_argument("--plot", type=Path, metavar="tree.png", help="draw the learned tree (and the truth)")
     p.add_argument("--seed", type=int, default=0, help="seed of the network methods (default 0)")
     p.add_argument("--epochs", type=int, default=None, help="training epochs of the network methods")
