@@ -19,6 +19,7 @@ import pytest
 from bodyschema.recording import Recording
 from service.store import Store, open_store
 from simulators.recording_io import save_recording
+from tests.waits import cpu_bound
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -76,7 +77,7 @@ def test_sigkill_mid_ingest_loses_no_committed_frame(
         proc = _start(db_url, rec_path, log)
         # Kill after a random number of further commits (the process reports each one).
         want = reports_before + int(rng.integers(1, 8))
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + cpu_bound(60)  # commits of a process that must start first
         while _committed(log)[1] < want and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(float(rng.uniform(0.0, 0.05)))  # land anywhere in the next transaction

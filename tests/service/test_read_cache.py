@@ -23,6 +23,7 @@ from service.api.cache import ReadCache
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.waits import cpu_bound
 
 READS = [
     "/api/v1/robots",
@@ -132,7 +133,7 @@ def test_concurrent_requests_share_one_rendering(store: Store) -> None:
     # after the commit: the kept answer at once, for every request, and one rendering in flight
     assert asyncio.run(burst(20)) == [f'{{"generation":{g0}}}'.encode()] * 20
     assert calls == [g0, g0 + 1]
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + cpu_bound(5)
     while cache._inflight and time.monotonic() < deadline:
         time.sleep(0.01)
     assert asyncio.run(cache.respond(("k",), render)).body == f'{{"generation":{g0 + 1}}}'.encode()

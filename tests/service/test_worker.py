@@ -22,6 +22,7 @@ from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
 from tests.bodyschema.test_health import LAYOUT, synth
+from tests.waits import cpu_bound
 
 MOVED = Topology(
     dict(LAYOUT.joint_parent),
@@ -388,7 +389,7 @@ def test_failing_estimator_does_not_stop_the_thread(
     w = Worker(sqlite_store, settings, estimator=broken)
     w.start()
     try:
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + cpu_bound(10)  # three short cycles
         while w.metrics.cycles._value.get() < 3 and time.monotonic() < deadline:
             time.sleep(0.05)
     finally:
