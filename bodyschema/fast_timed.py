@@ -76,7 +76,8 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
        IMU Nyquist frequency when not stated) + ``n_j² / 3`` for each joint ``j`` whose derived rate the
        model uses (``n_j`` its in-band error, quantization and noise,
        :func:`bodyschema.timing.rate_noise`; it enters as ``e n_j`` with ``|e| = 1``, spread over three
-       channels). The on-base and same-link models compare gyros alone and carry no ``n_j``. A joint
+       channels). The on-base and same-link models compare gyros alone; they carry the largest
+       ``n_j² / 3``, which covers what the gyro noise estimate misses of a low-passed gyro. A joint
        is tested when its in-band rate RMS is ``min_excitation_snr`` times each per-channel std a right
        model leaves (gyro noise, the model error at :data:`LAG_RESOLUTION`, its own ``n_j / √3``);
        else it is undetermined. A model is accepted when

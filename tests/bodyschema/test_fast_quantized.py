@@ -56,24 +56,26 @@ def _two_links(T: int = 3000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q, qd, gyro
 
 
-def test_rate_noise_is_left_out_of_the_gyro_only_tests():
-    """The same-link test compares gyros alone: a derived rate's error, however large, does not merge
-    two links that the gyros tell apart (it only widens the tests whose models use that rate)."""
+def test_a_derived_rate_error_enters_the_gyro_only_tests_per_channel():
+    """A joint's derived rate error n enters a model as e n over three channels: n² / 3 per channel.
+    The hinge models carry their own joint's; the gyro-only tests (on base, same link) the largest.
+    The old form, n² in every floor, merged two links that the gyros tell apart."""
     q, qd, gyro = _two_links()
-    timed = _TimedTerms(
-        apply=lambda x, axis=-1: x,
-        sigma=noise_level(gyro),
-        floor_add=np.zeros(2),
-        rate_var=np.array([0.0, 1e-3]),  # the second joint's derived rate: 0.055 rad/s of error
-        n_eff=1.0,
-        undetermined=np.zeros(2, dtype=bool),
-    )
-    fit = _fit(q, qd, gyro, FastOptions(), timed)
-    assert fit.group.tolist() == [0, 1]
-    # the same error model as a floor of every test (the old form) merges them into one link
-    old_form = _TimedTerms(**{**timed.__dict__, "floor_add": np.full(2, 1e-3), "rate_var": np.zeros(2)})
-    merged = _fit(q, qd, gyro, FastOptions(), old_form)
-    assert merged.group.tolist() == [0, 0]
+    n2 = 3e-5  # the second joint's derived rate: 5.5 mrad/s of error
+
+    def groups(floor_add: float, rate_var: float) -> list[int]:
+        timed = _TimedTerms(
+            apply=lambda x, axis=-1: x,
+            sigma=noise_level(gyro),
+            floor_add=np.full(2, floor_add),
+            rate_var=np.array([0.0, rate_var]),
+            n_eff=1.0,
+            undetermined=np.zeros(2, dtype=bool),
+        )
+        return _fit(q, qd, gyro, FastOptions(), timed).group.tolist()
+
+    assert groups(0.0, n2 / 3) == [0, 1]
+    assert groups(n2, 0.0) == [0, 0]
 
 
 @pytest.mark.slow
