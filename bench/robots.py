@@ -200,7 +200,8 @@ def _replay_line(s: dict[str, Any]) -> str:
     errs = sum(s["errors"].values())
     return (
         f"Service replay `{s['spec']}`: {s['log_seconds'] / 60:.1f} min of log time in {s['wall_seconds']} s "
-        f"wall, baseline learned: {'yes' if s['has_baseline'] else 'no'}, alerts: {s['alerts']} ({kinds}); "
+        f"wall, fixed-base baseline learned: {'yes' if s['has_baseline'] else 'no'}, floating-base baseline "
+        f"learned: {'yes' if s.get('floating_baseline') else 'no'}, alerts: {s['alerts']} ({kinds}); "
         f"worker errors logged: {errs}, exit code {s['exit_code']}."
     )
 
