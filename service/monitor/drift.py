@@ -16,6 +16,8 @@ import zlib
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from bodyschema.findings import Diff, Finding
 from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording
@@ -27,13 +29,16 @@ from service.store import Store, TopologyRecord
 if TYPE_CHECKING:
     from bodyschema.kinematics import Kinematics
 
-__all__ = ["FRAME_KEY", "GeometryDrift"]
+__all__ = ["FRAME_KEY", "MAX_HOLE_SECONDS", "GeometryDrift"]
 
 log = logging.getLogger("service.worker")
 
 #: The key of a kept geometry's JSON that says whether its axes are the accelerometers' frame's
 #: (``kinematics_accelerometer_frame``); absent in rows kept before it was recorded, whose were the gyros'.
 FRAME_KEY = "accelerometer_frame"
+#: The longest pause between two samples of one stream in a window the geometry is judged on: every
+#: transport samples at 10 Hz or faster, so a longer hole is lost frames or a restarted source.
+MAX_HOLE_SECONDS = 0.5
 
 
 class GeometryDrift:
@@ -76,6 +81,8 @@ class GeometryDrift:
         n = self.settings.kinematics_interval_cycles
         if not n or (cycle + zlib.crc32(robot.encode())) % n:
             return None
+        if not self.one_motion(rec):
+            return None  # a partial window or one with a hole: not the motion the geometry was learned on
         if diff.findings:
             return None  # another body: its geometry is not the baseline's
         from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
@@ -93,6 +100,17 @@ class GeometryDrift:
             self._keep_first(robot, base, kin, kept, window_end)
             return None
         return self._compare(robot, base, kin, dict(kept.data), kept.id, window_end)
+
+    def one_motion(self, rec: Recording) -> bool:
+        """True when ``rec`` is one stretch of motion as long as the baseline's geometry windows: at
+        least 80 % of ``window_seconds`` and no hole over :data:`MAX_HOLE_SECONDS`. The geometry's
+        error model is that of a full window; after a restart (a new clock epoch, or frames lost while
+        the service was down) the first windows are short or hold a hole, and an estimate on them is
+        not comparable with it."""
+        if rec.duration < 0.8 * self.settings.window_seconds:
+            return False
+        stamps = [rec.t] if rec.t_q is None else [rec.t, rec.t_q]
+        return all(len(t) < 2 or float(np.max(np.diff(t))) <= MAX_HOLE_SECONDS for t in stamps)
 
     def _keep_first(
         self, robot: str, base: TopologyRecord, kin: Kinematics, kept: Any, window_end: float
