@@ -19,6 +19,9 @@ def figure(b: BenchFiles) -> str:
             f"{shape}: {s['exact']} exact, {s['undetermined']} undetermined ({s['named_joints']} joints "
             f"named to move), {s['wrong']} confidently wrong"
         )
+        if s.get("robots_all_moved") is not None:
+            moved = f"{s['exact_all_moved']} of the {s['robots_all_moved']}"
+            text += f" (exact on {moved} robots whose joints all moved)"
         if s.get("axis_deg_median") is not None:
             text += (
                 f"; on the true tree axis error median {s['axis_deg_median']:.2f}° (the gyro's reading "
@@ -30,7 +33,6 @@ def figure(b: BenchFiles) -> str:
     return (
         f"On {len({r['robot'] for r in rows})} random robots of {min(joints)}-{max(joints)} joints from the "
         "independent generator (`bench/generator.py`, no code shared with `simulators/`; "
-        f"{still} joints jammed, true rate RMS under 0.05 rad/s; {b.provenance('shapes')}): "
-        + "; ".join(parts)
-        + "."
+        f"{still} joints jammed: true rate RMS under 0.05 rad/s in the estimator's band over the span it "
+        f"fits; {b.provenance('shapes')}): " + "; ".join(parts) + "."
     )
