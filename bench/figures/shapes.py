@@ -5,7 +5,7 @@ from __future__ import annotations
 from bench import fmt
 from bench.figures.files import BenchFiles
 
-__all__ = ["figure"]
+__all__ = ["axis_floor", "figure"]
 
 
 def figure(b: BenchFiles) -> str:
@@ -36,3 +36,16 @@ def figure(b: BenchFiles) -> str:
         f"{still} joints jammed: true rate RMS under 0.05 rad/s in the estimator's band over the span it "
         f"fits; {b.provenance('shapes')}): " + "; ".join(parts) + "."
     )
+
+
+def axis_floor(b: BenchFiles) -> str:
+    """The accelerometer cross-axis floor under the axis error, per recording shape (docs/kinematics.md)."""
+    d = b.json("shapes.json")
+    assert isinstance(d, dict)
+    parts = [
+        f"{shape}: floor median {fmt(s['axis_floor_deg_median'])}° against an axis error median of "
+        f"{fmt(s['axis_deg_median'])}° over the {s['imus']} IMUs answered"
+        for shape, s in d["summary"].items()
+        if s.get("axis_floor_deg_median") is not None
+    ]
+    return f"Per IMU, from its drawn matrix ({b.provenance('shapes')}): " + "; ".join(parts) + "."

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from bodyschema.fast_core import _hop_features
-from bodyschema.health import _lstsq_residual
 from bodyschema.hinge import hinge_design, hinge_features
+from bodyschema.joint_motion import _lstsq_residual
 from bodyschema.kinematics.least_squares import solve
 from bodyschema.lstsq import scaled_lstsq
 
