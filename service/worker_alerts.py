@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bodyschema.diff import STRUCTURAL_KINDS, is_ambiguous
-from bodyschema.findings import KINEMATIC_KINDS, Diff
+from bodyschema.findings import ALERT_KINDS, KINEMATIC_KINDS, Diff
 from bodyschema.health import SignalHealth
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
@@ -101,7 +101,13 @@ class AlertPath:
             found, res.slides_judged = drift
             res.drift_judged = True
             res.diff = Diff(findings=(*res.diff.findings, *found), reasons=res.diff.reasons)
-        changes = self.tracker.update(robot, res.diff.findings, hold=hold, evidence=evidence)
+        findings = res.diff.findings
+        if not self.geometry.one_motion(rec):
+            # a short window (the first ones of a new clock epoch after a restart) or one with a hole:
+            # its findings rest on less than the thresholds were derived for, so nothing is raised or
+            # resolved on it; the next full window judges
+            findings, hold = (), tuple(sorted(ALERT_KINDS))
+        changes = self.tracker.update(robot, findings, hold=hold, evidence=evidence)
         if evidence.rejudge:
             st.rejudge = False
         since = self.tracker.since(robot)

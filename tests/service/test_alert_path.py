@@ -134,6 +134,45 @@ def test_unconfirmed_baseline_waits_wall_time_not_slow_cycles(
         store.close()
 
 
+def test_a_short_window_after_a_restart_raises_nothing_and_the_next_full_one_judges(
+    sqlite_store: Store, settings: Settings, rng: np.random.Generator
+) -> None:
+    """The robot's clock went back (its controller restarted): the new epoch's first windows are short,
+    and a finding on them rests on less than its thresholds were derived for. Nothing is raised until
+    a full window (80 % of ``window_seconds``) shows it."""
+    w, clock = _baselined(sqlite_store, settings, rng)
+    w.estimator.next = MOVED
+    after = synth(rng, seconds=12)
+    short = after.t < 5.0
+    part = Recording(
+        t=after.t[short],
+        joint_names=after.joint_names,
+        q=after.q[short],
+        imu_names=after.imu_names,
+        acc=after.acc[short],
+        gyro=after.gyro[short],
+    )
+    feed(sqlite_store, part)  # device time from 0 again: a new clock epoch of 5 s
+    clock.t += 5.0
+    r = w.run_cycle()["arm"]
+    assert r.transitions == [] and sqlite_store.alerts("arm") == []
+    rest = ~short
+    feed(
+        sqlite_store,
+        Recording(
+            t=after.t[rest],
+            joint_names=after.joint_names,
+            q=after.q[rest],
+            imu_names=after.imu_names,
+            acc=after.acc[rest],
+            gyro=after.gyro[rest],
+        ),
+    )
+    clock.t += 5.0
+    r = w.run_cycle()["arm"]
+    assert [(t.state, t.kind, t.part) for t in r.pending] == [("pending", "imu_moved", "imu:c1")]
+
+
 def test_pending_at_once_then_unconfirmed_after_the_timeout(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
