@@ -4,7 +4,7 @@ the networks' newest answer says of a baseline they did not make.
 On a busy machine the sensor networks' retrains can take many minutes (an idle-class training thread
 got 29 CPU s in 7 min on a loaded 2-core host), while the fast screen answers every cycle. The worker
 therefore never lets a decision wait on them unbounded: a pending structural alert waits
-:func:`confirm_timeout` seconds, a baseline ``baseline_unconfirmed_cycles`` cycles, and each robot's
+:func:`confirm_timeout` seconds, a baseline ``baseline_unconfirmed_seconds`` (and cycles), and each robot's
 record of what it waits on (:class:`Waits`, written to the store, read by :mod:`service.status`) says
 what, since when, and where the robot's retrains stand in the training queue.
 
