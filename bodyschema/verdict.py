@@ -39,7 +39,16 @@ from typing import Any
 
 from bodyschema.topology import Topology
 
-__all__ = ["DECIDED", "PartVerdict", "Verdict", "alone", "combine", "contradicts", "decided_parts"]
+__all__ = [
+    "DECIDED",
+    "PartVerdict",
+    "Verdict",
+    "alone",
+    "combine",
+    "contradicts",
+    "decided_parts",
+    "part_answer",
+]
 
 #: A method decides a part when its confidence in it is above this (and its candidates agree).
 DECIDED = 0.5
@@ -97,9 +106,11 @@ class Verdict:
         return self.topology.to_json() | {"parts": {k: p.to_json() for k, p in self.parts.items()}}
 
 
-def _answer(topo: Topology, part: str) -> str | None:
+def part_answer(topo: Topology, part: str) -> str | None:
+    """What ``topo`` says of ``part``: a joint's parent or the joint an IMU rides on (None: the base,
+    or a part ``topo`` does not name)."""
     kind, name = part.split(":", 1)
-    return topo.joint_parent[name] if kind == "joint" else topo.imu_joint[name]
+    return (topo.joint_parent if kind == "joint" else topo.imu_joint).get(name)
 
 
 def decided_parts(topo: Topology) -> dict[str, bool]:
@@ -110,9 +121,9 @@ def decided_parts(topo: Topology) -> dict[str, bool]:
         return dict.fromkeys(parts, False)
     out = {}
     for p in parts:
-        ans = _answer(topo, p)
+        ans = part_answer(topo, p)
         sure = fast or topo.confidence.get(p, 1.0) > DECIDED
-        out[p] = sure and all(_answer(c, p) == ans for c in topo.candidates)
+        out[p] = sure and all(part_answer(c, p) == ans for c in topo.candidates)
     return out
 
 
@@ -123,7 +134,7 @@ def _chain(topo: Topology, joint: str | None) -> set[str]:
 def _move(part: str, fast: Topology, net: Topology, fd: bool, nd: bool) -> tuple[str, ...]:
     """The joints whose motion would tell the two answers to ``part`` apart."""
     kind, name = part.split(":", 1)
-    fa, na = _answer(fast, part), _answer(net, part)
+    fa, na = part_answer(fast, part), part_answer(net, part)
     move = _chain(fast, fa) ^ _chain(net, na)
     if kind == "joint":
         move.add(name)
@@ -133,7 +144,7 @@ def _move(part: str, fast: Topology, net: Topology, fd: bool, nd: bool) -> tuple
     for topo, d in ((fast, fd), (net, nd)):
         if not d:
             move |= set(topo.undetermined)
-            move |= {_answer(c, part) for c in topo.candidates} - {None}
+            move |= {part_answer(c, part) for c in topo.candidates} - {None}
     return tuple(sorted(m for m in move if m is not None))
 
 
@@ -154,7 +165,7 @@ def alone(fast: Topology) -> dict[str, PartVerdict]:
     """
     out: dict[str, PartVerdict] = {}
     for p, d in decided_parts(fast).items():
-        a, c = _answer(fast, p), fast.confidence.get(p, 1.0)
+        a, c = part_answer(fast, p), fast.confidence.get(p, 1.0)
         move = () if d else _move(p, fast, fast, False, False)
         out[p] = PartVerdict(p, d, a, a, None, d, False, float(c if d else min(c, DECIDED)), move)
     return out
@@ -168,7 +179,7 @@ def combine(fast: Topology, network: Topology) -> Verdict:
     parts: dict[str, PartVerdict] = {}
     conf: dict[str, float] = {}
     for p in fd:
-        fa, na = _answer(fast, p), _answer(network, p)
+        fa, na = part_answer(fast, p), part_answer(network, p)
         cf, cn = fast.confidence.get(p, 1.0), network.confidence.get(p, 1.0)
         agreed = fd[p] and nd[p] and fa == na
         c = max(cf, cn) if agreed else min(cf, cn, DECIDED)

@@ -75,7 +75,7 @@ from service.monitor.confirmation import NetworkAsks
 from service.monitor.drift import FRAME_KEY, GeometryDrift
 from service.monitor.floating import FloatingBase
 from service.monitor.onset import estimate_after
-from service.monitor.state import RobotState
+from service.monitor.state import RobotState, full_window
 from service.retrain import RemoteRetrains
 from service.settings import Settings, get_settings
 from service.store import Store, TopologyRecord, UnknownRobot
@@ -500,7 +500,7 @@ class Worker(AlertPath):
         if fast.excitation:
             self.store.set_excitation(robot, fast.excitation)
         waits = Waits(queue=queue_entries(self.remote, robot, self.clock()))
-        full = rec.duration >= 0.8 * self.settings.window_seconds
+        full = full_window(rec, self.settings.window_seconds)
         if base is None:
             res.baseline_set = full and self.adoption.offer(robot, st, fast, res.health, window_end)
             if not res.baseline_set and (wait := self.adoption.waiting(st)) is not None:

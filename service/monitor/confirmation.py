@@ -15,7 +15,7 @@ from collections.abc import Callable
 from bodyschema.diff import STRUCTURAL_KINDS
 from bodyschema.findings import Diff, Finding
 from bodyschema.topology import Topology
-from bodyschema.verdict import decided_parts
+from bodyschema.verdict import decided_parts, part_answer
 from service.alerts import Evidence
 from service.monitor.state import RobotState
 from service.settings import Settings
@@ -119,7 +119,7 @@ def confirm(
             keep.append(f)
             waiting.add(key)
             continue
-        said, before = answers[f.part], _answer(baseline, f.part)
+        said, before = answers[f.part], part_answer(baseline, f.part)
         if said == before:
             withdrawn[key] = (
                 f"the sensor networks' topology {net.id} (window ending at t = {net.window_end_t:.1f} s) "
@@ -144,11 +144,6 @@ def confirm(
     )
 
 
-def _answer(topo: Topology, part: str) -> str | None:
-    kind, name = part.split(":", 1)
-    return (topo.joint_parent if kind == "joint" else topo.imu_joint).get(name)
-
-
 def _network_answers(net: TopologyRecord | None) -> dict[str, str | None] | None:
     """The parts the networks' topology ``net`` decides, with its answer for each (None: no network
     topology). Every tree it lists must agree on a part, at a confidence above one half
@@ -157,7 +152,7 @@ def _network_answers(net: TopologyRecord | None) -> dict[str, str | None] | None
     if net is None:
         return None
     topo = net.topology
-    return {p: _answer(topo, p) for p, d in decided_parts(topo).items() if d}
+    return {p: part_answer(topo, p) for p, d in decided_parts(topo).items() if d}
 
 
 def _where_to_undetermined(f: Finding, said: str | None, net_id: int) -> Finding:

@@ -23,6 +23,7 @@ from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.metrics import Metrics
+from service.monitor.state import full_window
 from service.settings import Settings
 from service.store import Store, TopologyRecord
 
@@ -102,12 +103,12 @@ class GeometryDrift:
         return self._compare(robot, base, kin, dict(kept.data), kept.id, window_end)
 
     def one_motion(self, rec: Recording) -> bool:
-        """True when ``rec`` is one stretch of motion as long as the baseline's geometry windows: at
-        least 80 % of ``window_seconds`` and no hole over :data:`MAX_HOLE_SECONDS`. The geometry's
-        error model is that of a full window; after a restart (a new clock epoch, or frames lost while
-        the service was down) the first windows are short or hold a hole, and an estimate on them is
-        not comparable with it."""
-        if rec.duration < 0.8 * self.settings.window_seconds:
+        """True when ``rec`` is one stretch of motion as long as the baseline's geometry windows: a full
+        window (:func:`~service.monitor.state.full_window`) and no hole over :data:`MAX_HOLE_SECONDS`.
+        The geometry's error model is that of a full window; after a restart (a new clock epoch, or
+        frames lost while the service was down) the first windows are short or hold a hole, and an
+        estimate on them is not comparable with it."""
+        if not full_window(rec, self.settings.window_seconds):
             return False
         stamps = [rec.t] if rec.t_q is None else [rec.t, rec.t_q]
         return all(len(t) < 2 or float(np.max(np.diff(t))) <= MAX_HOLE_SECONDS for t in stamps)

@@ -56,6 +56,7 @@ from bodyschema.stance_chains import floating_base_rule
 from bodyschema.topology import Topology
 from service.alert_path import Waits
 from service.alerts import AlertTracker, Evidence, Transition
+from service.monitor.state import full_window
 from service.settings import Settings
 from service.store import Store
 
@@ -239,7 +240,7 @@ class FloatingBase:
         """``rec`` against the baseline, the findings through the tracker into the store."""
         assert fr.baseline is not None
         self._say(fr, waits)
-        if rec.duration < 0.8 * self.settings.window_seconds:
+        if not full_window(rec, self.settings.window_seconds):
             res.skipped = f"undetermined: the window holds {rec.duration:.1f} s of frames"
             return
         try:

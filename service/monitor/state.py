@@ -30,9 +30,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bodyschema.health import BaselineFingerprints
+from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
-__all__ = ["FORGETS", "RobotState", "Streak"]
+__all__ = ["FORGETS", "FULL_WINDOW_SHARE", "RobotState", "Streak", "full_window"]
 
 
 @dataclass
@@ -123,3 +124,13 @@ FORGETS: dict[str, tuple[tuple[str, ...], dict[str, Any]]] = {
     "epoch": (("fingerprints", "onset", "first_seen"), {"lag": 0.0, "rejudge": True}),
     "restart": (_ALL, {"rejudge": True}),
 }
+
+
+#: The share of ``window_seconds`` a window must span for the worker's judgements: the thresholds
+#: (hysteresis, drift, the floating checks) are derived for full windows.
+FULL_WINDOW_SHARE = 0.8
+
+
+def full_window(rec: Recording, window_seconds: float) -> bool:
+    """True when ``rec`` spans at least :data:`FULL_WINDOW_SHARE` of ``window_seconds``."""
+    return rec.duration >= FULL_WINDOW_SHARE * window_seconds
