@@ -1,6 +1,7 @@
 """The robot's geometry compared with the one learned on its baseline (the worker's step 5).
 
-Every ``kinematics_interval_cycles`` cycles (staggered per robot), when the diff holds no finding, the
+Every ``kinematics_interval_cycles`` cycles (staggered per robot), or sooner when that many worker
+intervals of wall time have passed since its last estimate, when the diff holds no finding, the
 robot's geometry is estimated (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever
 arms). The first estimate under a baseline is kept as its geometry (:mod:`service.store.kinematics`);
 later ones are compared with it (:func:`bodyschema.lever_pool.stored_drift`), their lever arms against
@@ -59,6 +60,23 @@ class GeometryDrift:
         self.metrics = metrics
         self.compute = compute
         self.clock = clock
+        #: per robot: the cycle and wall time of its last estimate
+        self._last: dict[str, tuple[int, float]] = {}
+
+    def turn(self, robot: str, cycle: int) -> bool:
+        """True when ``robot``'s geometry is due: ``kinematics_interval_cycles`` cycles after its last
+        estimate, or that many worker intervals of wall time (so on a loaded machine, whose cycles
+        overrun their interval, each estimate still comes a window's time after the last instead of
+        waiting for slow cycles: damage to the geometry is seen as soon as on a quiet one). The first
+        is staggered by the robot's name so a fleet's estimates spread over the cycles."""
+        n = self.settings.kinematics_interval_cycles
+        if not n:
+            return False
+        last = self._last.get(robot)
+        if last is None or cycle < last[0]:
+            return (cycle + zlib.crc32(robot.encode())) % n == 0
+        wall = n * self.settings.worker_interval_seconds
+        return cycle - last[0] >= n or self.clock() - last[1] >= wall
 
     def judge(
         self, robot: str, cycle: int, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff
@@ -72,15 +90,13 @@ class GeometryDrift:
         ``kinematics_pool_recent`` (both kept in the store, so a restart neither forgets the baseline's
         lever arms nor compares them with the slid ones).
 
-        Every ``kinematics_interval_cycles`` cycles per robot, staggered by the robot's name so a
-        fleet's estimates spread over the cycles; on the raw window (the estimate band-limits its
+        On the robot's turn (:meth:`turn`); on the raw window (the estimate band-limits its
         signals, and the impact removal's gaps would break its filters), on the baseline's tree with
         this window's encoder timing. The baseline's tree, not this cycle's fast one: the diff holding
         no finding says the body is the baseline's, while a fault the geometry is there to find (a dead
         band's encoder steps) can leave the fast screen unable to place a joint's IMUs at all.
         """
-        n = self.settings.kinematics_interval_cycles
-        if not n or (cycle + zlib.crc32(robot.encode())) % n:
+        if not self.turn(robot, cycle):
             return None
         if not self.one_motion(rec):
             return None  # a partial window or one with a hole: not the motion the geometry was learned on
@@ -89,6 +105,7 @@ class GeometryDrift:
         from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
         t0 = time.perf_counter()
+        self._last[robot] = (cycle, self.clock())
         frame = self.settings.kinematics_accelerometer_frame
         tree = dataclasses.replace(base.topology, timing=dict(fast.timing))
         kin = self.compute(estimate_kinematics, rec, tree, KinematicsOptions(accelerometer_frame=frame))
