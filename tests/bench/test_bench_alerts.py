@@ -165,6 +165,11 @@ def test_bad_options_are_one_clear_error() -> None:
         alerts.Options.of(bench_args(alerts, "--runs", "0"))
     opts = alerts.Options.of(bench_args(alerts, "--damage", "none", "--healthy-seconds", "60"))
     assert opts.damages == () and opts.run_seconds == 120 + 360 + 60 + 300 + 600 + 60
+    # the first run holds the long healthy phase (the false-alert check), the others the short one
+    assert opts.for_run(1).run_seconds == 120 + 360 + 3600 + 300 + 600 + 60
+    assert opts.for_run(2) is opts
+    with pytest.raises(ValueError, match="must not be negative"):
+        alerts.Options.of(bench_args(alerts, "--first-healthy-seconds", "-1"))
     assert alerts.Options.of(bench_args(alerts)).damages == alerts.DEFAULT_DAMAGES
 
 
@@ -184,6 +189,7 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     args = bench_args(
         alerts,
         *("--runs", "1", "--busy", "0", "--speed", "4", "--healthy-seconds", "6", "--restart"),
+        *("--first-healthy-seconds", "6"),
         *("--approvals", "2", "--flood-rps", "2", "--geometry-limit", "0", "--alert-limit", "10"),
         *("--damage", "paper-3-1:imu_moved:imu=imu0,to=j2", "--damage", "ur5e-1:imu_rotated:angle_deg=2"),
         *("--baseline-limit", f"{BASELINE_LIMIT:g}", "--out", str(tmp_path)),
