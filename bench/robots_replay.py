@@ -2,9 +2,9 @@
 until the replay has covered ``minutes`` of log time, then every alert the robot raised (any state).
 
 An untouched log must raise none. The service runs as its own process on a temporary SQLite file with
-its default settings; the robot's status (baseline learned, newest device time, what the worker says
-it waits on: a floating-base robot's baseline is the worker's, reported there) is read through the
-REST API like any client does.
+its default settings; the robot's status (the baseline learned and its kind: a topology, or a
+floating-base robot's floating baseline; newest device time; what the worker says it waits on) is read
+through the REST API like any client does.
 """
 
 from __future__ import annotations
@@ -20,11 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FLOATING_JUDGED", "replay_alerts"]
-
-#: What the worker's status says of a robot whose floating-base baseline is learned
-#: (:mod:`service.monitor.floating`); the store holds no baseline row for it.
-FLOATING_JUDGED = "judged by the floating-base checks"
+__all__ = ["replay_alerts"]
 
 
 def _start(db: Path, spec: str, err: Path, cwd: Path) -> tuple[subprocess.Popen[str], str]:
@@ -89,13 +85,16 @@ def replay_alerts(rec_path: Path, robot: str, minutes: float, speed: float, t_st
         finally:
             proc.send_signal(signal.SIGTERM)
             rc = proc.wait(60)
-        waits = [str(w.get("what", "")) for w in (status.get("status") or {}).get("waiting") or ()]
+        st = status.get("status") or {}
+        waits = [str(w.get("what", "")) for w in st.get("waiting") or ()]
+        kind = st.get("baseline_kind") if status.get("has_baseline") else None
         return {
             "spec": spec.replace(str(rec_path), rec_path.name),
             "log_seconds": round((status.get("last_frame_t") or t_start) - t_start, 1),
             "wall_seconds": round(time.monotonic() - t0, 1),
-            "has_baseline": bool(status.get("has_baseline")),
-            "floating_baseline": any(FLOATING_JUDGED in w for w in waits),
+            "has_baseline": kind == "topology",  # a fixed-base robot's
+            "floating_baseline": kind == "floating",
+            "baseline_kind": kind,
             "waiting": waits,
             "alerts": len(alerts),
             "alert_kinds": sorted({f"{a.get('kind')} {a.get('part')}" for a in alerts}),

@@ -48,9 +48,9 @@ from pydantic_core import PydanticSerializationError, to_jsonable_python
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.status import RobotStatus, robot_status
-from service.store import Store
+from service.store import Store, StoredFloating
 
-__all__ = ["FLEET_STATUSES", "ClearOnWrite", "ReadCache", "cached_status", "read_cache"]
+__all__ = ["FLEET_STATUSES", "ClearOnWrite", "ReadCache", "cached_floating", "cached_status", "read_cache"]
 
 
 @dataclass(frozen=True)
@@ -259,3 +259,11 @@ def cached_status(request: Request, store: Store, robot: str, method: str | None
         if fleet is not None and robot in fleet:
             return fleet[robot]
     return cache.memo(("status", robot, method), lambda: robot_status(store, robot, method))
+
+
+def cached_floating(request: Request, store: Store) -> dict[str, StoredFloating]:
+    """Every robot's floating baseline (:meth:`~service.store.Store.floating_baselines`, one query,
+    without the data), kept by the read cache like a status: the robot list, a robot's details and
+    its status say from it whether a floating-base robot has a baseline."""
+    got: dict[str, StoredFloating] = read_cache(request).memo(("floating",), store.floating_baselines)
+    return got

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 
-from service.api.cache import FLEET_STATUSES, cached_status, read_cache
+from service.api.cache import FLEET_STATUSES, cached_floating, cached_status, read_cache
 from service.api.deps import RobotName, get_pipeline, get_settings_dep, get_store, lookup_robot
 from service.api.errors import responses
 from service.api.schemas import FramesIn, RobotOut, StatusOut
@@ -26,9 +26,8 @@ router = APIRouter(prefix="/api/v1/robots", tags=["robots"], responses=responses
 def _out(request: Request, store: Store, info: RobotInfo, st: RobotStatus | None = None) -> RobotOut:
     # The status read already fetches the baseline and the active alerts: the counts come from it.
     st = st or cached_status(request, store, info.name)
-    return RobotOut.of(
-        info, has_baseline=st.baseline is not None, active_alerts=len(st.alerts), status=StatusOut.of(st)
-    )
+    status = StatusOut.of(st, cached_floating(request, store).get(info.name))
+    return RobotOut.of(info, has_baseline=status.has_baseline, active_alerts=len(st.alerts), status=status)
 
 
 @router.get("", response_model=list[RobotOut], summary="every robot with its parts, alert count and status")

@@ -7,6 +7,7 @@ contract, and a second model of it here would drift.
 from __future__ import annotations
 
 import math
+import time
 from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -17,7 +18,7 @@ from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
 from service.frames import ACC_LIMIT, GYRO_LIMIT, NAME_PATTERN, NAME_RULE, Q_LIMIT, T_LIMIT
 from service.status import MAX_ALTERNATIVES, MethodsVerdict, RobotStatus
-from service.store import AlertRecord, RobotInfo, StoredKinematics, TopologyRecord
+from service.store import AlertRecord, RobotInfo, StoredFloating, StoredKinematics, TopologyRecord
 
 __all__ = [
     "DAMAGE_MODES",
@@ -410,6 +411,11 @@ class StatusOut(BaseModel):
         "expected_seconds, expected_finish, cpu_seconds, window_end}",
     )
     baseline_source: str | None = Field(None, description="auto, operator or fast-unconfirmed")
+    baseline_kind: Literal["topology", "floating"] | None = Field(
+        None,
+        description="what the baseline is: a topology, or what the floating-base checks learned "
+        "(a walking robot whose one IMU rides its base); null without one",
+    )
     baseline_networks: str = Field(
         "", description="of a fast-unconfirmed baseline: agree, contradicted or unconfirmed"
     )
@@ -425,12 +431,15 @@ class StatusOut(BaseModel):
     )
 
     @classmethod
-    def of(cls, st: RobotStatus) -> StatusOut:
+    def of(cls, st: RobotStatus, floating: StoredFloating | None = None) -> StatusOut:
+        """The answer of ``st``; ``floating`` is the robot's floating baseline, when it has one and
+        no topology baseline (a floating-base robot is judged against it, not against a topology)."""
         cur = st.current
+        floating = floating if st.baseline is None else None
         return cls(
             robot=st.robot,
             status=st.status,
-            reasons=list(st.reasons),
+            reasons=_floating_reasons(st.reasons, floating),
             trees_fit=st.trees_fit,
             alternatives=[
                 {"joints": {j: {"parent": p} for j, p in t.joint_parent.items()}, "imus": dict(t.imu_joint)}
@@ -440,7 +449,7 @@ class StatusOut(BaseModel):
             insufficient_excitation=list(st.insufficient_excitation),
             alerts=[AlertOut.of(a) for a in st.alerts],
             pending_alerts=[AlertOut.of(a) for a in st.pending],
-            has_baseline=st.baseline is not None,
+            has_baseline=st.baseline is not None or floating is not None,
             diff=st.diff.to_json() if st.diff is not None else None,
             topology_id=cur.id if cur else None,
             method=cur.method if cur else None,
@@ -450,11 +459,30 @@ class StatusOut(BaseModel):
             network=RetrainOut.of(st.network, st.topology) if st.network is not None else None,
             waiting=list(st.waiting),
             training_queue=list(st.queue),
-            baseline_source=st.baseline.source if st.baseline is not None else None,
+            baseline_source=st.baseline.source if st.baseline is not None else ("auto" if floating else None),
+            baseline_kind="topology" if st.baseline is not None else ("floating" if floating else None),
             baseline_networks=st.baseline_networks,
             parts=_parts(st.methods),
             methods=MethodsOut.of(st.methods),
         )
+
+
+#: The reasons :func:`service.status.judge` gives for a robot with no topology learned or no topology
+#: baseline: a floating-base robot has neither by design, and its floating baseline says instead.
+_TOPOLOGY_ONLY = ("nothing learned yet", "no baseline yet")
+
+
+def _floating_reasons(reasons: tuple[str, ...], floating: StoredFloating | None) -> list[str]:
+    """``reasons``, with those about a missing topology baseline put as what the floating baseline is."""
+    if floating is None:
+        return list(reasons)
+    kept = [r for r in reasons if not r.startswith(_TOPOLOGY_ONLY)]
+    learned = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(floating.wall_time))
+    return [
+        f"floating-base baseline learned {learned} ({floating.rule}): windows are judged by the "
+        "floating-base checks, no topology is learned",
+        *kept,
+    ]
 
 
 class RobotOut(BaseModel):

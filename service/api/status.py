@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
-from service.api.cache import cached_status, read_cache
+from service.api.cache import cached_floating, cached_status, read_cache
 from service.api.deps import RobotName, get_store, known_robot
 from service.api.errors import responses
 from service.api.schemas import StatusOut
@@ -41,6 +41,9 @@ async def status(
     ),
 ) -> Response:
     def render() -> StatusOut:
-        return StatusOut.of(cached_status(request, store, known_robot(store, robot), method))
+        name = known_robot(store, robot)
+        return StatusOut.of(
+            cached_status(request, store, name, method), cached_floating(request, store).get(name)
+        )
 
     return await read_cache(request).respond(("status", robot, method), render)

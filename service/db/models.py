@@ -40,6 +40,7 @@ __all__ = [
     "Base",
     "Baseline",
     "Chunk",
+    "FloatingBaselineRow",
     "Heartbeat",
     "Imu",
     "Joint",
@@ -204,6 +205,23 @@ class KinematicsRow(Base):
     baseline_id: Mapped[int] = mapped_column(BigId)
     wall_time: Mapped[float]
     window_end_t: Mapped[float | None]
+    data: Mapped[dict[str, Any]]
+
+
+class FloatingBaselineRow(Base):
+    """A floating-base robot's baseline: what :func:`bodyschema.floating_health.floating_baseline`
+    learned (``data``, :mod:`bodyschema.floating_json`), the rule that took the robot as floating
+    (``rule``) and the window it was learned on. The newest row per robot is the current one
+    (:mod:`service.store.floating`)."""
+
+    __tablename__ = "floating_baselines"
+    __table_args__ = (Index("ix_floating_baselines_robot_id", "robot_id", "id"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    robot_id: Mapped[int] = _robot_fk()
+    wall_time: Mapped[float]
+    window_end_t: Mapped[float | None]
+    rule: Mapped[str] = mapped_column(String(500))
     data: Mapped[dict[str, Any]]
 
 

@@ -25,8 +25,11 @@ window keeps a handful of samples (``need at least 50 samples``). Such a robot t
   longest hold of each encoder while the body moves, each joint's whole travel, the IMU's longest
   repeated reading), and extremes learned on K windows' worth of motion bound what any one later
   window of the same motion shows; K windows apart would each give smaller ones and need a rule to
-  merge them. The baseline lives in the worker (it is not a topology; the store has no row for it),
-  so a restart learns it again.
+  merge them. The baseline is kept in the store (:mod:`service.store.floating`, with the rule that
+  took the robot as floating) and read back the first time a restarted worker meets the robot, so
+  judging goes on at once, without the fixed-base cycles that found the rule nor the baseline's
+  device time again. A stored baseline of other joints or IMUs than the window's, or one this
+  version cannot read, is left to its history and a new one is learned.
 * **Judging.** Every later full window: :func:`~bodyschema.floating_health.floating_diff` → findings →
   the worker's tracker (pending, then active after ``alert_hysteresis_m`` cycles) → alerts in the
   store, like the fixed path's findings.
@@ -49,6 +52,7 @@ import numpy as np
 from bodyschema.diff import is_ambiguous
 from bodyschema.findings import Diff
 from bodyschema.floating_health import FloatingBaseline, FloatingOptions, floating_baseline, floating_diff
+from bodyschema.floating_json import baseline_from_json, baseline_to_json
 from bodyschema.health import HealthThresholds
 from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording, RecordingError
@@ -138,6 +142,8 @@ class FloatingBase:
         self.robots: dict[str, FloatingRobot] = {}
         #: per robot, the cycles in a row whose fixed-base fit left its one IMU turning on the root
         self.root_streak: dict[str, tuple[int, int]] = {}  # (newest fast topology's id, streak)
+        #: robots whose stored floating baseline was looked for since the worker started
+        self.looked_up: set[str] = set()
 
     @staticmethod
     def learn_window(compute: Callable[..., Recording], rec: Recording) -> Recording | None:
@@ -154,6 +160,9 @@ class FloatingBase:
         """Why ``robot`` is taken as floating-base (None: it is not), from its window ``rec`` and the
         same window with impacts dropped, ``learn`` (module doc)."""
         known = self.robots.get(robot)
+        if known is None and robot not in self.looked_up:
+            self.looked_up.add(robot)
+            known = self._restore(robot, rec)
         if (
             known is not None
             and known.baseline is not None
@@ -173,6 +182,30 @@ class FloatingBase:
                 "samples: a fixed-base topology cannot be fitted"
             )
         return self._root_rule(robot, rec)
+
+    def _restore(self, robot: str, rec: Recording) -> FloatingRobot | None:
+        """The floating baseline the store keeps for ``robot``, taken up again (None: none kept, or
+        one of other parts than ``rec``'s, or one this version cannot read)."""
+        stored = self.store.floating_baseline(robot)
+        if stored is None or stored.data is None:
+            return None
+        try:
+            base = baseline_from_json(stored.data)
+        except ValueError as err:
+            log.warning(
+                "stored floating-base baseline unreadable: learning a new one",
+                extra={"robot": robot, "error": str(err)},
+            )
+            return None
+        if base.joint_names != rec.joint_names or base.imu_names != rec.imu_names:
+            return None  # other parts: judged again from scratch
+        fr = FloatingRobot(stored.rule, stored.wall_time, base, stored.window_end_t, stored.wall_time)
+        self.robots[robot] = fr
+        log.info(
+            "floating-base baseline read back from the store",
+            extra={"robot": robot, "baseline_id": stored.id},
+        )
+        return fr
 
     def _root_rule(self, robot: str, rec: Recording) -> str | None:
         """The rule for a one-IMU robot whose fixed-base fits keep hanging a turning IMU on no joint
@@ -229,6 +262,13 @@ class FloatingBase:
             return
         fr.baseline = floating_baseline(rec, self.options)
         fr.baseline_end, fr.baseline_at = float(rec.t[-1]), self.clock()
+        self.store.save_floating_baseline(
+            robot,
+            baseline_to_json(fr.baseline),
+            rule=fr.rule,
+            wall_time=fr.baseline_at,
+            window_end_t=fr.baseline_end,
+        )
         res.baseline_set = True
         self._say(fr, waits)
         log.info(

@@ -22,6 +22,7 @@ layer. The schema is created and upgraded by the Alembic migrations only, and on
 :mod:`service.store.heartbeats` components' last sign of life
 :mod:`service.store.weights`    trained network weights (warm starts)
 :mod:`service.store.kinematics` geometry baselines (drift alerts)
+:mod:`service.store.floating`   floating-base robots' baselines
 =============================== ===========================================================
 
 Thread-safe: one writer at a time (a lock), any number of readers. Several processes may share one
@@ -51,6 +52,7 @@ from typing import Any
 
 from service.store.alerts import ALERT_STATES, AlertRecord, AlertsMixin, UnknownAlert
 from service.store.chunks import build_chunks
+from service.store.floating import FloatingMixin, StoredFloating
 from service.store.frames import FramesMixin
 from service.store.heartbeats import HeartbeatsMixin
 from service.store.kinematics import KinematicsMixin, StoredKinematics
@@ -68,6 +70,7 @@ __all__ = [
     "RobotLimitReached",
     "SchemaMismatch",
     "Store",
+    "StoredFloating",
     "StoredKinematics",
     "StoredWeights",
     "TopologyRecord",
@@ -86,6 +89,7 @@ class Store(
     HeartbeatsMixin,
     WeightsMixin,
     KinematicsMixin,
+    FloatingMixin,
 ):
     """The service's data layer on one database (SQLite file, in-memory SQLite or PostgreSQL).
 

@@ -28,6 +28,7 @@ TABLES = {
     "heartbeats",
     "network_weights",
     "kinematics",
+    "floating_baselines",
 }
 
 
