@@ -13,8 +13,8 @@ with it: it writes its own MuJoCo XML and drives MuJoCo directly.
   explicitly so that the limit holds, with the reflected inertia of a geared motor) following
   a sum of slow sines (0.1-0.8 Hz) inside the joint's range, with a position term so that it does
   not wander.
-* **Sensing** (:mod:`bench.generator_sensing`): MPU-6050 datasheet limits (docs/design.md §4) for
-  noise, bias, scale and cross-axis; optionally its 42 Hz low-pass with 4.8 ms delay, encoder
+* **Sensing** (:mod:`bench.generator_sensing`): MPU-6050 datasheet limits (docs/design.md, 'Facts the error
+  models use') for noise, bias, scale and cross-axis; optionally its 42 Hz low-pass with 4.8 ms delay, encoder
   quantization and an IMU-to-encoder skew.
 * **Output**: the same samples in two shapes, multi-rate (IMU stamps ``t``, encoder stamps ``t_q``,
   docs/recording-format.md) and single-clock (one ``t``, positions ``q`` only), with the truth.
@@ -413,7 +413,7 @@ def _free_of_contacts(
 
 def truth_kinematics(model: mujoco.MjModel, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
     """Per IMU (spec order) the axis of the joint moving its link and the perpendicular lever arm from
-    that axis to the IMU, both in the IMU frame (docs/design.md §2 Kinematics JSON). Constant on a
+    that axis to the IMU, both in the IMU frame (docs/kinematics.md, 'JSON'). Constant on a
     rigid link, so read at the model's zero pose."""
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)

@@ -1,6 +1,6 @@
 """How :mod:`bench.generator` senses its robots: MPU-6050 errors at the datasheet's limits, its low-pass,
-encoder quantization and IMU-to-encoder skew (docs/design.md §4). Written apart from
-:mod:`simulators.sensing` on purpose: the generator checks the product against assumptions it did not
+encoder quantization and IMU-to-encoder skew (docs/design.md, 'Facts the error models use'). Written apart
+from :mod:`simulators.sensing` on purpose: the generator checks the product against assumptions it did not
 make.
 
 Per IMU, fixed for a recording: a sensitivity matrix ``S = I + diag(scale) + cross`` (scale within
@@ -26,7 +26,8 @@ __all__ = ["ImuErrors", "SensedImus", "SensingSpec", "draw_errors", "sample_at",
 DEG = np.pi / 180.0
 G0 = 9.80665
 
-#: MPU-6050 (PS-MPU-6000A-00 rev 3.4) and its register map's DLPF_CFG 3 (docs/design.md §4).
+#: MPU-6050 (PS-MPU-6000A-00 rev 3.4) and its register map's DLPF_CFG 3 (docs/design.md, 'Facts the error
+#: models use').
 GYRO_NOISE_DENSITY = 0.005 * DEG  # rad/s/√Hz
 ACC_NOISE_DENSITY = 400e-6 * G0  # m/s²/√Hz
 GYRO_OFFSET = 20.0 * DEG  # rad/s, zero-rate offset bound

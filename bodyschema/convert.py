@@ -2,8 +2,8 @@
 
 * :func:`tree_to_matrix` — Lemma 1: the dependency matrix of an out-tree.
 * :func:`matrix_to_tree` — Alg. 1: grow the out-tree of a matrix that satisfies P (Thm 2).
-* :func:`tree_to_topology` / :func:`topology_to_tree` — the docs/design.md §2 topology JSON via
-  :class:`bodyschema.topology.Topology` (joint parents + which joint carries each IMU).
+* :func:`tree_to_topology` / :func:`topology_to_tree` — the topology JSON (docs/design.md, 'Topology JSON')
+  via :class:`bodyschema.topology.Topology` (joint parents + which joint carries each IMU).
 * :func:`tree_to_networkx` — a ``networkx.DiGraph`` for drawing and graph algorithms.
 
 Example
@@ -115,7 +115,7 @@ def _default_imu_nodes(tree: OutTree) -> dict[str, str | None]:
 def tree_to_topology(
     tree: OutTree, imu_nodes: Mapping[str, str | None] | None = None, **fields: Any
 ) -> Topology:
-    """The docs/design.md §2 topology of ``tree``.
+    """The topology of ``tree`` (docs/design.md, 'Topology JSON').
 
     ``imu_nodes`` maps each IMU to the node (link label) it rides; ``None`` or the root label means the
     base link. Without it the tree's own ``sensors`` are used, and failing those every node whose label

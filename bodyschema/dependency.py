@@ -5,7 +5,7 @@
 2. A statistic over the samples. ``"variance"`` is the paper's (Sec. III-C). ``"moment"`` — the second
    moment ``E[J̄²]`` — is the default: rotating a link about one fixed axis keeps the norm of that joint's
    rotation column constant, so its variance is ~0 and the paper's statistic drops an IMU's own parent
-   joint (docs/design.md §3, measured on MuJoCo robots; the benchmark shows both).
+   joint (docs/design.md, 'Science notes'; measured on MuJoCo robots; the benchmark shows both).
 3. The dependency feature (Eq. 16): the maximum over the four rows, normalized to unit length.
 4. The threshold δ (Eq. 18) chosen by Eq. 19 over a grid: binarize the features, cluster the rows
    (log features) with a Dirichlet-process Gaussian mixture (sklearn ``BayesianGaussianMixture``),

@@ -1,4 +1,4 @@
-"""Baseline body vs current body: typed damage findings (docs/design.md §2 diff JSON).
+"""Baseline body vs current body: typed damage findings (docs/design.md, 'Diff JSON').
 
 A bare comparison of two learned trees over-reports: one frozen encoder makes its joint's IMUs "move"
 to the parent joint and its child joints "re-parent"; one dead IMU "moves" to the base. So the diff

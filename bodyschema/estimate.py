@@ -4,7 +4,7 @@ Methods (``METHODS``):
 
 * ``fast`` — gyro regression tests (:mod:`bodyschema.fast`); about a second, the service's default.
 * ``network`` — the paper's SE(3) sensor networks (:mod:`bodyschema.networks`) with the Jacobian
-  *second moment* statistic (:mod:`bodyschema.dependency`; docs/design.md §3 says why).
+  *second moment* statistic (:mod:`bodyschema.dependency`; docs/design.md, 'Science notes', says why).
 * ``network-paper`` — the same networks with the paper's *variance* statistic (Sec. III-C).
 * ``mlp`` — the MLP regressor baseline of Sec. IV-D (:mod:`bodyschema.mlp_baseline`).
 

@@ -92,12 +92,12 @@ def fit_path(rec: Recording) -> str:
     """Which path of the fast estimator ``rec`` takes: ``"synced"`` or ``"timed"``.
 
     ``"synced"`` only for a single-clock recording that carries velocities measured by the robot
-    (``qd``; the simulator's ideal output is such data): the gyro is then compared with them sample by
-    sample. Every other recording with positions is ``"timed"``: the velocity is derived from the
-    positions, and a derived velocity is about 2 % off the true one at 100 Hz (docs/design.md §3),
-    which only the timed path's band and error model allow for. A single-clock recording there is read
-    as encoders sampled at the IMU stamps (``t_q = t``), with the skew between them still estimated.
-    Note that :meth:`Recording.derived` fills ``qd``: derive after the fit, never before.
+    (``qd``; the simulator's ideal output is such data): the gyro is then compared with them sample by sample.
+    Every other recording with positions is ``"timed"``: the velocity is derived from the positions, and a
+    derived velocity is about 2 % off the true one at 100 Hz (docs/design.md, 'Science notes'), which only the
+    timed path's band and error model allow for. A single-clock recording there is read as encoders sampled at
+    the IMU stamps (``t_q = t``), with the skew between them still estimated. Note that
+    :meth:`Recording.derived` fills ``qd``: derive after the fit, never before.
     """
     return "synced" if rec.t_q is None and rec.qd is not None else "timed"
 

@@ -3,7 +3,7 @@
 The public entry point is :func:`bodyschema.fast.fast_fit`; this module holds the settings, the result
 and the tests on one grid, shared by the synced path and the timed one (:mod:`bodyschema.fast_timed`).
 
-Why it works (docs/design.md §3):
+Why it works (docs/design.md, 'Science notes'):
 a gyro on link ``g`` reads ``ω_g = R_gᵀ Σ_{j ∈ anc(g)} a_j q̇_j``. Between two
 links joined by one hinge ``j`` (``g`` the child of ``h``) this collapses to a model that is *exact and
 linear in a handful of features*::

@@ -61,8 +61,8 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
        band-limited gyro variance (first per IMU, weighted median over the IMUs: an IMU the encoders
        cannot explain does not decide it, :func:`bodyschema.timing.robust_lag`; then from the accepted
        models), per quarter of the recording when it is long enough, so a clock drift shows as a slope;
-       ``skew_ms`` is that lag less ``imu_delay``, the stated on-chip filter delay (docs/design.md §4
-       lists the MPU-6050's);
+       ``skew_ms`` is that lag less ``imu_delay``, the stated on-chip filter delay (docs/design.md,
+       'Facts the error models use', lists the MPU-6050's);
     4. positions and velocities are evaluated at the lagged instants on the IMU grid, every regressor
        is formed there, and the regressors and the gyro go through one band (``band`` Hz, chosen by
        :func:`bodyschema.timing.choose_band` from the rates and ``imu_bandwidth`` when not given),

@@ -1,4 +1,5 @@
-"""Typed differences between a baseline body and the current one: the docs/design.md §2 diff JSON.
+"""Typed differences between a baseline body and the current one: the diff JSON (docs/design.md,
+'Diff JSON').
 
 Example
 -------
@@ -84,7 +85,8 @@ class Finding:
 
 @dataclass(frozen=True)
 class Diff:
-    """All findings of one comparison, and the three-valued answer (docs/design.md §1, §2).
+    """All findings of one comparison, and the three-valued answer (docs/design.md, 'Decisions'
+    and 'Diff JSON').
 
     ``changed`` is True when any finding is a damage, None (undetermined) when there is none but
     ``reasons`` says the data cannot decide (several trees fit), and False only when the current body

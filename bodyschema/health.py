@@ -117,9 +117,9 @@ class HealthThresholds:
     (:func:`loose_imus`: the tolerance follows from it and the window's degrees of freedom).
     ``lock_seconds``: a joint whose encoder and link have both been still this long, to the end of the
     window, does not move now (a policy: the worker's cycle interval, so two cycles see it).
-    ``still_rad``/``still_seconds``: an encoder whose last ``still_seconds`` or more stay within
-    ``still_rad`` of its last reading is still *now*; the default is two steps of the coarsest encoder
-    of docs/design.md §4 (12 bits per turn), so quantization flicker of a held joint stays inside it.
+    ``still_rad``/``still_seconds``: an encoder whose last ``still_seconds`` or more stay within ``still_rad``
+    of its last reading is still *now*; the default is two steps of the coarsest encoder of docs/design.md,
+    'Facts the error models use' (12 bits per turn), so quantization flicker of a held joint stays inside it.
     A link turning against its parent at ``motion_rad_s`` covers 0.05 rad in a second, sixteen times
     ``still_rad``: an encoder that stays still that long while the gyros see such motion contradicts them.
     ``stop_margin_s``: how long after an encoder stops, on the IMU's clock, its gyros may still show the
@@ -258,12 +258,12 @@ def imu_health(
 def _trailing(flags: np.ndarray) -> int:
     """Length of the run of True at the end of ``flags``.
 
-    A sensor that died mid-window is dead *now*: its last samples are zeros or one repeated sample,
-    while the window as a whole is still mostly live. A live MEMS IMU's noise (docs/design.md §4: a few
-    LSB RMS on every axis) makes two equal consecutive six-axis samples rare and ``min_samples`` in a
-    row impossible, so a trailing run that long is a dead sensor however short a part of the window it
-    is; judging the share of the whole window instead would call the IMU alive until the window is
-    mostly dead, and meanwhile the estimator, seeing it follow nothing, would report it detached.
+    A sensor that died mid-window is dead *now*: its last samples are zeros or one repeated sample, while the
+    window as a whole is still mostly live. A live MEMS IMU's noise (a few LSB RMS on every axis,
+    docs/design.md, 'Facts the error models use') makes two equal consecutive six-axis samples rare and
+    ``min_samples`` in a row impossible, so a trailing run that long is a dead sensor however short a part of
+    the window it is; judging the share of the whole window instead would call the IMU alive until the window
+    is mostly dead, and meanwhile the estimator, seeing it follow nothing, would report it detached.
 
     >>> _trailing(np.array([True, False, True, True])), _trailing(np.array([True, False]))
     (2, 0)

@@ -1,6 +1,6 @@
 """The regressors of the exact hinge gyro model, shared by the fast estimator, health and kinematics.
 
-A gyro on a link turned by a revolute joint reads, sample by sample (docs/design.md §3)::
+A gyro on a link turned by a revolute joint reads, sample by sample (docs/design.md, 'Science notes')::
 
     ω_c = A ω_p + B ω_p cos q + C ω_p sin q + a q̇ + (bias terms)
 

@@ -14,11 +14,11 @@ Conventions (all functions are pure numpy, no I/O; the only randomness is an inj
 * a rotation ``R_world_sensor`` maps sensor-frame coordinates to world coordinates
   (``v_world = R @ v_sensor``).
 
-Effect names used in the IMU model JSON and in the discrepancy JSON (docs/design.md §2) map onto these
-functions: ``time_offset`` -> :func:`time_shift`, ``gyro_bias``/``acc_bias``/``gyro_scale``/
-``acc_scale`` -> :func:`affine`, ``mounting_rotation`` -> :func:`rotate`, ``lever_arm`` ->
-:func:`lever_arm` (with :func:`angular_acceleration`), ``gravity`` -> :func:`specific_force`,
-``noise`` -> :func:`white_noise`, plus :func:`quantize` and :func:`resample`.
+Effect names used in the IMU model JSON and in the discrepancy JSON (docs/design.md, 'Discrepancy JSON') map
+onto these functions: ``time_offset`` -> :func:`time_shift`, ``gyro_bias``/``acc_bias``/``gyro_scale``/
+``acc_scale`` -> :func:`affine`, ``mounting_rotation`` -> :func:`rotate`, ``lever_arm`` -> :func:`lever_arm`
+(with :func:`angular_acceleration`), ``gravity`` -> :func:`specific_force`, ``noise`` -> :func:`white_noise`,
+plus :func:`quantize` and :func:`resample`.
 
 Example
 -------

@@ -4,8 +4,8 @@ rival answer predicts the held-out gyro significantly worse than the chosen one.
 The networks' Jacobian ranks answers; it does not say how sure a ranking is. Two joints driven alike
 (one phase, or a jammed joint that hardly moves) give the networks a best tree that can be wrong by
 a hair, and the dependency threshold has no error model to tell. So every part of the chosen tree is
-checked against its rivals with the exact gyro models of :mod:`bodyschema.fast_core` (docs/design.md
-§3), fitted on one half of the window and scored on the other (two folds):
+checked against its rivals with the exact gyro models of :mod:`bodyschema.fast_core` (docs/design.md,
+'Science notes'), fitted on one half of the window and scored on the other (two folds):
 
 * **IMU k on joint J** (the chosen answer) predicts k's gyro from the nearest other IMU up the chosen
   tree through the hinges crossed (``ω_k = A(q_J) ω_h + e q̇_J + b``; two hinges across a link
@@ -62,9 +62,9 @@ class HeldOutOptions:
     #: Comparison band, Hz (None: :func:`bodyschema.timing.choose_band` from the rate and the stated
     #: IMU filter).
     band: float | None = None
-    #: Largest relative gain error of a hinge between two gyros: each MPU-6050 gyro may be off by
-    #: ±3 % in scale and ±2 % cross-axis (docs/design.md §4), so a fitted hinge axis ``e`` and the
-    #: parent's rotation ``A(q)`` have unit gain within 10 %, plus four standard errors of the fit.
+    #: Largest relative gain error of a hinge between two gyros: each MPU-6050 gyro may be off by ±3 % in
+    #: scale and ±2 % cross-axis (docs/design.md, 'Facts the error models use'), so a fitted hinge axis ``e``
+    #: and the parent's rotation ``A(q)`` have unit gain within 10 %, plus four standard errors of the fit.
     gain_tol: float = 0.1
     #: At most this many rival trees are kept as the answer's candidates.
     max_candidates: int = 24

@@ -11,8 +11,8 @@ radians weigh alike; see :func:`robot_scale`):
 * accelerometer, Eq. 11 / Eq. 24: ``|α − Rᵀ (b̈ − g)|²`` with ``b̈ = H θ̇θ̇ + J θ̈`` (Eq. 3). ``b̈`` is the
   second derivative of ``b(θ(t))`` along the motion, taken by two nested forward-mode derivatives of
   ``s -> b(θ + s θ̇ + s²/2 θ̈)`` at ``s = 0``. With ``gravity=True`` (the default for data with gravity)
-  the recording's gravity vector enters as a specific force, ``α = Rᵀ(b̈ − g)`` (the sensor reads +9.81
-  up at rest, docs/design.md §2; the paper writes the same term with the opposite sign convention for g).
+  the recording's gravity vector enters as a specific force, ``α = Rᵀ(b̈ − g)`` (the sensor reads +9.81 up at
+  rest, docs/design.md, 'Recording'; the paper writes the same term with the opposite sign convention for g).
 * gyro: ``|ω − vee(Rᵀ Ṙ)|²`` with ``Ṙ = J_R θ̇`` (forward mode). The paper compares rotations
   (Eq. 10/11: the trace of ``R1ᵀ R2``, R1 built from the predicted rate over a sample time, R2 from the
   measured one); to second order in the sample time ``3 − tr(R1ᵀR2) = Ts² |ω1 − ω2|² / 2``, so the

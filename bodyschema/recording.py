@@ -1,7 +1,7 @@
 """The in-memory recording: encoder and IMU time series of one robot.
 
-This is the exchange format of docs/design.md §2 held as arrays. Reading and writing ``.npz`` files lives in
-:mod:`simulators.recording_io`; this module only validates and derives (pure).
+This is the exchange format of docs/design.md, 'Recording', held as arrays. Reading and writing ``.npz``
+files lives in :mod:`simulators.recording_io`; this module only validates and derives (pure).
 
 Example
 -------
@@ -51,7 +51,8 @@ MIN_SAMPLES = 3
 
 
 class RecordingError(ValueError):
-    """A recording whose arrays do not fit the docs/design.md §2 contract (shape, order, finiteness)."""
+    """A recording whose arrays do not fit its contract (docs/design.md, 'Recording'): shape, order,
+    finiteness."""
 
 
 def check_stamps(t: np.ndarray, name: str = "t") -> None:
@@ -154,7 +155,7 @@ def _as_names(names: Any) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class Recording:
-    """Encoder and IMU time series of one robot (docs/design.md §2).
+    """Encoder and IMU time series of one robot (docs/design.md, 'Recording').
 
     Shapes: ``t`` (T,), ``q``/``qd``/``qdd`` (T,N) rad, ``acc``/``gyro`` (T,K,3) in the sensor frame,
     or, in a multi-rate recording (docs/recording-format.md), ``q``/``qd``/``qdd`` (T_q,N) on their own

@@ -84,7 +84,7 @@ __all__ = [
     "stance_chains",
 ]
 
-#: MPU-6050 gyro noise density (docs/design.md §4): 0.005 deg/s/sqrt(Hz).
+#: MPU-6050 gyro noise density (docs/design.md, 'Facts the error models use'): 0.005 deg/s/sqrt(Hz).
 GYRO_DENSITY = np.radians(0.005)
 
 

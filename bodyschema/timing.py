@@ -1,10 +1,10 @@
 """Timing tools for comparing an IMU stream with an encoder stream on a different clock (pure).
 
-Real robots log encoder positions on one clock and gyro rates on another, a few ms apart, at different
-rates, with gaps; the gyro has been low-passed on chip (docs/design.md §3-§4). The fast estimator's
-exact gyro models (:mod:`bodyschema.fast`) hold sample by sample, and they are linear in their
-parameters, so **any linear time-invariant filter applied alike to the gyro and to every regressor
-keeps them exact**. That is the principle here: nothing is compared until both sides have been taken
+Real robots log encoder positions on one clock and gyro rates on another, a few ms apart, at different rates,
+with gaps; the gyro has been low-passed on chip (docs/design.md, 'Science notes' and 'Facts the error models
+use'). The fast estimator's exact gyro models (:mod:`bodyschema.fast`) hold sample by sample, and they are
+linear in their parameters, so **any linear time-invariant filter applied alike to the gyro and to every
+regressor keeps them exact**. That is the principle here: nothing is compared until both sides have been taken
 to one grid and through one band.
 
 * :func:`resample` puts a stream on a uniform grid (cubic spline through its own stamps), marking grid
@@ -76,7 +76,8 @@ __all__ = [
 ]
 
 #: MPU-6050 DLPF_CFG 0..6 -> (bandwidth Hz, delay s), register map RM-MPU-6000A rev 4.2, CONFIG
-#: (docs/design.md §4). Facts used by the simulator's sensing model and by the estimator's error model.
+#: (docs/design.md, 'Facts the error models use'). Facts used by the simulator's sensing model and by the
+#: estimator's error model.
 DLPF_ACC: tuple[tuple[float, float], ...] = (
     (260.0, 0.0),
     (184.0, 2.0e-3),

@@ -1,4 +1,5 @@
-"""The learned body schema as exchanged with the outside: the docs/design.md §2 topology JSON.
+"""The learned body schema as exchanged with the outside: the topology JSON (docs/design.md,
+'Topology JSON').
 
 A :class:`Topology` says, for each joint, which joint it hangs under (``None`` = the base) and, for each
 IMU, the joint whose child link carries it (``None`` = the base link). Estimators return it, the store
@@ -101,7 +102,7 @@ class Topology:
 
     # --------------------------------------------------------------- JSON
     def to_json(self) -> dict[str, Any]:
-        """The docs/design.md §2 topology JSON (plain dicts, ready for ``json.dumps``)."""
+        """The topology JSON (docs/design.md, 'Topology JSON'): plain dicts, ready for ``json.dumps``."""
         out: dict[str, Any] = {
             "joints": {j: {"parent": p} for j, p in self.joint_parent.items()},
             "imus": dict(self.imu_joint),
@@ -127,7 +128,8 @@ class Topology:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Topology:
-        """Parse the docs/design.md §2 topology JSON; raise :class:`TopologyError` when malformed."""
+        """Parse the topology JSON (docs/design.md, 'Topology JSON'); raise :class:`TopologyError` when
+        malformed."""
         try:
             joints = {
                 str(j): (None if v.get("parent") is None else str(v["parent"]))

@@ -102,7 +102,8 @@ class Verdict:
         return [k for k, p in self.parts.items() if not p.decided]
 
     def to_json(self) -> dict[str, Any]:
-        """The topology JSON (docs/design.md §2) with a ``parts`` map of the per-part verdicts."""
+        """The topology JSON (docs/design.md, 'Topology JSON') with a ``parts`` map of the per-part
+        verdicts."""
         return self.topology.to_json() | {"parts": {k: p.to_json() for k, p in self.parts.items()}}
 
 

@@ -65,7 +65,7 @@ class DamageControl(Protocol):
         ...
 
     def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
-        """Damage ``robot`` and return the ground-truth diff (docs/design.md §2 JSON). Raises
+        """Damage ``robot`` and return the ground-truth diff (docs/design.md, 'Diff JSON'). Raises
         ``KeyError`` for a robot not simulated here, ``ValueError``/``TypeError`` for arguments the
         damage kind cannot take."""
         ...

@@ -2,7 +2,8 @@
 
 The worker stores each learned topology, the baseline and the alerts; this module reads them back and
 says what they add up to, with the pure :mod:`bodyschema.diff` functions, so the API and the dashboard
-give the same three-valued answer as ``bodyhealth diff`` (docs/design.md §1 "Three answers, not two").
+give the same three-valued answer as ``bodyhealth diff`` (docs/design.md, 'Decisions':
+"Three answers, not two").
 Nothing here writes to the store.
 
 How the answer is decided, in this order:

@@ -1,4 +1,4 @@
-"""Import a BROAD trial (HDF5) as a docs/design.md §2 recording with a motion-capture reference.
+"""Import a BROAD trial (HDF5) as a recording (docs/design.md, 'Recording') with a motion-capture reference.
 
 BROAD — the Berlin Robust Orientation Estimation Assessment Dataset — records one real IMU together
 with optical motion capture of the same rigid body: Laidig, Caruso, Cereatti, Seel, "BROAD—A Benchmark

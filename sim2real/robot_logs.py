@@ -1,4 +1,5 @@
-"""Import what robots log — a CSV table or a MATLAB v7.3 file — as a docs/design.md §2 recording.
+"""Import what robots log — a CSV table or a MATLAB v7.3 file — as a recording (docs/design.md,
+'Recording').
 
 An import map (TOML, :mod:`sim2real.robot_logs_map`, docs/recording-format.md "Importing CSV and MAT
 logs") says which columns or datasets hold the clock(s), joint positions (and velocities), each IMU's

@@ -1,5 +1,5 @@
-"""Damage scenarios: change a running simulation's body or sensors and say, as a docs/design.md §2 diff, what
-changed.
+"""Damage scenarios: change a running simulation's body or sensors and say, as a diff (docs/design.md,
+'Diff JSON'), what changed.
 
 Physical damage edits the MuJoCo spec and recompiles with the state kept, so the change shows up in
 the physics (and in the ground truth read back from the compiled model):

@@ -92,8 +92,8 @@ __all__ = [
 
 FORMAT = "bodyhealth-imu-model/1"
 
-#: Effect names (docs/design.md §2 discrepancy names plus ``quantization`` and ``sample_rate``), in the order
-#: they are applied.
+#: Effect names (the discrepancy names of docs/design.md, 'Discrepancy JSON', plus ``quantization`` and
+#: ``sample_rate``), in the order they are applied.
 EFFECTS: tuple[str, ...] = (
     "gravity",
     "lever_arm",

@@ -1,4 +1,4 @@
-"""Read and write recordings as ``.npz`` files (docs/design.md §2, a contract with outside tools).
+"""Read and write recordings as ``.npz`` files (docs/design.md, 'Recording': a contract with outside tools).
 
 Multi-rate recordings (encoders on their own stamps ``t_q``) are described in docs/recording-format.md;
 files with one ``t`` load as before. Timing problems are refused with a message saying where
@@ -169,7 +169,7 @@ def _read_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 
 def load_recording(path: str | os.PathLike[str], *, repair: bool = False) -> Recording:
-    """Read a ``.npz`` recording (docs/design.md §2, docs/recording-format.md); raise
+    """Read a ``.npz`` recording (docs/design.md, 'Recording', and docs/recording-format.md); raise
     :class:`RecordingError` saying why if not one.
 
     ``repair`` drops samples with a repeated stamp (logged) instead of refusing the file. Gaps in

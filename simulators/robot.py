@@ -276,7 +276,7 @@ class Robot:
         return Topology(joint_parent=parents, imu_joint=imus, method="ground-truth")
 
     def truth_arrays(self) -> tuple[tuple[str, ...], tuple[str, ...], np.ndarray]:
-        """docs/design.md §2 truth arrays ('' = base) plus a (K,) bool mask of detached IMUs.
+        """The truth arrays of docs/design.md, 'Recording' ('' = base) plus a (K,) bool mask of detached IMUs.
 
         A detached IMU keeps the last robot joint above its tether in ``truth_imu_joint``: the mask says
         it no longer follows it.

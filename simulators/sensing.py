@@ -4,17 +4,18 @@ Our physics hands out perfect joint velocities at the same instants as the IMU r
 does not. :func:`apply_sensing` turns a recording simulated at a high inner rate (the physics clock, e.g.
 1 kHz: fast enough to hold what the IMU sees) into what a robot would log:
 
-* **IMU on-chip low-pass** (MPU-6050 ``DLPF_CFG``, register map RM-MPU-6000A rev 4.2, docs/design.md §4):
+* **IMU on-chip low-pass** (MPU-6050 ``DLPF_CFG``, register map RM-MPU-6000A rev 4.2, docs/design.md,
+  'Facts the error models use'):
   each setting is a bandwidth and a delay. The datasheet gives nothing else, so the filter is modelled
   as the least-assuming filter with exactly those two numbers: a zero-phase windowed-sinc low-pass with
   its cut-off at the bandwidth followed by a pure delay of the stated length.
-* **IMU sampling** at its own rate on its own clock: the clock runs ``drift_ppm`` fast against the
-  encoders' and its stamps are ``skew`` seconds late (stamped on receipt after a USB-serial link: FTDI's
-  default latency timer alone is 16 ms, docs/design.md §4). The reading stamped ``s`` holds the
+* **IMU sampling** at its own rate on its own clock: the clock runs ``drift_ppm`` fast against the encoders'
+  and its stamps are ``skew`` seconds late (stamped on receipt after a USB-serial link: FTDI's default latency
+  timer alone is 16 ms, docs/design.md, 'Facts the error models use'). The reading stamped ``s`` holds the
   filtered motion of encoder-clock time ``s / (1 + drift) - skew - delay``.
-* **Encoders** report position only by default (``encoder_velocity=False``), quantized to
-  ``2**encoder_bits`` counts per turn (12 bits: Dynamixel X-series, 14 bits: AS5047P, docs/design.md §4)
-  plus white noise, sampled at their own rate on the reference clock.
+* **Encoders** report position only by default (``encoder_velocity=False``), quantized to ``2**encoder_bits``
+  counts per turn (12 bits: Dynamixel X-series, 14 bits: AS5047P, docs/design.md, 'Facts the error models
+  use') plus white noise, sampled at their own rate on the reference clock.
 * **Stamps** of both streams carry Gaussian ``jitter`` (s) and a fraction ``drop`` of the samples of each
   stream is lost (serial frames with bad checksums).
 
@@ -24,13 +25,14 @@ Two presets: ``ideal`` returns the input unchanged (today's simulator output: sy
 ==================  ==========  =======================================================================
 setting             ``robot``   where the figure comes from
 ==================  ==========  =======================================================================
-encoder             14 bit,     AS5047P magnetic encoder, 16384 counts per turn (docs/design.md §4);
-                    250 Hz,     a bus polled at a few hundred Hz; position only, as Dynamixel and
-                    pos. only   AS5047P report it
+encoder             14 bit,     AS5047P magnetic encoder, 16384 counts per turn (docs/design.md,
+                    250 Hz,     'Facts the error models use'); a bus polled at a few hundred Hz;
+                    pos. only   position only, as Dynamixel and AS5047P report it
 IMU                 100 Hz,     MPU-6050 with ``SMPLRT_DIV`` = 9 (1 kHz / 10), DLPF_CFG 3: gyro 42 Hz,
                     DLPF 42 Hz  4.8 ms (register map RM-MPU-6000A rev 4.2)
 skew                8 ms        "a few ms to tens of ms unless the hardware synchronizes them"
-                                (docs/design.md §4); less than one 16 ms FTDI latency period
+                                (docs/design.md, 'Facts the error models use'); less than one
+                                16 ms FTDI latency period
 drift               30 ppm      two uncalibrated crystal oscillators (±20-50 ppm parts)
 jitter              0.2 ms      stamps taken by a host OS on receipt
 drop                0.5 %       a few bad frames per thousand on a serial bus

@@ -145,7 +145,8 @@ class Simulation:
         return block[start - c0 : start - c0 + n]
 
     def advance(self, n_samples: int | None = None, *, seconds: float | None = None) -> Recording:
-        """The next ``n_samples`` samples (or ``seconds`` worth) as a docs/design.md §2 recording."""
+        """The next ``n_samples`` samples (or ``seconds`` worth) as a recording (docs/design.md,
+        'Recording')."""
         if n_samples is None:
             if seconds is None:
                 raise ValueError("give n_samples or seconds")
@@ -335,12 +336,11 @@ def simulate(
     Anything else simulates the physics at the options' inner rate (1 kHz: what the IMU sees) and
     returns a docs/recording-format.md multi-rate recording; ``rate`` is then unused.
 
-    ``damage`` is one ``KIND[:key=value,...]`` string or a list of them (or ``(kind, kwargs)``
-    pairs); ``at=SECONDS`` injects mid-run (default 0: the whole recording is damaged). The
-    recording's ``extra`` holds ``excitation`` (RMS joint velocity per joint), ``imu_model`` (the drawn
-    IMU parameters as JSON), and with damage ``truth_diff`` (docs/design.md §2 diff JSON), ``damage_time`` (s)
-    and ``truth_imu_detached`` (JSON list of the IMUs that follow no joint). ``truth_*`` describe
-    the body at the end of the run.
+    ``damage`` is one ``KIND[:key=value,...]`` string or a list of them (or ``(kind, kwargs)`` pairs);
+    ``at=SECONDS`` injects mid-run (default 0: the whole recording is damaged). The recording's ``extra``
+    holds ``excitation`` (RMS joint velocity per joint), ``imu_model`` (the drawn IMU parameters as JSON), and
+    with damage ``truth_diff`` (docs/design.md, 'Diff JSON'), ``damage_time`` (s) and ``truth_imu_detached``
+    (JSON list of the IMUs that follow no joint). ``truth_*`` describe the body at the end of the run.
     """
     if not seconds > 0:
         raise ValueError("seconds must be > 0")

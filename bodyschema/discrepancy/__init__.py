@@ -13,7 +13,8 @@ error effects (:data:`EFFECT_NAMES`) that explain it, with parameters, uncertain
   settings :class:`AnalyzerOptions`);
 * :mod:`~bodyschema.discrepancy.separability` — which effects a recording can tell apart; those it
   cannot are named jointly (``"acc_bias or gravity"``) with their joint value;
-* :mod:`~bodyschema.discrepancy.report` — the result as data (docs/design.md §2 discrepancy JSON);
+* :mod:`~bodyschema.discrepancy.report` — the result as data (the discrepancy JSON, docs/design.md,
+  'Discrepancy JSON');
 * :mod:`~bodyschema.discrepancy.network_gravity` — the robot gravity case: the paper's sensor networks
   without gravity (Eq. 11) against with it (Eq. 24), the cause named for the difference and the
   topology each form learns (imported on its own: it needs torch).

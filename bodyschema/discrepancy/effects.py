@@ -1,7 +1,7 @@
 """The effect library: each IMU error effect with its parameters, its prediction and its signature.
 
 An *effect* is one physical reason why a real IMU reads differently from what the ideal simulation of
-the same motion says. Every effect here names its parameters (docs/design.md §2 discrepancy JSON), their
+the same motion says. Every effect here names its parameters (docs/design.md, 'Discrepancy JSON'), their
 null value (effect absent), a typical magnitude (used to scale the optimiser), the sensor channel it
 touches and the *residual signature* that points to it. The prediction composes the one shared forward
 model of each effect, :mod:`bodyschema.imu_effects`, in a fixed order:
@@ -173,7 +173,7 @@ EFFECTS: dict[str, Effect] = {
     )
 }
 
-#: Effect names in the order the library lists them (docs/design.md §2).
+#: Effect names in the order the library lists them (docs/design.md, 'Discrepancy JSON').
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 
 #: The effects that change the expected reading and so are fitted by least squares.

@@ -1,6 +1,6 @@
 """What a discrepancy analysis found, as data: the causes in order and the residuals around them.
 
-:meth:`DiscrepancyReport.to_json` gives the docs/design.md §2 discrepancy JSON::
+:meth:`DiscrepancyReport.to_json` gives the discrepancy JSON (docs/design.md, 'Discrepancy JSON')::
 
     {"residual_before": {"gyro_rms": .., "acc_rms": ..},
      "causes": [{"effect": "time_offset", "params": {"seconds": 0.0035}, "gain": 0.29, ...}],
@@ -170,7 +170,8 @@ class DiscrepancyReport:
         return min(limits) if limits else None
 
     def to_json(self) -> dict[str, object]:
-        """The docs/design.md §2 discrepancy JSON (plus residual structure, screening and settings)."""
+        """The discrepancy JSON (docs/design.md, 'Discrepancy JSON'), plus residual structure, screening and
+        settings."""
         return {
             "residual_before": self.residual_before,
             "causes": [c.to_json() for c in self.causes],

@@ -102,7 +102,7 @@ def get_retrain_limiter(request: Request) -> RetrainLimiter:
 @router.get(
     "/topology",
     response_model=TopologyPair,
-    summary="the newest learned topology and the baseline (docs/design.md §2 JSON)",
+    summary="the newest learned topology and the baseline (docs/design.md, 'Topology JSON')",
 )
 async def topology(
     robot: RobotName,

@@ -1,4 +1,5 @@
-"""Replay a recording (docs/design.md §2 ``.npz``) as a live source, at N× real time, in device-time chunks.
+"""Replay a recording (an ``.npz``, docs/design.md, 'Recording') as a live source, at N× real time, in
+device-time chunks.
 
 The recording's own time stamps are the device time of the frames. ``speed=1`` paces batches to the
 wall clock, ``speed=10`` ten times faster, ``speed=math.inf`` as fast as the pipeline takes them.

@@ -86,7 +86,8 @@ class RetrainJob:
 
 @dataclass(frozen=True)
 class RetrainResult:
-    """A finished retrain: the topology JSON (docs/design.md §2) and what it cost where it ran."""
+    """A finished retrain: the topology JSON (docs/design.md, 'Topology JSON') and what it cost where it
+    ran."""
 
     key: str
     robot: str
