@@ -1,5 +1,8 @@
-"""The suite's trust rules hold: a skip fails under ``BODYHEALTH_CI=1``, seeds are fixed per test, and
-every collected test has an id of its own (xdist runs tests by id).
+"""The suite's trust rules hold: a skip fails under ``BODYHEALTH_CI=1``, seeds are fixed per test,
+every collected test has an id of its own (xdist runs tests by id), and no test file imports another
+one: what several test files share lives in a module of its own (tests/builders.py,
+tests/service/builders.py, a conftest.py for fixtures), so each test file can be changed, split or
+dropped on its own.
 
 Each case runs a throw-away test file in a child pytest that loads this suite's ``tests/conftest.py``
 as a plugin, so the real hooks are exercised, not a copy of them.
@@ -7,6 +10,7 @@ as a plugin, so the real hooks are exercised, not a copy of them.
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
@@ -115,3 +119,62 @@ def test_a_repeated_test_id_fails_collection(tmp_path: Path) -> None:
     res = _child_pytest(tmp_path, SKIPPING, "-p", "same_id")  # cwd is on the path of `python -m`
     assert res.returncode != 0, res.stdout
     assert "collected more than once" in res.stdout + res.stderr
+
+
+#: Test files that still import another one, and which: a file is dropped from here once it takes what it
+#: needs from a shared module.
+IMPORTS_A_TEST_FILE = {
+    "tests/e2e/test_dashboard_demo.py": {"tests.e2e.test_dashboard"},
+    "tests/service/test_floating_forces.py": {"tests.service.test_floating_worker"},
+}
+
+
+def imported_test_modules(source: str, module: str) -> set[str]:
+    """The ``tests.*.test_*`` modules that ``source`` (the text of module ``module``, dotted) imports,
+    in any form: ``import a.test_b``, ``from a.test_b import x``, ``from a import test_b``, relative."""
+    package = module.rsplit(".", 1)[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parent, base] if base else parent)
+            names = [base, *(f"{base}.{alias.name}" for alias in node.names)]
+        else:
+            continue
+        found |= {n for n in names if n.startswith("tests.") and n.rsplit(".", 1)[-1].startswith("test_")}
+    return found
+
+
+def test_the_import_check_sees_every_form() -> None:
+    here = "tests.service.test_x"
+    assert imported_test_modules("from tests.service.test_worker import feed", here) == {
+        "tests.service.test_worker"
+    }
+    assert imported_test_modules("import tests.bodyschema.test_health as h", here) == {
+        "tests.bodyschema.test_health"
+    }
+    assert imported_test_modules("from tests.e2e import test_dashboard", here) == {"tests.e2e.test_dashboard"}
+    assert imported_test_modules("from .test_api import batch", here) == {"tests.service.test_api"}
+    assert imported_test_modules("from ..bodyschema.test_outtree import trees", here) == {
+        "tests.bodyschema.test_outtree"
+    }
+    def_inside = "def f():\n    from tests.bodyschema.test_health import synth\n"
+    assert imported_test_modules(def_inside, here) == {"tests.bodyschema.test_health"}
+    shared = "from tests.service.builders import feed\nfrom fastapi.testclient import TestClient\n"
+    assert imported_test_modules(shared, here) == set()
+
+
+def test_no_test_file_imports_another() -> None:
+    offenders: dict[str, set[str]] = {}
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        rel = path.relative_to(ROOT)
+        module = ".".join(rel.with_suffix("").parts)
+        got = imported_test_modules(path.read_text(encoding="utf-8"), module)
+        got -= IMPORTS_A_TEST_FILE.get(rel.as_posix(), set())
+        if got:
+            offenders[rel.as_posix()] = got
+    assert offenders == {}, "move what these take from a test file into a shared module: " + repr(offenders)

@@ -16,7 +16,7 @@ from bodyschema.convert import matrix_to_tree, tree_to_matrix
 from bodyschema.counting import iter_parent_maps, random_tree
 from bodyschema.depmatrix import DependencyMatrix
 from bodyschema.outtree import OutTree
-from tests.bodyschema.test_outtree import trees
+from tests.builders import trees
 
 
 @functools.cache

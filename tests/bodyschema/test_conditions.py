@@ -21,7 +21,7 @@ from bodyschema.convert import tree_to_matrix
 from bodyschema.counting import count_trees, iter_trees, random_tree
 from bodyschema.depmatrix import DependencyMatrix
 from bodyschema.outtree import OutTree
-from tests.bodyschema.test_outtree import trees
+from tests.builders import trees
 
 P_COLS = [1, 2, 3, 4, 5]
 P0_COLS = [1, 2, 5, 6]

@@ -17,7 +17,7 @@ from bodyschema.convert import (
 from bodyschema.depmatrix import DependencyMatrix, DependencyMatrixError
 from bodyschema.outtree import OutTree, OutTreeError
 from bodyschema.topology import Topology
-from tests.bodyschema.test_outtree import chain_and_branch, trees
+from tests.builders import chain_and_branch, trees
 
 
 def test_tree_to_matrix_known_tree() -> None:

@@ -1,8 +1,9 @@
 """Signal health on synthetic gyro/encoder data of a small branching robot.
 
-The robot: j1 (z axis) on the base, j2 (y axis) and j3 (x axis) both under j1. Link gyros follow the
-rigid-body relation ω_child = R(q)ᵀ ω_parent + axis·q̇ exactly, plus MPU-6050-like noise and bias, so
-a wrong judgement here is the code's fault, not the data's.
+The robot (:data:`tests.builders.LAYOUT`): j1 (z axis) on the base, j2 (y axis) and j3 (x axis) both
+under j1. Link gyros follow the rigid-body relation ω_child = R(q)ᵀ ω_parent + axis·q̇ exactly, plus
+MPU-6050-like noise and bias (:func:`tests.builders.synth`), so a wrong judgement here is the code's
+fault, not the data's.
 """
 
 from __future__ import annotations
@@ -16,59 +17,7 @@ from bodyschema.health import HealthThresholds, imu_health, relative_motion, sig
 from bodyschema.impacts import drop_impacts
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
-
-LAYOUT = Topology(
-    {"j1": None, "j2": "j1", "j3": "j1"},
-    {"a1": "j1", "a2": "j1", "b1": "j2", "b2": "j2", "c1": "j3"},
-    excitation={"j1": 0.5, "j2": 0.5, "j3": 0.5},
-)
-AXES = {"j1": np.array([0, 0, 1.0]), "j2": np.array([0, 1.0, 0]), "j3": np.array([1.0, 0, 0])}
-
-
-def _rot(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(T,3,3) rotation matrices about a unit axis (Rodrigues)."""
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
-def synth(
-    rng: np.random.Generator,
-    seconds: float = 20.0,
-    rate: float = 100.0,
-    *,
-    locked: str | None = None,
-    frozen_encoder: str | None = None,
-    lost: str | None = None,
-) -> Recording:
-    t = np.arange(int(seconds * rate)) / rate
-    names = ("j1", "j2", "j3")
-    q = np.zeros((t.size, 3))
-    for k in range(3):
-        f = rng.uniform(0.1, 0.25, 3)
-        ph = rng.uniform(0, 2 * np.pi, 3)
-        q[:, k] = sum(0.8 * np.sin(2 * np.pi * f[m] * t + ph[m]) for m in range(3))
-    if locked is not None:
-        q[:, names.index(locked)] = q[0, names.index(locked)]
-    qd = np.gradient(q, t, axis=0)
-    w1 = qd[:, [0]] * AXES["j1"]
-    links = {"j1": w1}
-    for j, k in (("j2", 1), ("j3", 2)):
-        R = _rot(AXES[j], q[:, k])
-        links[j] = np.einsum("tji,tj->ti", R, w1) + qd[:, [k]] * AXES[j]
-    if lost is not None:
-        links[lost] = np.zeros_like(w1)  # the link lies still on the floor
-    imus = ("a1", "a2", "b1", "b2", "c1")
-    gyro = np.zeros((t.size, 5, 3))
-    for n, name in enumerate(imus):
-        mount = _rot(rng.normal(size=3) / np.sqrt(3), np.array([rng.uniform(0, np.pi)]))[0]
-        gyro[:, n] = links[LAYOUT.imu_joint[name]] @ mount.T + rng.normal(0, 0.3, 3)  # bias
-        gyro[:, n] += rng.normal(0, 0.005, (t.size, 3))
-    acc = np.tile([0.0, 0.0, 9.81], (t.size, 5, 1)) + rng.normal(0, 0.04, (t.size, 5, 3))
-    q_enc = q.copy()
-    if frozen_encoder is not None:
-        q_enc[:, names.index(frozen_encoder)] = q_enc[0, names.index(frozen_encoder)]
-    return Recording(t=t, joint_names=names, q=q_enc, imu_names=imus, acc=acc, gyro=gyro)
+from tests.builders import AXES, LAYOUT, rot_about, synth
 
 
 def test_healthy_robot_is_all_ok(rng: np.random.Generator) -> None:
@@ -174,10 +123,10 @@ def test_relative_motion_with_moving_parent(rng: np.random.Generator) -> None:
     q = np.sin(0.7 * t)
     qd = 0.7 * np.cos(0.7 * t)
     parent = np.c_[np.sin(t), np.cos(1.3 * t), 0.5 * np.sin(0.4 * t)]
-    child = np.einsum("tji,tj->ti", _rot(AXES["j2"], q), parent) + qd[:, None] * AXES["j2"]
+    child = np.einsum("tji,tj->ti", rot_about(AXES["j2"], q), parent) + qd[:, None] * AXES["j2"]
     rms, explained = relative_motion(child, parent, q, qd)
     assert rms > 0.3 and explained > 0.999
-    rigid = parent @ _rot(AXES["j1"], np.array([0.4]))[0].T + 0.2
+    rigid = parent @ rot_about(AXES["j1"], np.array([0.4]))[0].T + 0.2
     rms_r, _ = relative_motion(rigid, parent, np.zeros_like(q), np.zeros_like(q))
     assert rms_r < 1e-9
 

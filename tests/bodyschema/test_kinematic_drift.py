@@ -19,7 +19,7 @@ from bodyschema.findings import Finding
 from bodyschema.kinematic_drift import kinematic_findings
 from bodyschema.kinematics import Kinematics, estimate_kinematics
 from simulators.random_robot import random_robot
-from tests.bodyschema.test_kinematics import record, truth_topology
+from tests.builders import record, truth_topology
 
 
 def learn(seed: int, damage: tuple[str, dict[str, Any]] | None = None) -> Kinematics:

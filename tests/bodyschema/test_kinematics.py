@@ -12,9 +12,6 @@ about 2°).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
 import pytest
 
@@ -24,53 +21,17 @@ from bodyschema.kinematics import (
     KinematicsOptions,
     estimate_kinematics,
 )
-from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from simulators.imu_model import ImuModel
 from simulators.kinematics_truth import (
     ImuTruth,
     axis_error_deg,
-    kinematics_truth,
     rotation_from_parent_error_deg,
     same_link_error_deg,
 )
 from simulators.random_robot import random_robot
 from simulators.robot import Robot
-from simulators.sensing import apply_sensing
-from simulators.simulation import Simulation
-
-
-@dataclass(frozen=True)
-class Case:
-    rec: Recording
-    truth: dict[str, ImuTruth]
-    robot: Robot
-
-
-def record(
-    robot: Robot,
-    seconds: float,
-    seed: int,
-    imu_model: str | ImuModel = "mpu6050",
-    lock: str = "",
-    damage: tuple[str, dict[str, Any]] | None = None,
-    imu_seed: int | None = None,
-) -> Case:
-    """``seconds`` of ``robot`` at 1 kHz physics, then the ``robot`` sensing preset; ``damage`` (a kind of
-    :mod:`simulators.damage` and its arguments) is applied first; ``imu_seed`` keeps the IMUs' errors
-    from one run to the next."""
-    sim = Simulation(robot, seed=seed, rate=1000.0, imu_model=imu_model, imu_seed=imu_seed)
-    if lock:
-        sim.apply_damage("joint_locked", joint=lock)
-    if damage is not None:
-        sim.apply_damage(damage[0], **damage[1])
-    fine = sim.advance(seconds=seconds)
-    rec = apply_sensing(fine, "robot", np.random.default_rng(seed + 1000))
-    return Case(rec=rec, truth=kinematics_truth(robot), robot=robot)
-
-
-def truth_topology(rec: Recording) -> Topology:
-    return Topology(joint_parent=rec.truth_parent_map, imu_joint=rec.truth_imu_map)  # type: ignore[arg-type]
+from tests.builders import Case, record, truth_topology
 
 
 def check_errors(kin: Kinematics, truth: dict[str, ImuTruth], axis_floor: float, lever_floor: float) -> int:

@@ -21,7 +21,7 @@ from bodyschema.urdf import to_urdf
 from cli.main import main
 from simulators.random_robot import random_robot
 from simulators.recording_io import save_recording
-from tests.bodyschema.test_kinematics import Case, record, truth_topology
+from tests.builders import Case, record, truth_topology
 
 
 @pytest.fixture(scope="module")

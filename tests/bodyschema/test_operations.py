@@ -24,7 +24,7 @@ from bodyschema.operations import (
     reduce_to_permutation,
 )
 from bodyschema.outtree import OutTree
-from tests.bodyschema.test_outtree import chain_and_branch, trees
+from tests.builders import chain_and_branch, trees
 
 
 @settings(max_examples=100, deadline=None)

@@ -1,34 +1,15 @@
-"""The out-tree type: construction, queries, validation, and the random-tree strategy other tests use."""
+"""The out-tree type: construction, queries, validation, and the random-tree strategy other tests use
+(:func:`tests.builders.trees`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
-from hypothesis import strategies as st
 
-from bodyschema.counting import parents_from_prufer, random_tree
+from bodyschema.counting import random_tree
 from bodyschema.outtree import OutTree, OutTreeError, link_label
-
-
-@st.composite
-def trees(draw: st.DrawFn, min_joints: int = 1, max_joints: int = 40) -> OutTree:
-    """A labelled out-tree: uniform structure (Prüfer code) and a random link-joint pairing."""
-    n = draw(st.integers(min_joints, max_joints))
-    code = draw(st.lists(st.integers(0, n), min_size=max(n - 1, 0), max_size=max(n - 1, 0)))
-    perm = draw(st.permutations(range(n)))
-    parents = parents_from_prufer(code, n)
-    joints = [f"q{k}" for k in range(n)]
-    jp = {j: (None if p == 0 else joints[p - 1]) for j, p in zip(joints, parents, strict=True)}
-    return OutTree.from_parents(jp, {j: f"imu{perm[k]}" for k, j in enumerate(joints)})
-
-
-def chain_and_branch() -> OutTree:
-    #  base -j1-> a -j2-> b -j4-> d
-    #                \-j3-> c
-    return OutTree.from_parents(
-        {"j1": None, "j2": "j1", "j3": "j1", "j4": "j2"}, {"j1": "a", "j2": "b", "j3": "c", "j4": "d"}
-    )
+from tests.builders import chain_and_branch, trees
 
 
 def test_queries_on_a_known_tree() -> None:

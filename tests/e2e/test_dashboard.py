@@ -9,10 +9,8 @@ must give back the same trees, alerts and acks. Skipped only when no Chromium is
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,41 +21,15 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.e2e.browser import NEEDS_CHROMIUM
+from tests.e2e.conftest import browser
 from tests.e2e.processes import serve_in_thread
 from tests.service.geometry import geometry_json
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "dashboard.png"
+# tests/e2e/test_dashboard_demo.py takes the fixture and the marks from here
+__all__ = ["browser", "pytestmark"]
 
-pytestmark = [
-    pytest.mark.e2e,
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        not Path(CHROMIUM).exists() and shutil.which("chromium") is None,
-        reason="Debian's chromium is not installed (make setup-browser installs it)",
-    ),
-]
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(
-            executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"), args=ARGS
-        )
-        yield b
-        b.close()
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, NEEDS_CHROMIUM]
 
 
 BASE = Topology(

@@ -4,7 +4,6 @@ on every request. Skipped only when no Chromium is installed."""
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,18 +15,12 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.e2e.browser import NEEDS_CHROMIUM, launch
 from tests.e2e.processes import serve_in_thread
-from tests.e2e.test_dashboard import ARGS, CHROMIUM
 
 WRITE, READ = "dash-write-token", "dash-read-token"
 
-pytestmark = [
-    pytest.mark.e2e,
-    pytest.mark.skipif(
-        not Path(CHROMIUM).exists() and shutil.which("chromium") is None,
-        reason="Debian's chromium is not installed (make setup-browser installs it)",
-    ),
-]
+pytestmark = [pytest.mark.e2e, NEEDS_CHROMIUM]
 
 
 @pytest.fixture
@@ -61,9 +54,7 @@ def test_page_asks_for_the_token_and_sends_it(served: tuple[str, Store, int]) ->
 
     url, store, alert_id = served
     with sync_playwright() as p:
-        browser = p.chromium.launch(
-            executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"), args=ARGS
-        )
+        browser = launch(p)
         page = browser.new_page()
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))

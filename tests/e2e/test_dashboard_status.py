@@ -22,13 +22,10 @@ from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.e2e.browser import NEEDS_CHROMIUM, SCREENSHOT
 from tests.e2e.processes import serve_in_thread
-from tests.e2e.test_dashboard import SCREENSHOT, browser
-from tests.e2e.test_dashboard import pytestmark as dashboard_marks
 
-__all__ = ["browser"]
-
-pytestmark = dashboard_marks
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, NEEDS_CHROMIUM]
 
 JOINTS = ["j1", "j2", "j3"]
 FULL = topology_from_dependency(

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from bodyschema.recording import Recording
-from tests.bodyschema.test_health import synth
+from tests.builders import synth
 from tests.e2e.processes import start_service, wait_answering
 
 pytestmark = [pytest.mark.e2e]

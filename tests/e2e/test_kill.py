@@ -19,7 +19,7 @@ import pytest
 
 from service.store import open_store
 from simulators.recording_io import save_recording
-from tests.bodyschema.test_health import synth
+from tests.builders import synth
 from tests.e2e.processes import serve_command
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]

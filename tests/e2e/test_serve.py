@@ -33,7 +33,7 @@ def test_signal_drains_and_exits_zero(tmp_path: Path, e2e_db_url: str, sig: sign
     import numpy as np
 
     from simulators.recording_io import save_recording
-    from tests.bodyschema.test_health import synth
+    from tests.builders import synth
 
     rec_path = tmp_path / "run.npz"
     save_recording(synth(np.random.default_rng(0), seconds=60.0), rec_path)

@@ -2,7 +2,7 @@
 started again (the service reconnects by itself, and the stored data is exactly the recording's start,
 no gap, no duplicate), and the SQLite file deleted under it (reported on ``/readyz`` and in one ERROR
 log line, nothing more written, a clean SIGTERM). The PostgreSQL server is the test's own
-(:class:`~tests.service.test_storage_faults.PgCluster`), never the shared one.
+(the ``pg_cluster`` fixture, :class:`~tests.service.faults.PgCluster`), never the shared one.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import json
 import os
 import signal
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +21,10 @@ import pytest
 from bodyschema.recording import Recording
 from service.store import open_store
 from simulators.recording_io import save_recording
-from tests.bodyschema.test_health import synth
+from tests.builders import synth
 from tests.e2e.processes import start_service
-from tests.service.test_storage_faults import PgCluster, wait_until
+from tests.service.faults import PgCluster
+from tests.waits import wait_until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -97,15 +97,6 @@ def recording(tmp_path: Path, rng: np.random.Generator) -> tuple[Recording, Path
     path = tmp_path / "run.npz"
     save_recording(rec, path)
     return rec, path
-
-
-@pytest.fixture
-def pg_cluster() -> Iterator[PgCluster]:
-    cluster = PgCluster()
-    try:
-        yield cluster
-    finally:
-        cluster.destroy()
 
 
 @pytest.mark.postgres

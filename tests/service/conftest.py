@@ -8,6 +8,10 @@
   (or ``BODYHEALTH_TEST_POSTGRES_URL``), else a throwaway cluster started from Debian's binaries in a
   temp dir on a free port; skips, saying why, when neither works.
 * ``new_pg_database`` — a factory for extra empty PostgreSQL databases (migration tests).
+* ``pg_cluster`` — a PostgreSQL server of the test's own (:class:`tests.service.faults.PgCluster`), to
+  stop and start under a running service; never the shared one.
+* ``small_disk`` — room for an SQLite store that can run out and be given back
+  (:class:`tests.service.faults.SmallDisk`).
 """
 
 from __future__ import annotations
@@ -21,10 +25,14 @@ import tempfile
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from tests.ports import free_port
+
+if TYPE_CHECKING:
+    from tests.service.faults import PgCluster, SmallDisk
 
 ADMIN_ENV = "BODYHEALTH_TEST_POSTGRES_URL"
 DEFAULT_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
@@ -214,3 +222,25 @@ def store(db_url: str) -> Iterator[object]:
         yield s
     finally:
         s.close()
+
+
+@pytest.fixture
+def pg_cluster() -> Iterator[PgCluster]:
+    from tests.service.faults import PgCluster
+
+    cluster = PgCluster()
+    try:
+        yield cluster
+    finally:
+        cluster.destroy()
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[SmallDisk]:
+    from tests.service.faults import SmallDisk
+
+    disk = SmallDisk(tmp_path)
+    try:
+        yield disk
+    finally:
+        disk.close()

@@ -26,8 +26,8 @@ from service.settings import Settings
 from service.status import robot_status
 from service.store import Store, open_store
 from service.worker import Worker, next_wait
-from tests.bodyschema.test_health import synth
-from tests.service.test_worker import GOOD, MOVED, ByMethod, feed
+from tests.builders import synth
+from tests.service.builders import GOOD, MOVED, ByMethod, feed
 
 
 class StalledQueue:

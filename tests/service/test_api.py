@@ -21,25 +21,13 @@ from service.metrics import Metrics
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
+from tests.service.builders import batch
 from tests.service.geometry import geometry_json
 
 TOPO = Topology(
     {"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j2"}, method="fast", excitation={"j1": 0.4, "j2": 0.3}
 )
 MOVED = Topology({"j1": None, "j2": "j1"}, {"imu0": "j1", "imu1": "j1"}, method="fast")
-
-
-def batch(robot: str = "arm", n: int = 20, t0: float = 0.0) -> FrameBatch:
-    t = t0 + np.arange(n) * 0.01
-    return FrameBatch(
-        robot,
-        t,
-        ("j1", "j2"),
-        np.zeros((n, 2)),
-        ("imu0", "imu1"),
-        np.full((n, 2, 3), 9.81),
-        np.zeros((n, 2, 3)),
-    )
 
 
 class RecordingFarm:

@@ -23,8 +23,8 @@ from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import RobotLimitReached, Store, open_store
 from service.worker import Worker
-from tests.bodyschema.test_health import synth
-from tests.service.test_worker import GOOD, Scripted, feed
+from tests.builders import synth
+from tests.service.builders import GOOD, Scripted, feed
 
 
 def batch(robot: str, t0: float = 0.0, n: int = 10) -> FrameBatch:

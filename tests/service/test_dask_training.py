@@ -10,7 +10,7 @@
 * warm starts: a retrain starts from the robot's newest stored weights trained under the current
   baseline (the same answer as a direct call from those weights), and cold after a new baseline.
 
-The fast method is scripted (:class:`tests.service.test_worker.Scripted`): what is under test is where
+The fast method is scripted (:class:`tests.service.builders.Scripted`): what is under test is where
 the networks train, not the fast estimator.
 """
 
@@ -48,9 +48,9 @@ from service.retrain import (
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
-from tests.bodyschema.test_health import synth
+from tests.builders import synth
 from tests.ports import free_port
-from tests.service.test_worker import GOOD, Scripted, feed
+from tests.service.builders import GOOD, Scripted, feed
 from tests.waits import cpu_bound
 
 pytestmark = pytest.mark.slow

@@ -20,8 +20,8 @@ from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
-from tests.bodyschema.test_health import synth
-from tests.service.test_worker import GOOD, Scripted, feed
+from tests.builders import synth
+from tests.service.builders import GOOD, Scripted, feed
 
 #: 100 Hz frames; a retention of 60 s and the default reset threshold of 10 s.
 SETTINGS = dict(retention_seconds=60.0, window_seconds=10.0, baseline_repeat_k=3, alert_hysteresis_m=2)

@@ -22,9 +22,8 @@ import pytest
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import open_store
-from tests.service.test_storage_faults import PRUNE, Committed, SmallDisk, TickSource, small_disk, wait_until
-
-__all__ = ["small_disk"]
+from tests.service.faults import PRUNE, Committed, SmallDisk, TickSource
+from tests.waits import wait_until
 
 pytestmark = pytest.mark.slow
 

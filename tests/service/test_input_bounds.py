@@ -25,51 +25,9 @@ from service.ingest.farm import farm_robot_names
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import Store, open_store
+from tests.service.builders import StrictFarm, frame_batch, frames_body
 
 SETTINGS = Settings(database_url="sqlite://")
-
-
-def frames_body(n: int = 5, t0: float = 1.0, seed: int = 0) -> dict[str, Any]:
-    rng = np.random.default_rng(seed)
-    return {
-        "t": [t0 + k * 0.01 for k in range(n)],
-        "joint_names": ["j1", "j2"],
-        "q": rng.normal(size=(n, 2)).tolist(),
-        "imu_names": ["imu0", "imu1"],
-        "acc": rng.normal(size=(n, 2, 3)).tolist(),
-        "gyro": rng.normal(size=(n, 2, 3)).tolist(),
-    }
-
-
-def frame_batch(
-    robot: str, t: np.ndarray, joints: tuple[str, ...] = ("j1",), imus: tuple[str, ...] = ("imu0",)
-) -> FrameBatch:
-    n = len(t)
-    return FrameBatch(
-        robot,
-        t,
-        joints,
-        np.zeros((n, len(joints))),
-        imus,
-        np.zeros((n, len(imus), 3)),
-        np.zeros((n, len(imus), 3)),
-    )
-
-
-class Farm:
-    """Simulates ``sim``; answers like the real farm does for arguments its simulator does not take."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, str, dict[str, Any]]] = []
-
-    def simulates(self, robot: str) -> bool:
-        return robot == "sim"
-
-    def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
-        self.calls.append((robot, kind, dict(params)))
-        if kind == "link_lost":  # the message simulators.damage gives for a TypeError of its handler
-            raise ValueError(f"bad arguments for {kind}: _{kind}() got an unexpected keyword argument 'x'")
-        return {"changed": True, "findings": [{"kind": kind, "confidence": 1.0}]}
 
 
 @pytest.fixture
@@ -82,12 +40,12 @@ def store(tmp_path: Path) -> Iterator[Store]:
 
 
 @pytest.fixture
-def farm() -> Farm:
-    return Farm()
+def farm() -> StrictFarm:
+    return StrictFarm()
 
 
 @pytest.fixture
-def client(store: Store, farm: Farm) -> TestClient:
+def client(store: Store, farm: StrictFarm) -> TestClient:
     # a client of the API: its body-less requests say so (tests/service/test_security_origin.py)
     return TestClient(
         create_app(store, settings=SETTINGS, damage=farm), headers={"X-Requested-With": "bodyhealth"}
@@ -112,7 +70,7 @@ BAD_NAMES = ["arm 2", "a" * 65, "ärm", "arm\n", "arm;rm", "arm:x", "<b>"]
 
 
 @pytest.mark.parametrize("name", BAD_NAMES)
-def test_robot_names_in_paths(client: TestClient, farm: Farm, store: Store, name: str) -> None:
+def test_robot_names_in_paths(client: TestClient, farm: StrictFarm, store: Store, name: str) -> None:
     r = quote(name, safe="")
     before = store.sample_count()
     for method, path, body in [
@@ -161,7 +119,7 @@ def test_part_names_in_frame_bodies(client: TestClient, store: Store, field: str
 
 
 @pytest.mark.parametrize("field", ["imu", "joint", "to"])
-def test_part_names_in_damage_bodies(client: TestClient, farm: Farm, field: str) -> None:
+def test_part_names_in_damage_bodies(client: TestClient, farm: StrictFarm, field: str) -> None:
     kind = {"imu": "imu_dead", "joint": "joint_locked", "to": "imu_moved"}[field]
     resp = client.post("/api/v1/robots/sim/simulate/damage", json={"kind": kind, field: "imu 0"})
     assert resp.status_code == 422
@@ -344,7 +302,7 @@ def test_error_bodies_name_fields_never_code(client: TestClient, store: Store) -
 
 
 def test_damage_arguments_the_simulator_does_not_take_are_422_with_the_kinds_list(
-    client: TestClient, farm: Farm
+    client: TestClient, farm: StrictFarm
 ) -> None:
     resp = client.post("/api/v1/robots/sim/simulate/damage", json={"kind": "imu_dead", "to": "j1"})
     assert resp.status_code == 422

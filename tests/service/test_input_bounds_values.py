@@ -23,7 +23,7 @@ from service.ingest.base import Source
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.service.test_input_bounds import Farm, frame_batch, frames_body
+from tests.service.builders import StrictFarm, frame_batch, frames_body
 
 URL = "/api/v1/robots/arm/frames"
 SETTINGS = Settings(database_url="sqlite://", max_joints_per_robot=4, max_imus_per_robot=3)
@@ -39,12 +39,12 @@ def store(tmp_path: Path) -> Iterator[Store]:
 
 
 @pytest.fixture
-def farm() -> Farm:
-    return Farm()
+def farm() -> StrictFarm:
+    return StrictFarm()
 
 
 @pytest.fixture
-def client(store: Store, farm: Farm) -> TestClient:
+def client(store: Store, farm: StrictFarm) -> TestClient:
     return TestClient(create_app(store, settings=SETTINGS, damage=farm))
 
 
@@ -121,7 +121,7 @@ def test_only_numbers_are_numbers(client: TestClient, store: Store, raw: bytes) 
     assert client.post(URL, content=ints, headers={"content-type": "application/json"}).status_code == 201
 
 
-def test_damage_numbers_are_strict_and_bounded(client: TestClient, farm: Farm) -> None:
+def test_damage_numbers_are_strict_and_bounded(client: TestClient, farm: StrictFarm) -> None:
     url = "/api/v1/robots/sim/simulate/damage"
     for value in (True, "0.1", 7.0, -6.3):
         resp = client.post(url, json={"kind": "encoder_fault", "mode": "offset", "value": value})

@@ -32,9 +32,8 @@ from service.settings import Settings
 from service.store import Store, open_store
 from service.store.pins import WindowPin
 from service.worker import Worker
-from tests.bodyschema.test_health import synth
-from tests.service.test_store import stream
-from tests.service.test_worker import GOOD, Scripted, feed
+from tests.builders import synth
+from tests.service.builders import GOOD, Scripted, feed, stream
 
 WINDOW = 4.0
 RETENTION = 5.0

@@ -18,8 +18,7 @@ from service.api import create_app
 from service.api.security import json_depth
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.service.test_api import batch
-from tests.service.test_auth import (
+from tests.service.access import (
     ACCEPTED,
     BODIES,
     TOPO,
@@ -29,6 +28,7 @@ from tests.service.test_auth import (
     concrete,
     mutating_routes,
 )
+from tests.service.builders import batch
 
 INTENT = {"X-Requested-With": "bodyhealth"}
 AUTH = {"Authorization": f"Bearer {WRITE}"}

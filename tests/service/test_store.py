@@ -11,33 +11,7 @@ import pytest
 from bodyschema.topology import Topology
 from service.frames import FrameBatch, FrameError
 from service.store import Store, UnknownAlert, UnknownRobot, build_chunks, open_store
-
-RATE = 100.0
-
-
-def make_batch(
-    rng: np.random.Generator,
-    robot: str = "r1",
-    t0: float = 0.0,
-    n: int = 10,
-    joints: tuple[str, ...] = ("j1", "j2"),
-    imus: tuple[str, ...] = ("imu0", "imu1", "imu2"),
-) -> FrameBatch:
-    t = (round(t0 * RATE) + np.arange(n)) / RATE  # on one grid, so overlapping batches share stamps
-    return FrameBatch(
-        robot,
-        t,
-        joints,
-        rng.normal(size=(n, len(joints))),
-        imus,
-        rng.normal(size=(n, len(imus), 3)),
-        rng.normal(size=(n, len(imus), 3)),
-    )
-
-
-def stream(rng: np.random.Generator, seconds: float, batch: int = 10, **kw: object) -> list[FrameBatch]:
-    n_total = round(seconds * RATE)
-    return [make_batch(rng, t0=i / RATE, n=min(batch, n_total - i), **kw) for i in range(0, n_total, batch)]
+from tests.service.builders import RATE, make_batch, stream
 
 
 def concat(batches: list[FrameBatch]) -> dict[str, np.ndarray]:

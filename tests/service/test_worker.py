@@ -17,67 +17,12 @@ import pytest
 
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
-from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
-from tests.bodyschema.test_health import LAYOUT, synth
+from tests.builders import LAYOUT, synth
+from tests.service.builders import GOOD, MOVED, ByMethod, Scripted, feed, ticking
 from tests.waits import cpu_bound
-
-MOVED = Topology(
-    dict(LAYOUT.joint_parent),
-    {**LAYOUT.imu_joint, "c1": "j2"},
-    method="fast",
-    excitation=dict(LAYOUT.excitation),
-)
-GOOD = Topology(
-    dict(LAYOUT.joint_parent), dict(LAYOUT.imu_joint), method="fast", excitation=dict(LAYOUT.excitation)
-)
-
-
-class Scripted:
-    """Returns ``self.next`` for "fast" and records every call."""
-
-    def __init__(self, topo: Topology) -> None:
-        self.next = topo
-        self.calls: list[tuple[str, int]] = []
-
-    def __call__(self, rec: Recording, method: str) -> Topology:
-        self.calls.append((method, rec.n_samples))
-        t = self.next
-        return dataclasses.replace(
-            t, imu_joint={k: v for k, v in t.imu_joint.items() if k in rec.imu_names}, method=method
-        )
-
-
-def feed(
-    store: Store, rec: Recording, robot: str = "arm", offset: float = 0.0, dead: str | None = None
-) -> float:
-    acc, gyro = rec.acc.copy(), rec.gyro.copy()
-    if dead is not None:
-        k = rec.imu_names.index(dead)
-        acc[:, k] = 0.0
-        gyro[:, k] = 0.0
-    for s in range(0, rec.n_samples, 500):
-        sl = slice(s, s + 500)
-        store.write(
-            FrameBatch(
-                robot, rec.t[sl] + offset, rec.joint_names, rec.q[sl], rec.imu_names, acc[sl], gyro[sl]
-            )
-        )
-    return float(rec.t[-1] + offset + 0.01)
-
-
-def ticking(start: float = 1000.0, step: float = 1e-3) -> Callable[[], float]:
-    """A wall clock that moves ``step`` s per reading: the worker's idle rule (no new frame for
-    ``window_seconds`` of wall time) then follows the cycles run, not how fast the machine runs them."""
-    now = [start]
-
-    def clock() -> float:
-        now[0] += step
-        return now[0]
-
-    return clock
 
 
 @pytest.fixture
@@ -223,21 +168,6 @@ def test_a_new_finding_of_the_fast_screen_asks_for_a_network_retrain_once(
     off.run_cycle()
     off.run_cycle()
     assert "network" not in [m for m, _ in off.estimator.calls[1:]]
-
-
-class ByMethod(Scripted):
-    """Returns ``self.by_method[method]`` (default ``self.next``) and records every call."""
-
-    def __init__(self, topo: Topology) -> None:
-        super().__init__(topo)
-        self.by_method: dict[str, Topology] = {}
-
-    def __call__(self, rec: Recording, method: str) -> Topology:
-        self.calls.append((method, rec.n_samples))
-        t = self.by_method.get(method, self.next)
-        return dataclasses.replace(
-            t, imu_joint={k: v for k, v in t.imu_joint.items() if k in rec.imu_names}, method=method
-        )
 
 
 def _networks_on(settings: Settings) -> Settings:
