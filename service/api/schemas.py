@@ -1,7 +1,7 @@
 """Response and request bodies of the REST API (they make the OpenAPI document at ``/docs``).
 
-Topologies and findings are passed through as the docs/design.md §2 JSON (plain dicts): that format is the
-contract, and a second model of it here would drift.
+Topologies and findings are passed through as the JSON of docs/design.md, 'Exchange formats' (plain
+dicts): that format is the contract, and a second model of it here would drift.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ class TopologyOut(BaseModel):
     source: str | None = None
     cpu_seconds: float | None = Field(None, description="CPU seconds the estimate took")
     training: TrainingOut | None = Field(None, description="network methods: how training went")
-    topology: dict[str, Any] = Field(description="docs/design.md §2 topology JSON")
+    topology: dict[str, Any] = Field(description="topology JSON (docs/design.md, 'Topology JSON')")
 
     @classmethod
     def of(cls, r: TopologyRecord) -> TopologyOut:
@@ -120,13 +120,15 @@ class TopologyOut(BaseModel):
 
 
 class TopologyPair(BaseModel):
-    current: dict[str, Any] | None = Field(description="newest learned topology (docs/design.md §2 JSON)")
+    current: dict[str, Any] | None = Field(
+        description="newest learned topology (docs/design.md, 'Topology JSON')"
+    )
     baseline: dict[str, Any] | None = Field(description="the baseline it is compared with")
     current_meta: TopologyOut | None = None
     baseline_meta: TopologyOut | None = None
     diff: dict[str, Any] | None = Field(
         None,
-        description="docs/design.md §2 diff JSON of current vs baseline "
+        description="diff JSON (docs/design.md, 'Diff JSON') of current vs baseline "
         "(structure only; alerts also use signal health)",
     )
 
@@ -163,8 +165,9 @@ class KinematicsPair(BaseModel):
     latest: KinematicsOut | None = Field(description="the newest geometry estimate under that baseline")
     drift: list[dict[str, Any]] | None = Field(
         None,
-        description="docs/design.md §2 findings from baseline to latest (imu_rotated, imu_shifted, "
-        "axis_changed, backlash), each beyond the two estimates' own uncertainty; alerts add hysteresis",
+        description="findings (docs/design.md, 'Diff JSON') from baseline to latest (imu_rotated, "
+        "imu_shifted, axis_changed, backlash), each beyond the two estimates' own uncertainty; alerts add "
+        "hysteresis",
     )
 
 
@@ -391,7 +394,8 @@ class StatusOut(BaseModel):
     has_baseline: bool
     diff: dict[str, Any] | None = Field(
         None,
-        description="docs/design.md §2 diff JSON of the newest estimate vs the baseline (structure only)",
+        description="diff JSON (docs/design.md, 'Diff JSON') of the newest estimate vs the baseline "
+        "(structure only)",
     )
     topology_id: int | None = None
     method: str | None = Field(None, description="estimator of the topology judged")
@@ -617,7 +621,7 @@ class DamageIn(BaseModel):
 class DamageOut(BaseModel):
     robot: str
     kind: str
-    truth: dict[str, Any] = Field(description="docs/design.md §2 diff JSON of what was injected")
+    truth: dict[str, Any] = Field(description="diff JSON (docs/design.md, 'Diff JSON') of what was injected")
 
 
 class FramesIn(BaseModel):

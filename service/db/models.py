@@ -142,7 +142,7 @@ class Chunk(Base):
 
 
 class TopologyRow(Base):
-    """One learned topology (docs/design.md §2 topology JSON) with when and from which window it came."""
+    """One learned topology (docs/design.md, 'Topology JSON') with when and from which window it came."""
 
     __tablename__ = "topologies"
     __table_args__ = (Index("ix_topologies_robot_wall", "robot_id", "wall_time"),)
