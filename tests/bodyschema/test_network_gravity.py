@@ -42,15 +42,20 @@ def test_a_gravity_free_reference_gets_the_whole_gravity_named(rng: np.random.Ge
 
 @pytest.mark.slow
 def test_eq11_leaves_gravity_which_eq24_removes(seed: int) -> None:
-    # a fixed recording (the network training is what takes time); the seed drives the networks
-    rec = simulate("ur5e", seconds=60.0, seed=7, imu_model="mpu6050")
+    # a fixed recording (the network training is what takes time); the seed drives the networks.
+    # 30 s is enough for every bound below: the gap between the forms is a share of gravity the
+    # networks cannot absorb (about 1-2 m/s²) against the sensor's own errors (0.1-0.2 m/s²), which the
+    # length does not change; the held-out selection keeps 8 blocks of 3.75 s (375 samples each); and
+    # the fitted magnitude's error from 0.1 m/s² noise over 3000 samples is far under the 8 % allowed.
+    # (On 60 s the training and the two analyses took twice the CPU for the same verdicts.)
+    rec = simulate("ur5e", seconds=30.0, seed=7, imu_model="mpu6050")
     net_seed = seed % 1000
     imus = ["imu2", "imu5", "imu8", "imu11"]  # one per moving link group, off the vertical-axis base link
     case = gravity_case(rec, seed=net_seed, imus=imus, references=robot_references(rec, "ur5e"))
     eq11, eq24 = case.forms["eq11"], case.forms["eq24"]
     # the residual: without the gravity term the networks absorb part of gravity in bent accelerations
-    # but leave about 1 m/s² (1.07 on this recording at seed 0); with it the sensor's own errors and the
-    # network's fit remain (0.1-0.2 m/s²)
+    # but leave about 1-2 m/s² (1.76 on this recording at this test's seed, 19 times Eq. 24's); with it
+    # the sensor's own errors and the network's fit remain (0.1-0.2 m/s²)
     assert eq11.acc_rms > 4 * eq24.acc_rms
     assert eq11.acc_rms > 0.5
     # the cause, on the exact kinematics: gravity, with the recording's magnitude and direction
@@ -63,7 +68,7 @@ def test_eq11_leaves_gravity_which_eq24_removes(seed: int) -> None:
     assert g["params"]["angle_to_recording_deg"] < 8.0
     # ... while on the Eq. 11 networks themselves, which bend their accelerations and biases towards
     # it, what is named is not gravity's magnitude: under 1 m/s² in the bench gravity runs with the
-    # earlier selection, 12.1 m/s² here with the evidence-based one (this test's seed)
+    # earlier selection, 6.0 m/s² here with the evidence-based one (this test's seed; 2.3 to 9.2 per IMU)
     gn = case.analyses["network"].cause("gravity")
     assert gn is None or abs(gn["params"]["norm"] - 9.81) > 1.0, gn
     # topology: Eq. 24 at least as accurate as Eq. 11
