@@ -73,6 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="32",
         help="fleet sizes also measured with the training alone (no ingest, no API), comma-separated",
     )
+    parser.add_argument(
+        "--alone-workers",
+        default="",
+        help="cluster sizes of the rounds with the training alone, comma-separated (default: --workers')",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
 
@@ -367,6 +372,7 @@ def run(args: argparse.Namespace) -> Path:
     sizes = _ints(args.robots)
     workers = _ints(args.workers)
     alone = _ints(args.alone)
+    alone_workers = _ints(args.alone_workers) or workers
     _log(f"simulating {args.recordings} recording(s) of {args.robot}")
     recs = [
         simulate(args.robot, seconds=args.window + 5.0, seed=args.seed + i, sensing="robot")
@@ -376,7 +382,7 @@ def run(args: argparse.Namespace) -> Path:
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         rounds = [(n, w, LOADED) for n in sizes for w in workers]
-        rounds += [(n, w, ALONE) for n in alone for w in workers]
+        rounds += [(n, w, ALONE) for n in alone for w in alone_workers]
         for n, w, beside in rounds:
             names = [f"{args.robot}-{i:04d}" for i in range(n)]
             store = open_store(f"sqlite:///{tmp}/fleet-{n}-{w}-{len(rows)}.db")
@@ -419,7 +425,9 @@ def _write(args: argparse.Namespace, rec: Any, cold: list[dict], rows: list[dict
         "machine": machine_note(),
         "command": f"bodyhealth bench fleet --robots {args.robots} --workers {args.workers} --robot "
         f"{args.robot} --recordings {args.recordings} --window {args.window:g} --api-rps {args.api_rps:g} "
-        f"--alone '{args.alone}' --seed {args.seed}",
+        f"--alone '{args.alone}'"
+        + (f" --alone-workers {args.alone_workers}" if args.alone_workers else "")
+        + f" --seed {args.seed}",
         "robot": args.robot,
         "imus": rec.n_imus,
         "joints": rec.n_joints,

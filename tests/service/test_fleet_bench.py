@@ -1,8 +1,8 @@
 """``bodyhealth bench fleet`` on a tiny fleet: real Dask worker processes retrain every robot from its
 stored weights while ingest and the API run beside them, and again with the training alone; the table,
 JSON and plot agree. The 2-over-1 worker speedups are arithmetic on the rounds' rows: they are checked
-on the rows of the stored bench run, so the real run starts one 2-worker cluster per path (beside
-ingest+api, alone) instead of a 1- and a 2-worker cluster for each."""
+on the rows of the stored bench run, so the real run starts one cluster per path, 2 workers beside
+ingest+api and 1 alone, instead of a 1- and a 2-worker cluster for each."""
 
 from __future__ import annotations
 
@@ -38,12 +38,13 @@ def test_speedups_are_two_workers_over_one_per_fleet_size_on_the_stored_run() ->
 @pytest.mark.e2e
 def test_bench_fleet_retrains_every_robot_warm_beside_ingest_and_api_and_alone(tmp_path: Path) -> None:
     argv = ["--robots", "2", "--workers", "2", "--window", "10", "--recordings", "1"]
-    args = bench_args(bench, *argv, "--api-rps", "10", "--alone", "2", "--out", str(tmp_path))
+    alone = ["--alone", "2", "--alone-workers", "1"]
+    args = bench_args(bench, *argv, "--api-rps", "10", *alone, "--out", str(tmp_path))
     assert bench.run(args) == tmp_path / "fleet.md"
     data = json.loads((tmp_path / "fleet.json").read_text())
     assert (tmp_path / "fleet.png").stat().st_size > 1000
     rounds = [(r["robots"], r["workers"], r["beside"]) for r in data["rows"]]
-    assert rounds == [(2, 2, "ingest+api"), (2, 2, "none")]
+    assert rounds == [(2, 2, "ingest+api"), (2, 1, "none")]
     (cold,) = data["cold"]
     for r in data["rows"]:
         assert r["warm"] == 2  # every retrain started from the robot's stored weights
@@ -59,7 +60,8 @@ def test_bench_fleet_retrains_every_robot_warm_beside_ingest_and_api_and_alone(t
     # one cluster size: no speedup to state (the arithmetic is checked on the stored run above)
     assert data["speedup_2_over_1"] == data["speedup_2_over_1_alone"] == {}
     md = (tmp_path / "fleet.md").read_text()
-    assert "| 2 | 2 | ingest+api |" in md and "| 2 | 2 | none |" in md
+    assert "| 2 | 2 | ingest+api |" in md and "| 2 | 1 | none |" in md
+    assert "--alone '2' --alone-workers 1 --seed 0" in data["command"]
     assert "with ingest and the API beside: not measured; with the training alone: not measured" in md
     # the retrains ran as the embedded cluster runs them
     assert data["training_priority"] == {"nice": 10, "idle": True}
