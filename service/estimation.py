@@ -68,6 +68,7 @@ class EstimatorProcess:
         self.imu_delay = imu_delay
         self._pool: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
+        self._aborted = False
 
     def __call__(self, rec: Recording, method: str) -> Topology:
         from bodyschema.estimate import estimate_topology
@@ -89,6 +90,8 @@ class EstimatorProcess:
 
     def _ensure(self) -> ProcessPoolExecutor:
         with self._lock:
+            if self._aborted:
+                raise BrokenProcessPool("the estimator was stopped")
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
                     max_workers=1, mp_context=SPAWN, initializer=_start_child, initargs=(os.getpid(),)
@@ -103,10 +106,12 @@ class EstimatorProcess:
             pool.shutdown(wait=True, cancel_futures=True)
 
     def abort(self) -> None:
-        """End the child now, an estimate in flight with it: its caller gets ``BrokenProcessPool``. A
-        stopping service uses it so that SIGTERM is not held by a long estimate (the next call would
-        start another child)."""
+        """End the child now, an estimate in flight with it: its caller gets ``BrokenProcessPool``, and
+        so does every later call. A stopping service uses it so that SIGTERM is not held by a long
+        estimate, nor by a new child (seconds to spawn and import on a loaded machine) for the next step
+        of the robot the worker is finishing."""
         with self._lock:
+            self._aborted = True
             pool, self._pool = self._pool, None
         if pool is None:
             return
