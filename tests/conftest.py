@@ -120,6 +120,21 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
         _ci_failure(report)
 
 
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
+    """pytest-timeout's limit (``timeout`` in pyproject.toml, or a test's own ``timeout`` mark: what
+    a hung test may take on an idle machine) stretched by the load at the test's start
+    (:func:`tests.waits.cpu_bound`): a busy machine makes a test slower, never failing. Runs before
+    pytest-timeout's own wrapper, which reads the mark."""
+    from tests.waits import cpu_bound
+
+    mark = item.get_closest_marker("timeout")
+    base = mark.args[0] if mark is not None and mark.args else item.config.getini("timeout")
+    if base:
+        item.add_marker(pytest.mark.timeout(cpu_bound(float(base))), append=False)
+    yield
+
+
 def _operation_ids(items: list[pytest.Item]) -> None:
     """Put schemathesis' operation label into its tests' node ids (see the module docstring).
 
