@@ -9,7 +9,7 @@ and cycles run until the first alert. Asserted: the nominal run raises no alert 
 all, ever; the damage's first alert is of its kind, on its part. The worker's alerts do not depend
 on a finding's kind, so the wiring is checked with one damage; that a 2° bend and a 1° dead band
 are found first on their part, on windows estimated as the worker estimates them, is
-tests/service/test_drift_bench.py's (the benchmark's catalog part), and the lever-arm pools are
+tests/bench/test_drift_bench.py's (the benchmark's catalog part), and the lever-arm pools are
 tests/service/test_drift_worker_pools.py's.
 
 A turned IMU is seen through the axis it reports, so the turn is about a direction perpendicular to
