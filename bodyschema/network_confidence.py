@@ -21,7 +21,10 @@ in-band derivative noise of the encoder positions (:func:`bodyschema.timing.deri
 over the joints) and ``ε² = model_tol² + (2π f_rms δ)²`` the relative model error of a velocity
 derived from 100 Hz positions and of the lag's uncertainty ``δ``. A model *fits* when its held-out
 residual variance is below ``fit_ratio · v`` (the fast method's variance-ratio test, same ratio). A part
-is decided when its chosen model fits and every rival does not; otherwise it is undetermined, with
+is decided when its chosen model fits and every rival that fits leaves significantly more held-out
+residual, beyond chance (the F quantile of the fast method's rival test) and beyond what the model
+error could leave (:func:`_close_rivals`); otherwise it is
+undetermined, with
 the joints whose motion would tell the answers apart (the joints on one answer's path and not on the
 other's). A joint whose in-band motion leaves less than ``fit_ratio · v`` of residual when left out
 cannot be resolved at all and is reported as insufficient excitation.
@@ -40,13 +43,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bodyschema.fast_core import _hop_features, _two_hop_features, noise_level
+from bodyschema.fast_core import RIVAL_ALPHA, _hop_features, _two_hop_features, noise_level
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
 __all__ = ["HeldOutOptions", "HeldOutPart", "HeldOutTest", "heldout_check", "heldout_test"]
 
 _WORLD = -1
+#: Least excess of a rejected rival's held-out ratio over the chosen answer's, in error-model
+#: variances: what the stated model error could leave between two answers (:func:`_close_rivals`).
+RIVAL_MARGIN = 1.0
 
 
 @dataclass(frozen=True)
@@ -411,7 +417,7 @@ def _decide(
     others = {a: r for a, r in rivals.items() if a != chosen}
     rival = min(others, key=lambda a: others[a]) if others else None
     r_rival = others[rival] if others else np.inf
-    fitting = tuple(a for a, r in others.items() if r < fit_ratio)
+    fitting = _close_rivals(r_best, others, fit_ratio, n_obs)
     fits = r_best < fit_ratio
     decided = bool(fits and not fitting)
     if decided:
@@ -440,6 +446,31 @@ def _decide(
         conf,
         move,
         tuple(_name(joints, a) for a in fitting),
+    )
+
+
+def _close_rivals(
+    r_best: float, others: dict[int | None, float], fit_ratio: float, n_obs: float
+) -> tuple[int | None, ...]:
+    """The rivals the held-out data do not reject: those that fit (ratio under ``fit_ratio``) and
+    either are within chance of the chosen one's ratio, ``r < r_best F⁻¹(1 - α/m; n, n)`` (``n``
+    held-out values per answer, ``m`` rivals, ``α`` the fast method's
+    :data:`~bodyschema.fast_core.RIVAL_ALPHA`: the fast method's rival test), or leave less than
+    :data:`RIVAL_MARGIN` error-model variances more. Acceptance alone is no decision: a rival that
+    fits but leaves significantly more residual than the chosen answer, more than the stated model
+    error could (a joint's motion it cannot explain), is rejected. The margin keeps the F test from
+    deciding on differences the model error makes: two answers both under the error model can differ
+    by 15 % on thousands of held-out values (an extra hinge that absorbs part of the gyros' scale
+    errors), which chance alone would not explain but the model error does."""
+    from scipy.stats import f as f_dist
+
+    m = max(sum(1 for r in others.values() if np.isfinite(r)), 1)
+    nu = max(float(n_obs), 1.0)
+    bound = float(f_dist.ppf(1.0 - RIVAL_ALPHA / m, nu, nu))
+    return tuple(
+        a
+        for a, r in others.items()
+        if r < fit_ratio and (r < max(r_best, 1e-12) * bound or r - r_best < RIVAL_MARGIN)
     )
 
 
