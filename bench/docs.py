@@ -25,6 +25,7 @@ from pathlib import Path
 
 from bench import REPO_ROOT
 from bench.figures import (
+    alerts,
     algebra,
     calibration,
     drift,
@@ -116,6 +117,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/topology.md", "shapes", "shapes.json", shapes.figure),
     _f("docs/kinematics.md", "shapes-axis-floor", "shapes.json", shapes.axis_floor),
     _f("docs/robots.md", "robots", "robots.json", robots.figure),
+    _f("docs/alert-latency.md", "alerts", "alerts.json", alerts.figure),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),
     _f("docs/recording-format.md", "import", "import.json", import_.doc),

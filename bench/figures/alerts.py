@@ -1,0 +1,29 @@
+"""Figures from ``bench alerts`` (docs/bench/alerts.json): alerts in time on a loaded machine."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bench.figures.files import BenchFiles
+
+__all__ = ["figure"]
+
+
+def _metric(name: str, m: dict[str, Any]) -> str:
+    return f"{name} max {m['max']:.0f} (median {m['median']:.0f}, target {m['target']:g})"
+
+
+def figure(b: BenchFiles) -> str:
+    d = b.json("alerts.json")
+    assert isinstance(d, dict)
+    s, runs = d["summary"], d["runs"]
+    loads = [x for r in runs for x in (r["load_before"], r["load_after"])]
+    timed = "; ".join(_metric(k, m) for k, m in s.items() if k.endswith("_s") and "target" in m)
+    approvals = ", ".join(
+        f"{k.split()[1]} p99 max {s[k]['max']:.0f} ms" for k in s if k.startswith("approval") and "p99" in k
+    )
+    false = s.get("false_alerts", {}).get("max")
+    return (
+        f"`{d['command']}` on {d['machine']}, {len(runs)} runs, load average {min(loads):.1f} to "
+        f"{max(loads):.1f}: seconds {timed}; false alerts {false}; baseline approvals {approvals}."
+    )
