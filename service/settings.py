@@ -244,7 +244,8 @@ class Settings(BaseSettings):
         ge=0,
         le=100,
         description="stated group delay of the IMUs' on-chip low-pass, ms (MPU-6050 DLPF_CFG 3: 4.8, "
-        "docs/design.md §4); taken out of the estimated IMU lag to report the clock skew alone. Unset: "
+        "docs/design.md, 'Facts the error models use'); taken out of the estimated IMU lag to report "
+        "the clock skew alone. Unset: "
         "the farm's sensing preset's when the service runs the farm, else 0 (skew_ms is then the lag)",
     )
     farm_seed: int = Field(0, description="seed of the simulated farm")

@@ -36,7 +36,8 @@ class UnknownAlert(KeyError):
 
 @dataclass(frozen=True)
 class AlertRecord:
-    """One alert on a part; ``finding`` is the finding JSON (docs/design.md §2) that raised or updated it."""
+    """One alert on a part; ``finding`` is the finding JSON (docs/design.md, 'Diff JSON') that raised
+    or updated it."""
 
     id: int
     robot: str
