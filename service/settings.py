@@ -109,8 +109,8 @@ class Settings(BaseSettings):
         ge=0,
         description="estimate every robot's joint axes and IMU lever arms every N worker cycles (6 at "
         "the default 5 s interval and 30 s window: each estimate on a window of its own) and compare "
-        "them with the geometry learned on its baseline (drift alerts); also once N worker intervals "
-        "of wall time have passed since the last, when cycles overrun; 0 = never",
+        "them with the geometry learned on its baseline (drift alerts); also once its data has run N "
+        "worker intervals past the last, when cycles overrun; 0 = never",
     )
     kinematics_accelerometer_frame: bool = Field(
         True,

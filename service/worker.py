@@ -26,7 +26,8 @@ One cycle, for every robot the store knows:
    also shows a structural change of that part; until then its kind is held (neither raised nor
    cleared) and a network retrain is asked for; a network topology that shows no change there drops
    it (:func:`service.monitor.confirmation.confirm`). Every ``kinematics_interval_cycles`` cycles
-   (staggered per robot; sooner in wall time when cycles overrun), when the diff holds no finding,
+   (staggered per robot; sooner once its data ran N intervals, when cycles overrun), when the diff
+   holds no finding,
    the robot's geometry is estimated (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes,
    IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
@@ -166,7 +167,7 @@ class Worker(AlertPath):
         self._states: dict[str, RobotState] = {}
         self.asks = NetworkAsks(self.settings, clock, self._want_network)
         self.adoption = BaselineAdoption(store, self.settings, clock, self.asks)
-        self.geometry = GeometryDrift(store, self.settings, self.metrics, self.compute, clock)
+        self.geometry = GeometryDrift(store, self.settings, self.metrics, self.compute, clock, self.state)
         self.floating = FloatingBase(
             store, self.settings, self.tracker, clock, self._store_alerts, self._write_waits, min_samples
         )

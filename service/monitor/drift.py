@@ -24,7 +24,7 @@ from bodyschema.lever_pool import POOL_KEY, LeverPool, stored_drift
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.metrics import Metrics
-from service.monitor.state import full_window
+from service.monitor.state import RobotState, full_window
 from service.settings import Settings
 from service.store import Store, TopologyRecord
 
@@ -45,7 +45,8 @@ MAX_HOLE_SECONDS = 0.5
 
 class GeometryDrift:
     """Estimates a robot's geometry on its turn and judges it against its baseline's (module doc).
-    ``compute(fn, *args)`` runs the estimate (:data:`service.worker.Compute`)."""
+    ``compute(fn, *args)`` runs the estimate (:data:`service.worker.Compute`); ``state(robot)`` is what
+    the worker keeps for the robot (its last estimate's cycle and window end)."""
 
     def __init__(
         self,
@@ -54,29 +55,32 @@ class GeometryDrift:
         metrics: Metrics,
         compute: Callable[..., Any],
         clock: Callable[[], float],
+        state: Callable[[str], RobotState],
     ) -> None:
         self.store = store
         self.settings = settings
         self.metrics = metrics
         self.compute = compute
         self.clock = clock
-        #: per robot: the cycle and wall time of its last estimate
-        self._last: dict[str, tuple[int, float]] = {}
+        self.state = state
 
-    def turn(self, robot: str, cycle: int) -> bool:
+    def turn(self, robot: str, cycle: int, window_end: float) -> bool:
         """True when ``robot``'s geometry is due: ``kinematics_interval_cycles`` cycles after its last
-        estimate, or that many worker intervals of wall time (so on a loaded machine, whose cycles
-        overrun their interval, each estimate still comes a window's time after the last instead of
-        waiting for slow cycles: damage to the geometry is seen as soon as on a quiet one). The first
-        is staggered by the robot's name so a fleet's estimates spread over the cycles."""
+        estimate, or once its data has advanced that many worker intervals past the last estimate's
+        window. On a loaded machine, whose cycles overrun their interval, the robot's data still comes
+        in real time, so each estimate comes an interval's worth of data after the last instead of
+        waiting for slow cycles, and damage to the geometry is seen as soon as on a quiet one. Data
+        time, not the wall clock: a replay or a test that feeds data faster or slower than real time
+        gets the same estimates for the same data. The first (and the first after the robot's clock
+        went back) is staggered by the robot's name so a fleet's estimates spread over the cycles."""
         n = self.settings.kinematics_interval_cycles
         if not n:
             return False
-        last = self._last.get(robot)
-        if last is None or cycle < last[0]:
+        last = self.state(robot).geometry_last
+        if last is None or cycle < last[0] or window_end < last[1]:
             return (cycle + zlib.crc32(robot.encode())) % n == 0
-        wall = n * self.settings.worker_interval_seconds
-        return cycle - last[0] >= n or self.clock() - last[1] >= wall
+        span = n * self.settings.worker_interval_seconds
+        return cycle - last[0] >= n or window_end - last[1] >= span - 1e-9
 
     def judge(
         self, robot: str, cycle: int, rec: Recording, fast: Topology, base: TopologyRecord, diff: Diff
@@ -96,7 +100,8 @@ class GeometryDrift:
         no finding says the body is the baseline's, while a fault the geometry is there to find (a dead
         band's encoder steps) can leave the fast screen unable to place a joint's IMUs at all.
         """
-        if not self.turn(robot, cycle):
+        window_end = float(rec.t[-1]) if len(rec.t) else 0.0
+        if not self.turn(robot, cycle, window_end):
             return None
         if not self.one_motion(rec):
             return None  # a partial window or one with a hole: not the motion the geometry was learned on
@@ -105,12 +110,11 @@ class GeometryDrift:
         from bodyschema.kinematics import KinematicsOptions, estimate_kinematics
 
         t0 = time.perf_counter()
-        self._last[robot] = (cycle, self.clock())
+        self.state(robot).geometry_last = (cycle, window_end)
         frame = self.settings.kinematics_accelerometer_frame
         tree = dataclasses.replace(base.topology, timing=dict(fast.timing))
         kin = self.compute(estimate_kinematics, rec, tree, KinematicsOptions(accelerometer_frame=frame))
         self.metrics.retrain_seconds.labels(method="kinematics").observe(time.perf_counter() - t0)
-        window_end = float(rec.t[-1])
         kept = self.store.kinematics_baseline(robot, base.id)
         # a geometry kept in the other frame (or before the frame was recorded: the gyros') has lever
         # arms fitted about other axes, a mm or so apart: compared with these it would read as a slide

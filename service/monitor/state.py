@@ -11,10 +11,10 @@ one place that says what an event forgets:
   against the old one (fingerprints, onsets, first sightings, the last findings, a re-judgement due).
 * ``adopted``: the worker adopted a baseline itself: the streak that made it, and the fingerprints
   (learned again from the first window that matches it).
-* ``epoch``: the robot's device clock went back: the device times (onsets, first sightings; stamped on
-  the old clock they would lie in the new one's future), the lag (searched from zero again) and the
-  fingerprints (a restarted robot's encoders may count from other offsets); its alerts are judged
-  again on the new epoch's first full window.
+* ``epoch``: the robot's device clock went back: the device times (onsets, first sightings, the last
+  geometry estimate's window end; stamped on the old clock they would lie in the new one's future),
+  the lag (searched from zero again) and the fingerprints (a restarted robot's encoders may count from
+  other offsets); its alerts are judged again on the new epoch's first full window.
 * ``restart``: a new worker remembers nothing; the alerts it reads back from the store are judged again
   on the robot's first full window.
 
@@ -100,6 +100,8 @@ class RobotState:
     rejudge: bool = False
     #: what it waits on, as last written to the store
     waits_written: dict[str, Any] | None = None
+    #: the cycle and window end (device time) of its last geometry estimate (None: none yet)
+    geometry_last: tuple[int, float] | None = None
 
     def reset(self, reason: str) -> None:
         """Forget what ``reason`` (a key of :data:`FORGETS`) forgets; the rest stays."""
@@ -121,7 +123,7 @@ FORGETS: dict[str, tuple[tuple[str, ...], dict[str, Any]]] = {
     "approval": (("fingerprints",), {}),
     "baseline": (("fingerprints", "onset", "first_seen", "findings", "rejudge"), {}),
     "adopted": (("fingerprints", "streak"), {}),
-    "epoch": (("fingerprints", "onset", "first_seen"), {"lag": 0.0, "rejudge": True}),
+    "epoch": (("fingerprints", "onset", "first_seen", "geometry_last"), {"lag": 0.0, "rejudge": True}),
     "restart": (_ALL, {"rejudge": True}),
 }
 
