@@ -22,7 +22,7 @@ from bodyschema.recording import Recording
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
-from tests.service.test_floating_worker import ROBOT, _feed, _icub, _no_fixed_fit, ticking
+from tests.service.floating_runs import ROBOT, feed, icub_log, no_fixed_fit, ticking
 
 FORCES = ("lf_force_z", "rf_force_z")
 
@@ -46,7 +46,7 @@ def _with_forces(store: Store, rec: Recording) -> None:
 
 
 def test_icub_with_foot_forces_runs_the_tilt_check_and_keeps_it_across_a_restart(tmp_path: Path) -> None:
-    rec = _icub()
+    rec = icub_log()
     url = f"sqlite:///{tmp_path / 'forces.db'}"
     settings = Settings(database_url=url, window_seconds=15.0, baseline_repeat_k=3, alert_hysteresis_m=2)
     t0 = float(rec.t[0])
@@ -54,28 +54,28 @@ def test_icub_with_foot_forces_runs_the_tilt_check_and_keeps_it_across_a_restart
     bad = inject(rec.window(t0 + 45, t0 + 90), parse_fault(f"imu_rotated:imu={imu},deg=2"))
     store = open_store(url)
     _with_forces(store, rec)
-    worker = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
-    _feed(store, rec.window(t0, t0 + 45))
+    worker = Worker(store, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
+    feed(store, rec.window(t0, t0 + 45))
     res = worker.run_cycle()[ROBOT]
     assert res.baseline_set
     fr = worker.floating.robots[ROBOT]
     assert fr.rule == "the recording carries foot forces (lf_force_z, rf_force_z)"
     base = fr.baseline
     assert base is not None and base.force_threshold is not None and base.force_threshold.shape == (2,)
-    assert [c.phase for c in base.chains] == ["rf_force_z down"] and base.tilt is not None
+    assert [c.phase for c in base.chains] == ["lf_force_z down", "rf_force_z down"] and base.tilt is not None
     waits = store.waiting(ROBOT)[ROBOT]["waits"]
     assert len(waits) == 1 and "undetermined" not in waits[0]["what"]  # every check runs
 
-    _feed(store, rec.window(t0 + 45, t0 + 60))  # untouched: judged, nothing found
+    feed(store, rec.window(t0 + 45, t0 + 60))  # untouched: judged, nothing found
     res = worker.run_cycle()[ROBOT]
     assert res.diff is not None and res.diff.findings == ()
     store.close()
 
     store = open_store(url)  # a restart: the baseline with its chain and tilt model read back
     _with_forces(store, rec)
-    again = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking(3000.0))  # type: ignore[arg-type]
+    again = Worker(store, settings, estimator=no_fixed_fit, clock=ticking(3000.0))  # type: ignore[arg-type]
     try:
-        _feed(store, bad.window(t0 + 60, t0 + 75))  # the forces are the log's: only the IMU turned
+        feed(store, bad.window(t0 + 60, t0 + 75))  # the forces are the log's: only the IMU turned
         res = again.run_cycle()[ROBOT]
         assert not res.baseline_set and res.diff is not None
         assert [(f.kind, f.part) for f in res.diff.findings] == [("imu_rotated", f"imu:{imu}")]
