@@ -125,7 +125,6 @@ def test_a_repeated_test_id_fails_collection(tmp_path: Path) -> None:
 #: needs from a shared module.
 IMPORTS_A_TEST_FILE = {
     "tests/e2e/test_dashboard_demo.py": {"tests.e2e.test_dashboard"},
-    "tests/service/test_floating_forces.py": {"tests.service.test_floating_worker"},
 }
 
 

@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session
 
 from service.db.models import Alert, Robot
 from service.store.robots import robot_id
-from service.store.schema import StoreBase
+from service.store.schema import StoreBase, newest
 
 __all__ = ["ALERT_STATES", "AlertRecord", "AlertsMixin", "UnknownAlert", "resolve_open_alerts"]
 
@@ -101,11 +101,9 @@ class AlertsMixin(StoreBase):
         with self._writing() as s:
             rid = robot_id(s, robot)
             cond = (Alert.robot_id == rid) & (Alert.kind == kind) & (Alert.part == part)
-            row = s.scalar(
-                select(Alert).where(cond, Alert.state != "resolved").order_by(Alert.id.desc()).limit(1)
-            )
+            row = s.scalar(newest(Alert, cond, Alert.state != "resolved"))
             if row is None and state == "resolved":
-                row = s.scalar(select(Alert).where(cond).order_by(Alert.id.desc()).limit(1))
+                row = s.scalar(newest(Alert, cond))
                 if row is not None:
                     return _alert_record(row, robot)
             if row is None:

@@ -39,7 +39,7 @@ from sqlalchemy import func, insert, select
 
 from service.db.models import FloatingBaselineRow, Robot
 from service.store.robots import robot_id
-from service.store.schema import StoreBase
+from service.store.schema import StoreBase, newest
 
 __all__ = ["FloatingMixin", "StoredFloating"]
 
@@ -95,12 +95,7 @@ class FloatingMixin(StoreBase):
         """``robot``'s current floating baseline, None when it has none."""
         with self._session() as s:
             rid = robot_id(s, robot)
-            r = s.scalar(
-                select(FloatingBaselineRow)
-                .where(FloatingBaselineRow.robot_id == rid)
-                .order_by(FloatingBaselineRow.id.desc())
-                .limit(1)
-            )
+            r = s.scalar(newest(FloatingBaselineRow, FloatingBaselineRow.robot_id == rid))
             if r is None:
                 return None
             return StoredFloating(

@@ -44,7 +44,7 @@ from sqlalchemy import Select, delete, insert, select, update
 
 from service.db.models import KinematicsRow
 from service.store.robots import robot_id
-from service.store.schema import StoreBase
+from service.store.schema import StoreBase, newest
 
 __all__ = ["KinematicsMixin", "StoredKinematics"]
 
@@ -132,10 +132,8 @@ class KinematicsMixin(StoreBase):
         """The newest geometry kept for ``robot`` (under ``baseline_id`` when given), None if none is."""
         with self._session() as s:
             rid = robot_id(s, robot)
-            q = select(KinematicsRow).where(KinematicsRow.robot_id == rid)
-            if baseline_id is not None:
-                q = q.where(KinematicsRow.baseline_id == int(baseline_id))
-            r = s.scalar(q.order_by(KinematicsRow.id.desc()).limit(1))
+            under = () if baseline_id is None else (KinematicsRow.baseline_id == int(baseline_id),)
+            r = s.scalar(newest(KinematicsRow, KinematicsRow.robot_id == rid, *under))
         return None if r is None else _stored(robot, r)
 
 

@@ -42,7 +42,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any, Self
 
-from sqlalchemy import Engine, event, text
+from sqlalchemy import ColumnElement, Engine, Select, event, select, text
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
@@ -58,13 +58,19 @@ ROBOT_IDS = "robot_ids"
 #: parts) and nothing learned from them, so its commits leave ``analysis_generation`` as it is.
 FRAMES_ONLY = "frames_only"
 
-__all__ = ["FRAMES_ONLY", "ROBOT_IDS", "SchemaMismatch", "StoreBase", "is_out_of_space"]
+__all__ = ["FRAMES_ONLY", "ROBOT_IDS", "SchemaMismatch", "StoreBase", "is_out_of_space", "newest"]
 
 log = logging.getLogger(__name__)
 
 #: SQLite result codes (low byte of an extended code) of a write that found no room: SQLITE_IOERR,
 #: SQLITE_FULL.
 _NO_ROOM_CODES = (10, 13)
+
+
+def newest(model: Any, *where: ColumnElement[bool]) -> Select[Any]:
+    """The newest row of ``model`` (highest id) meeting ``where``: rows of baselines, geometries and
+    alerts are appended, never overwritten, so a robot's current one is its newest."""
+    return select(model).where(*where).order_by(model.id.desc()).limit(1)
 
 
 def is_out_of_space(err: BaseException) -> bool:

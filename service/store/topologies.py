@@ -31,7 +31,7 @@ from bodyschema.topology import Topology
 from service.db.models import Baseline, Robot, TopologyRow
 from service.store.alerts import resolve_open_alerts
 from service.store.robots import robot_id
-from service.store.schema import StoreBase
+from service.store.schema import StoreBase, newest
 
 __all__ = ["BASELINE_SOURCES", "TopologiesMixin", "TopologyRecord"]
 
@@ -196,9 +196,7 @@ class TopologiesMixin(StoreBase):
         """The current baseline, or None when the robot has none yet."""
         with self._session() as s:
             rid = robot_id(s, robot)
-            r = s.scalar(
-                select(Baseline).where(Baseline.robot_id == rid).order_by(Baseline.id.desc()).limit(1)
-            )
+            r = s.scalar(newest(Baseline, Baseline.robot_id == rid))
             return None if r is None else _baseline_record(r, robot)
 
     def approve_baseline(

@@ -47,6 +47,16 @@ class Farm:
         return {"changed": True, "findings": [{"kind": kind, "imu": "imu0", "confidence": 1.0}]}
 
 
+class StrictFarm(Farm):
+    """A :class:`Farm` that answers like the real farm does for arguments its simulator does not take."""
+
+    def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
+        if kind == "link_lost":  # the message simulators.damage gives for a TypeError of its handler
+            self.calls.append((robot, kind, dict(params)))
+            raise ValueError(f"bad arguments for {kind}: _{kind}() got an unexpected keyword argument 'x'")
+        return super().apply_damage(robot, kind, params)
+
+
 class Worker:
     """A monitoring worker that records retrain requests and approves through the store."""
 

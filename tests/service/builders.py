@@ -7,7 +7,7 @@ They live here, not in a test module, so that no test file imports another (test
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -161,19 +161,3 @@ def frame_batch(
         np.zeros((n, len(imus), 3)),
         np.zeros((n, len(imus), 3)),
     )
-
-
-class StrictFarm:
-    """Simulates ``sim``; answers like the real farm does for arguments its simulator does not take."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, str, dict[str, Any]]] = []
-
-    def simulates(self, robot: str) -> bool:
-        return robot == "sim"
-
-    def apply_damage(self, robot: str, kind: str, params: Mapping[str, Any]) -> dict[str, Any]:
-        self.calls.append((robot, kind, dict(params)))
-        if kind == "link_lost":  # the message simulators.damage gives for a TypeError of its handler
-            raise ValueError(f"bad arguments for {kind}: _{kind}() got an unexpected keyword argument 'x'")
-        return {"changed": True, "findings": [{"kind": kind, "confidence": 1.0}]}

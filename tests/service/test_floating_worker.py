@@ -10,7 +10,7 @@ API says the robot has a (floating) baseline.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,52 +19,15 @@ from fastapi.testclient import TestClient
 
 from bodyschema.faults import inject, parse_fault
 from bodyschema.floating_health import FloatingBaseline
-from bodyschema.recording import Recording
 from service.api import create_app
 from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import Worker
 from tests.robot_data import MAPS, ROBOTS
-
-LOG = ROBOTS / "icub-walking" / "sync-walkingFrontAndBackGoodTrial.mat"
-ROBOT = "icub"
+from tests.service.floating_runs import ROBOT, feed, icub_log, no_fixed_fit, ticking
 
 pytestmark = pytest.mark.slow
-
-
-def _icub() -> Recording:
-    from sim2real.robot_logs import import_log
-
-    if not LOG.is_file():
-        pytest.skip(f"robot log missing: {LOG}")
-    return import_log(LOG, MAPS / "icub-walking.toml", "mat")[0]
-
-
-def _feed(store: Store, rec: Recording) -> None:
-    """``rec``'s frames into the store in 1 s batches (what a live source writes)."""
-    n = round(rec.sample_rate)
-    for s in range(0, rec.n_samples, n):
-        sl = slice(s, s + n)
-        batch = FrameBatch(
-            ROBOT, rec.t[sl], rec.joint_names, rec.q[sl], rec.imu_names, rec.acc[sl], rec.gyro[sl]
-        )
-        store.write(batch)
-
-
-def ticking(start: float = 1000.0, step: float = 1e-3) -> Callable[[], float]:
-    """A wall clock that moves ``step`` s per reading (the worker's idle rule follows the cycles)."""
-    now = [start]
-
-    def clock() -> float:
-        now[0] += step
-        return now[0]
-
-    return clock
-
-
-def _no_fixed_fit(rec: Recording, method: str) -> None:
-    raise AssertionError("a floating-base robot must not reach the fixed-base estimator")
 
 
 @pytest.fixture
@@ -75,7 +38,7 @@ def store(tmp_path: Path) -> Iterator[Store]:
 
 
 def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
-    rec = _icub()
+    rec = icub_log()
     settings = Settings(
         database_url="sqlite://",
         window_seconds=10.0,
@@ -83,10 +46,10 @@ def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
         alert_hysteresis_m=2,
         worker_interval_seconds=0.05,
     )
-    worker = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
+    worker = Worker(store, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
     t0 = float(rec.t[0])
 
-    _feed(store, rec.window(t0, t0 + 30))
+    feed(store, rec.window(t0, t0 + 30))
     res = worker.run_cycle()[ROBOT]
     assert res.baseline_set and res.skipped == ""
     fr = worker.floating.robots[ROBOT]
@@ -97,14 +60,14 @@ def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
     assert "encoder offsets and a turned IMU undetermined" in waits[0]["what"]
 
     for s in (30, 40, 50):  # untouched windows: judged, nothing found, no alert
-        _feed(store, rec.window(t0 + s, t0 + s + 10))
+        feed(store, rec.window(t0 + s, t0 + s + 10))
         res = worker.run_cycle()[ROBOT]
         assert res.skipped == "" and res.diff is not None, s
         assert res.diff.findings == (), s
     assert store.alerts(ROBOT) == []
 
     bad = inject(rec.window(t0 + 60, t0 + 80), parse_fault("encoder_frozen:joint=l_knee"))
-    _feed(store, bad.window(t0 + 60, t0 + 70))
+    feed(store, bad.window(t0 + 60, t0 + 70))
     res = worker.run_cycle()[ROBOT]
     assert res.diff is not None
     assert [(f.kind, f.part) for f in res.diff.findings] == [("encoder_fault", "joint:l_knee")]
@@ -128,7 +91,7 @@ def test_go1_is_floating_once_its_fixed_base_fits_keep_a_turning_imu_on_no_joint
     t0, span = float(rec.t[0]), float(rec.t[-1] - rec.t[0]) + 1 / rec.sample_rate
     results = []
 
-    def feed(c: int) -> None:  # 10 s per cycle, the 25 s log looped on in device time
+    def feed_cycle(c: int) -> None:  # 10 s per cycle, the 25 s log looped on in device time
         for s in range(10 * c, 10 * c + 10):
             loop, at = divmod(float(s), span)
             part = rec.window(t0 + at, t0 + at + 1.0)
@@ -138,7 +101,7 @@ def test_go1_is_floating_once_its_fixed_base_fits_keep_a_turning_imu_on_no_joint
             )
 
     for c in range(6):
-        feed(c)
+        feed_cycle(c)
         results.append(worker.run_cycle()["go1"])
     assert [r.baseline_set for r in results] == [False, False, False, True, False, False]
     assert worker.floating.robots["go1"].rule.startswith("the fixed-base fit of 3 cycles in a row")
@@ -148,8 +111,8 @@ def test_go1_is_floating_once_its_fixed_base_fits_keep_a_turning_imu_on_no_joint
 
     # restarted on the same store: the kept baseline and its rule judge the first window, without the
     # fixed-base fits that found the rule
-    again = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking(5000.0))  # type: ignore[arg-type]
-    feed(6)
+    again = Worker(store, settings, estimator=no_fixed_fit, clock=ticking(5000.0))  # type: ignore[arg-type]
+    feed_cycle(6)
     res = again.run_cycle()["go1"]
     assert not res.baseline_set and res.diff is not None and res.diff.findings == ()
     assert again.floating.robots["go1"].rule == worker.floating.robots["go1"].rule
@@ -173,7 +136,7 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
     """Learned once, read back by a restarted worker on the same SQLite file: its first cycle judges
     (no baseline learned again, none stored again), a frozen knee still raises its alert, and the
     API reports a floating baseline."""
-    rec = _icub()
+    rec = icub_log()
     url = f"sqlite:///{tmp_path / 'restart.db'}"
     settings = Settings(
         database_url=url,
@@ -184,8 +147,8 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
     )
     t0 = float(rec.t[0])
     first = open_store(url)
-    worker = Worker(first, settings, estimator=_no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
-    _feed(first, rec.window(t0, t0 + 30))
+    worker = Worker(first, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
+    feed(first, rec.window(t0, t0 + 30))
     assert worker.run_cycle()[ROBOT].baseline_set
     learned = worker.floating.robots[ROBOT]
     assert learned.baseline is not None
@@ -195,8 +158,8 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
 
     store = open_store(url)
     try:
-        again = Worker(store, settings, estimator=_no_fixed_fit, clock=ticking(2000.0))  # type: ignore[arg-type]
-        _feed(store, rec.window(t0 + 30, t0 + 40))
+        again = Worker(store, settings, estimator=no_fixed_fit, clock=ticking(2000.0))  # type: ignore[arg-type]
+        feed(store, rec.window(t0 + 30, t0 + 40))
         res = again.run_cycle()[ROBOT]
         assert not res.baseline_set and res.skipped == "" and res.diff is not None
         assert res.diff.findings == ()
@@ -210,7 +173,7 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
         assert store.floating_baseline(ROBOT) == kept  # judged on: nothing learned or stored again
 
         bad = inject(rec.window(t0 + 40, t0 + 60), parse_fault("encoder_frozen:joint=l_knee"))
-        _feed(store, bad.window(t0 + 40, t0 + 50))
+        feed(store, bad.window(t0 + 40, t0 + 50))
         res = again.run_cycle()[ROBOT]
         assert [(t.kind, t.part, t.state) for t in res.pending] == [
             ("encoder_fault", "joint:l_knee", "pending")

@@ -25,7 +25,8 @@ from service.ingest.farm import farm_robot_names
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.service.builders import StrictFarm, frame_batch, frames_body
+from tests.service.access import StrictFarm
+from tests.service.builders import frame_batch, frames_body
 
 SETTINGS = Settings(database_url="sqlite://")
 

@@ -23,7 +23,8 @@ from service.ingest.base import Source
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
 from service.store import Store, open_store
-from tests.service.builders import StrictFarm, frame_batch, frames_body
+from tests.service.access import StrictFarm
+from tests.service.builders import frame_batch, frames_body
 
 URL = "/api/v1/robots/arm/frames"
 SETTINGS = Settings(database_url="sqlite://", max_joints_per_robot=4, max_imus_per_robot=3)
