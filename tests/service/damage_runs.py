@@ -3,9 +3,9 @@
 Each robot runs in the simulated farm under the ``robot`` sensing preset (multi-rate, quantized
 position-only encoders on their own clock, low-passed IMUs, skew, drift, drops), its frames go into a
 real :class:`~service.store.Store` on an SQLite file, and a :class:`~service.worker.Worker` with the
-production settings (30 s window, a cycle every 5 s of device time, K=3, M=2) learns the baseline
-and watches it. Then one damage is injected and cycles run until the first alert. :func:`check`
-asserts:
+production settings (30 s window, a cycle every 5 s of device time, K=3, M=2; the geometry's
+estimates only where asked for, :func:`run_robot`) learns the baseline and watches it. Then one
+damage is injected and cycles run until the first alert. :func:`check` asserts:
 
 * the nominal run (no damage) raises no alert, ever;
 * after a damage, the first alert raised is of the injected kind and names the injected part,
@@ -135,13 +135,20 @@ def run_robot(
     damage_kwargs: dict[str, dict[str, Any]] | None = None,
     settings: Settings | None = None,
     healthy_cycles: int = 1,
+    geometry: bool = False,
 ) -> RobotRuns:
     """Run the healthy history, the nominal continuation and each damage of ``kinds`` (see the module
     doc) for one catalog robot; a damage run stops at its first alert. ``damage_kwargs`` gives a kind's
-    parts and magnitude (default: the robot's seeded picks); ``settings`` default to production's."""
+    parts and magnitude (default: the robot's seeded picks); ``settings`` default to production's,
+    with the geometry's estimates only when ``geometry``: the damages of :data:`DAMAGES` change the
+    structure, which the diff finds and the geometry then does not judge, while its first estimate
+    (kept, never compared within these runs) cost half a robot's CPU time; the geometry's own kinds run
+    with it on (tests/service/test_drift_worker.py)."""
     cpu0 = time.process_time()
     # production window, interval, K and M
-    settings = settings or Settings(database_url="sqlite://")
+    settings = settings or Settings(
+        database_url="sqlite://", **({} if geometry else {"kinematics_interval_cycles": 0})
+    )
     interval = settings.worker_interval_seconds
     farm = Farm({ROBOT: catalog_name}, seed=seed, sensing=sensing)
     path = tmp / f"{catalog_name}-{sensing}.db"

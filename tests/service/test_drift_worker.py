@@ -76,6 +76,7 @@ def runs(drift_dir: Path) -> RobotRuns:
         post_cycles=POST_CYCLES,
         nominal_cycles=POST_CYCLES,
         healthy_cycles=HEALTHY_CYCLES,
+        geometry=True,
     )
 
 
