@@ -68,7 +68,7 @@ def raised(service: Service) -> set[tuple[str, str]]:
 class Service:
     """``bodyhealth serve --demo`` at 20× in a process of its own, with a client on its API."""
 
-    def __init__(self, tmp: Path, db_url: str) -> None:
+    def __init__(self, tmp: Path, db_url: str, geometry: bool = True) -> None:
         self.err_path = tmp / "serve.err"
         env = {
             **os.environ,
@@ -76,6 +76,7 @@ class Service:
             "BODYHEALTH_WINDOW_SECONDS": "20",
             "BODYHEALTH_ALERT_HYSTERESIS_M": "2",
             "BODYHEALTH_BASELINE_REPEAT_K": "3",
+            **({} if geometry else {"BODYHEALTH_KINEMATICS_INTERVAL_CYCLES": "0"}),
         }
         self.proc, self.url = start_service(
             db_url, "--demo", "--speed", "20", err=self.err_path, env=env, cwd=tmp
@@ -102,9 +103,10 @@ READY_S, BASELINES_S, ALERT_S, STOP_S = 90.0, 180.0, 120.0, 60.0
 
 
 @contextmanager
-def demo_service(db_url: str, tmp_path: Path) -> Iterator[Service]:
-    """The demo service on ``db_url``, killed on the way out if it is still running."""
-    svc = Service(tmp_path, db_url)
+def demo_service(db_url: str, tmp_path: Path, geometry: bool = True) -> Iterator[Service]:
+    """The demo service on ``db_url``, killed on the way out if it is still running; ``geometry``
+    False turns the geometry's estimates off (about half the service's CPU time on these robots)."""
+    svc = Service(tmp_path, db_url, geometry)
     try:
         yield svc
     finally:

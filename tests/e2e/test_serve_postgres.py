@@ -3,7 +3,8 @@ robot's true body learned, an IMU's and a joint's damage each raise their alert 
 healthy robots raise nothing, SIGTERM stops it (tests/e2e/demo.py). Every damage kind through the
 whole process is the SQLite run's (tests/e2e/test_serve.py); every kind on every robot through the
 worker's real cycle is the damage suite's (tests/service/test_damage_worker*.py); the store's
-PostgreSQL paths are the service tests'.
+PostgreSQL paths are the service tests'. The geometry's estimates are off here (both damages change
+the structure); the SQLite run has them on.
 """
 
 from __future__ import annotations
@@ -25,5 +26,5 @@ PG_DAMAGES = [d for d in DAMAGES if d[0] in ("imu_moved", "link_lost")]
 )
 def test_demo_learns_baselines_and_alerts_on_each_damage(e2e_db_url: str, tmp_path: Path) -> None:
     assert [d[0] for d in PG_DAMAGES] == ["imu_moved", "link_lost"]
-    with demo_service(e2e_db_url, tmp_path) as service:
+    with demo_service(e2e_db_url, tmp_path, geometry=False) as service:
         check_demo(service, PG_DAMAGES)
