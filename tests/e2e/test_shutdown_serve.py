@@ -15,7 +15,9 @@ That is 0.1 + max(2.4, 1.4, 1.3) + 0.6 = 3.1 s at most on an idle machine (measu
 process exits, joins and a last estimate, all CPU-bound, and with L runnable tasks on C cores each gets
 C/L of a core (measured at load 11 on 2 cores: 7.5 s). Before, Dask's own close waited 4 s for a busy
 worker before killing it, after the worker and before the pipeline, and the service took 5 to 12 s;
-that wait is checked apart from the load: a worker is killed after the service's 1 s.
+that wait is checked apart from the load: a worker is killed after the service's 1 s. A killed worker
+holding torch's threads can take the kernel 15-20 s to end on a loaded machine, and the interpreter's
+exit would join it: the process leaves without that join (cli/commands/serve.py).
 """
 
 from __future__ import annotations
