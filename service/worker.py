@@ -27,9 +27,8 @@ One cycle, for every robot the store knows:
    cleared) and a network retrain is asked for; a network topology that shows no change there drops
    it (:func:`service.monitor.confirmation.confirm`). Every ``kinematics_interval_cycles`` cycles
    (staggered per robot; sooner once its data ran N intervals, when cycles overrun), when the diff
-   holds no finding,
-   the robot's geometry is estimated (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes,
-   IMU lever arms): the first estimate
+   holds no finding, the robot's geometry is estimated
+   (:func:`bodyschema.kinematics.estimate_kinematics`: joint axes, IMU lever arms): the first estimate
    under a baseline is kept as its geometry (:mod:`service.store.kinematics`), later ones are compared
    with it (:func:`bodyschema.lever_pool.stored_drift`: the two estimates' axes, turns and dead
    bands; lever arms against those of the first ``kinematics_pool_base`` estimates pooled: the mean

@@ -77,7 +77,7 @@ class GeometryDrift:
         if not n:
             return False
         last = self.state(robot).geometry_last
-        if last is None or cycle < last[0] or window_end < last[1]:
+        if last is None or window_end < last[1]:
             return (cycle + zlib.crc32(robot.encode())) % n == 0
         span = n * self.settings.worker_interval_seconds
         return cycle - last[0] >= n or window_end - last[1] >= span - 1e-9
