@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing
+import multiprocessing.util
 import os
 import sys
 from pathlib import Path
@@ -118,13 +119,18 @@ def _leave_children(code: int) -> None:
     can take long to tear down a killed worker that holds torch's threads, and multiprocessing's exit
     hook joins every child without a timeout: at load 5 on 2 cores the process exited 16 to 21 s after
     "service stopped", all of it in that join (while at rest it takes 0.1 s). Nothing is left to do
-    for them, so the process leaves without waiting; init reaps them."""
+    for them, so the process leaves without waiting; init reaps them. Leaving skips that hook, so its
+    first step runs here: the finalizers of priority 0 unlink the semaphores of the cluster's queues,
+    which the resource tracker would otherwise report as leaked on stderr."""
     left = multiprocessing.active_children()
     if not left:
         return
     logging.getLogger(__name__).info(
         "exiting without waiting for %d child process(es) still ending", len(left)
     )
+    # The exit hook's own first step (a private helper: multiprocessing has no public call that runs the
+    # finalizers without also joining the children).
+    multiprocessing.util._run_finalizers(0)  # type: ignore[attr-defined]
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
