@@ -77,14 +77,29 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
         for part, win in targets:
             spec = f"{fault}:" + tmpl.format(j=part, i=part)
             d, cpu = _cpu(floating_diff, base, inject(win, parse_fault(spec)))
-            ranks = [k + 1 for k, f in enumerate(d.findings) if f.kind == kind and part in (f.joint, f.imu)]
+            ranks = [k + 1 for k, f in enumerate(d.findings) if f.kind == kind and _names(f, part)]
             rows.append({
                 "fault": name, "spec": spec, "window_start_s": round(float(win.t[0] - rec.t[0]), 2),
                 "expected": kind, "found": bool(ranks), "rank": ranks[0] if ranks else None,
                 "first": d.findings[0].to_json() if d.findings else None, "cpu_s": round(cpu, 3),
-                "undetermined": _undetermined(fault, base, ranks),
+                "undetermined": _undetermined(fault, base, ranks) or _between(d.findings, kind, part),
             })  # fmt: skip
     return rows
+
+
+def _names(f, part: str) -> bool:
+    """Whether finding ``f`` names ``part`` alone (no rival part fits as well)."""
+    return part in (f.joint, f.imu) and not f.candidates
+
+
+def _between(findings, kind: str, part: str) -> str | None:
+    """Why ``part`` was left undetermined: a finding of the right kind holds it among parts the data
+    fit equally well (None: none does)."""
+    for f in findings:
+        parts = {f.part, *f.candidates}
+        if f.kind == kind and f.candidates and part in {p.split(":", 1)[1] for p in parts}:
+            return f"{kind} on one of {', '.join(sorted(p.split(':', 1)[1] for p in parts))}: they fit alike"
+    return None
 
 
 def _undetermined(fault: str, base, ranks: list[int]) -> str | None:

@@ -36,7 +36,12 @@ ALERT_KINDS: tuple[str, ...] = (*DAMAGE_KINDS, *KINEMATIC_KINDS)
 
 @dataclass(frozen=True)
 class Finding:
-    """One typed difference. ``imu`` or ``joint`` names the part; ``from_``/``to`` the old/new value."""
+    """One typed difference. ``imu`` or ``joint`` names the part; ``from_``/``to`` the old/new value.
+
+    ``candidates`` are the other parts (``imu:<name>``/``joint:<name>`` keys, as :attr:`part`) that
+    explain the data within its error model as well as the named one: the damage is decided, which
+    part carries it is not, and ``detail`` says what motion would decide.
+    """
 
     kind: str
     imu: str | None = None
@@ -45,6 +50,7 @@ class Finding:
     to: str | None = None
     confidence: float = 1.0
     detail: str = ""
+    candidates: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in FINDING_KINDS:
@@ -68,6 +74,8 @@ class Finding:
         out["confidence"] = round(float(self.confidence), 4)
         if self.detail:
             out["detail"] = self.detail
+        if self.candidates:
+            out["candidates"] = list(self.candidates)
         return out
 
     @classmethod
@@ -80,6 +88,7 @@ class Finding:
             to=d.get("to"),
             confidence=float(d.get("confidence", 1.0)),
             detail=d.get("detail", ""),
+            candidates=tuple(str(c) for c in d.get("candidates", ())),
         )
 
 

@@ -252,6 +252,8 @@ def wait_text(w: dict[str, Any]) -> str:
 
 def _finding_text(f: dict[str, Any]) -> str:
     part = f.get("imu") or f.get("joint") or "?"
+    if f.get("candidates"):  # the damage is decided, its part is not
+        part = " or ".join([part, *(str(c).split(":", 1)[-1] for c in f["candidates"])])
     if "to" in f:
         return f"{f['kind']} {part} ({f.get('from') or 'base'} → {f.get('to') or 'base'})"
     return f"{f['kind']} {part}"

@@ -105,5 +105,10 @@ def test_diff_json():
     d2 = Diff(findings=(Finding(kind="imu_moved", imu="imu3", from_="j2", to="j4", confidence=0.97),))
     assert d2.to_json()["changed"] is True
     assert Diff.from_json(d2.to_json()) == d2
+    # a decided damage on an undetermined part: the rival parts travel with it, and only when there are any
+    f = Finding(kind="encoder_fault", joint="r_ankle_roll", confidence=0.6, candidates=("joint:r_hip_roll",))
+    assert f.to_json()["candidates"] == ["joint:r_hip_roll"]
+    assert Finding.from_json(f.to_json()) == f
+    assert "candidates" not in Finding(kind="encoder_fault", joint="j1").to_json()
     with pytest.raises(ValueError, match="unknown finding kind"):
         Finding(kind="broken")
