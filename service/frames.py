@@ -25,6 +25,7 @@ import numpy as np
 
 __all__ = [
     "ACC_LIMIT",
+    "CHANNEL_LIMIT",
     "GYRO_LIMIT",
     "NAME_PATTERN",
     "NAME_RULE",
@@ -62,6 +63,9 @@ GYRO_LIMIT = 4 * 2000 * 3.141592653589793 / 180.0
 Q_LIMIT = 1e6
 #: |qd|, rad/s (or m/s): about 95,000 rpm, beyond any joint and any motor shaft.
 QD_LIMIT = 1e4
+#: |channel|: an extra channel's value in its own unit (foot forces in N or a sensor's raw counts): a
+#: 100 kN load cell, or 10^6 counts of a 20-bit converter, stays below it.
+CHANNEL_LIMIT = 1e6
 #: Each stream's bound and unit, as :meth:`FrameBatch.validate` checks them.
 _LIMITS: dict[str, tuple[float, str]] = {
     "t": (T_LIMIT, "s"),
@@ -70,6 +74,7 @@ _LIMITS: dict[str, tuple[float, str]] = {
     "qd": (QD_LIMIT, "rad/s"),
     "acc": (ACC_LIMIT, "m/s²"),
     "gyro": (GYRO_LIMIT, "rad/s"),
+    "channels": (CHANNEL_LIMIT, "(own unit)"),
 }
 
 
@@ -173,6 +178,10 @@ class FrameBatch:
     Multi-rate (``t_q`` given): ``t_q`` (T_q,) stamps the encoder stream on the encoders' own clock,
     ``q`` and the optional ``qd`` (rad/s) are (T_q,N) on it, and ``t`` stamps the IMU stream only.
     Single-clock batches may carry ``qd`` (T,N) on ``t``.
+
+    ``channels`` (T,E), named by ``channel_names``, are extra scalar series on the IMU stamps ``t``
+    (a walking robot's foot forces: the floating-base checks find its contact phases in them). The
+    store keeps them with the window and reads them back as the recording's ``extra``.
     """
 
     robot: str
@@ -184,6 +193,8 @@ class FrameBatch:
     gyro: np.ndarray
     t_q: np.ndarray | None = None
     qd: np.ndarray | None = None
+    channel_names: tuple[str, ...] = ()
+    channels: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -212,8 +223,12 @@ class FrameBatch:
             check_names(self.robot, tuple(self.joint_names), tuple(self.imu_names))
         except TypeError:  # an unhashable name
             raise FrameError("joint and IMU names must be non-empty strings") from None
+        for n in self.channel_names:
+            check_name(n, "channel name")
+        if len(set(self.channel_names)) != len(self.channel_names):
+            raise FrameError("channel_names must be unique")
         self._check_shapes()
-        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
+        for name in ("t", "t_q", "q", "qd", "acc", "gyro", "channels"):
             v = getattr(self, name)
             if v is not None:
                 check_values(name, v)
@@ -239,3 +254,9 @@ class FrameBatch:
             v = getattr(self, name)
             if v.shape != (T, K, 3):
                 raise FrameError(f"{name} must have shape {(T, K, 3)}, got {v.shape}")
+        E = len(self.channel_names)
+        if (self.channels is None) != (E == 0) or (E and np.shape(self.channels) != (T, E)):
+            raise FrameError(
+                f"channels must have shape {(T, E)} (on t, one column per channel name), "
+                f"got {None if self.channels is None else np.shape(self.channels)}"
+            )

@@ -139,6 +139,9 @@ class Chunk(Base):
     n_q: Mapped[int | None]
     t_q: Mapped[bytes | None] = mapped_column(LargeBinary)
     qd: Mapped[bytes | None] = mapped_column(LargeBinary)
+    #: extra channels on ``t`` (foot forces): their names, and ``n`` x channels float64 (or NULL)
+    channel_names: Mapped[list[str] | None]
+    channels: Mapped[bytes | None] = mapped_column(LargeBinary)
 
 
 class TopologyRow(Base):

@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import re
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -34,11 +35,44 @@ from pathlib import Path
 import numpy as np
 
 from bodyschema.recording import Recording
-from service.frames import FrameBatch, FrameError, check_names
+from service.frames import NAME_PATTERN, FrameBatch, FrameError, check_names
 from service.ingest.base import Source
 from simulators.recording_io import load_recording
 
-__all__ = ["ReplaySource", "recording_batch"]
+_NAME = re.compile(NAME_PATTERN)
+
+__all__ = ["ReplaySource", "recording_batch", "recording_channels"]
+
+
+def recording_channels(rec: Recording) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """The extras of ``rec`` that run along its IMU stamps ``t``, as a batch's channels: names and a
+    (T, E) array (None when there are none). A (T, k) extra becomes ``k`` channels ``name.0`` ...
+    (a channel is one scalar series); extras of other lengths (flags, calibrations), with NaN or Inf,
+    or with names a channel may not have stay with the file.
+
+    >>> rec = Recording(t=np.arange(3) * 0.01, joint_names=["j"], q=np.zeros((3, 1)), imu_names=["i"],
+    ...                 acc=np.zeros((3, 1, 3)), gyro=np.zeros((3, 1, 3)),
+    ...                 extra={"foot_force": np.ones((3, 2)), "floating_base": np.array([1])})
+    >>> recording_channels(rec)[0]
+    ('foot_force.0', 'foot_force.1')
+    """
+    names: list[str] = []
+    cols: list[np.ndarray] = []
+    for key in sorted(rec.extra):
+        v = np.asarray(rec.extra[key])
+        if v.dtype.kind not in "fiub" or v.shape[:1] != rec.t.shape or v.ndim > 2:
+            continue
+        v = v.reshape(v.shape[0], -1).astype(float)
+        keys = (
+            [key]
+            if v.shape[1] == 1 and rec.extra[key].ndim == 1
+            else [f"{key}.{i}" for i in range(v.shape[1])]
+        )
+        if not all(_NAME.fullmatch(k) for k in keys) or not np.isfinite(v).all():
+            continue
+        names += keys
+        cols += [v[:, i] for i in range(v.shape[1])]
+    return tuple(names), (np.stack(cols, axis=1) if cols else None)
 
 
 def recording_batch(
@@ -50,8 +84,11 @@ def recording_batch(
 ) -> FrameBatch:
     """Samples ``index`` of ``rec`` as a frame batch of ``robot`` (a recording without encoders gives
     N = 0 joints). A multi-rate recording gives a multi-rate batch: ``index`` picks IMU samples and
-    ``qindex`` (default: all) encoder samples; the encoders' own ``qd`` travels along."""
+    ``qindex`` (default: all) encoder samples; the encoders' own ``qd`` travels along, and so do the
+    extras along ``t`` (:func:`recording_channels`)."""
     t = rec.t[index]
+    cn, ch = recording_channels(rec)
+    channels = {"channel_names": cn, "channels": None if ch is None else ch[index]}
     if rec.t_q is not None:
         assert rec.q is not None  # a multi-rate recording always has encoders
         qi = slice(None) if qindex is None else qindex
@@ -66,11 +103,19 @@ def recording_batch(
             rec.gyro[index],
             t_q=t_q + t_offset if t_offset else t_q,
             qd=None if rec.qd is None else rec.qd[qi],
+            **channels,
         )
     q = rec.q[index] if rec.q is not None else np.zeros((t.shape[0], 0))
     names = rec.joint_names if rec.q is not None else ()
     return FrameBatch(
-        robot, t + t_offset if t_offset else t, names, q, rec.imu_names, rec.acc[index], rec.gyro[index]
+        robot,
+        t + t_offset if t_offset else t,
+        names,
+        q,
+        rec.imu_names,
+        rec.acc[index],
+        rec.gyro[index],
+        **channels,
     )
 
 
@@ -228,4 +273,6 @@ def _after(b: FrameBatch, t: float) -> FrameBatch | None:
         b.gyro[keep],
         t_q=None if b.t_q is None else b.t_q[keep_q],
         qd=None if b.qd is None else b.qd[keep_q],
+        channel_names=b.channel_names,
+        channels=None if b.channels is None else b.channels[keep],
     )

@@ -62,12 +62,14 @@ class PendingChunk:
     imu_names: tuple[str, ...]
     multirate: bool = False
     has_qd: bool = False
+    channel_names: tuple[str, ...] = ()
     t: list[np.ndarray] = field(default_factory=list)
     t_q: list[np.ndarray] = field(default_factory=list)
     q: list[np.ndarray] = field(default_factory=list)
     qd: list[np.ndarray] = field(default_factory=list)
     acc: list[np.ndarray] = field(default_factory=list)
     gyro: list[np.ndarray] = field(default_factory=list)
+    channels: list[np.ndarray] = field(default_factory=list)
     n: int = 0
     n_q: int = 0
 
@@ -91,6 +93,7 @@ class PendingChunk:
             and b.imu_names == self.imu_names
             and b.is_multirate == self.multirate
             and (b.qd is not None) == self.has_qd
+            and b.channel_names == self.channel_names
             and self.n + b.n_samples <= max_samples
         ):
             return False
@@ -112,6 +115,8 @@ class PendingChunk:
         self.t.append(b.t[sl])
         self.acc.append(b.acc[sl])
         self.gyro.append(b.gyro[sl])
+        if b.channels is not None:
+            self.channels.append(b.channels[sl])
         self.n += int(b.t[sl].shape[0])
         if self.multirate:
             assert b.t_q is not None
@@ -143,6 +148,8 @@ class PendingChunk:
             "n_q": self.n_q if self.multirate else None,
             "t_q": blob(self.t_q) if self.multirate else None,
             "qd": blob(self.qd) if self.has_qd else None,
+            "channel_names": list(self.channel_names) if self.channel_names else None,
+            "channels": blob(self.channels) if self.channel_names else None,
         }
 
 
@@ -164,9 +171,9 @@ def check_batch(i: int, b: Any) -> None:
     if not isinstance(b, FrameBatch):
         raise FrameError(f"batch {i}: expected a FrameBatch, got {type(b).__name__}")
     try:
-        for name in ("t", "t_q", "q", "qd", "acc", "gyro"):
+        for name in ("t", "t_q", "q", "qd", "acc", "gyro", "channels"):
             v = getattr(b, name)
-            if v is None and name in ("t_q", "qd"):
+            if v is None and name in ("t_q", "qd", "channels"):
                 continue
             if not isinstance(v, np.ndarray) or v.dtype.kind not in "fiu":
                 raise FrameError(f"{name} must be a numeric numpy array")
@@ -207,9 +214,9 @@ def _pieces(b: FrameBatch, max_samples: int) -> list[tuple[slice, slice | None]]
 
 
 def build_chunks(batches: Sequence[FrameBatch], max_samples: int) -> list[PendingChunk]:
-    """Group batches into chunks: per robot, consecutive batches with the same names, the same kind
-    (single-clock or multi-rate, with or without ``qd``) and increasing time share a chunk of at most
-    ``max_samples`` samples per stream (longer batches are split)."""
+    """Group batches into chunks: per robot, consecutive batches with the same names and channels, the
+    same kind (single-clock or multi-rate, with or without ``qd``) and increasing time share a chunk of
+    at most ``max_samples`` samples per stream (longer batches are split)."""
     done: list[PendingChunk] = []
     open_: dict[str, PendingChunk] = {}
     for b in batches:
@@ -221,7 +228,9 @@ def build_chunks(batches: Sequence[FrameBatch], max_samples: int) -> list[Pendin
             done.append(cur)
         pieces = _pieces(b, max_samples)
         for k, (sl, slq) in enumerate(pieces):
-            cur = PendingChunk(b.robot, b.joint_names, b.imu_names, b.is_multirate, b.qd is not None)
+            cur = PendingChunk(
+                b.robot, b.joint_names, b.imu_names, b.is_multirate, b.qd is not None, b.channel_names
+            )
             cur.add(b, sl, slq)
             if k < len(pieces) - 1:
                 done.append(cur)
@@ -250,8 +259,9 @@ def assemble(
     """Merge chunk rows into one Recording over ``start < t <= end`` (each stream by its own stamps)."""
     imu_parts: list[_Part] = []
     enc_parts: list[_Part] = []
+    chan_parts: list[_Part] = []
     multirate = False
-    for n, n_q, jn, kn, t_blob, tq_blob, q_blob, qd_blob, acc_blob, gyro_blob in rows:
+    for n, n_q, jn, kn, t_blob, tq_blob, q_blob, qd_blob, acc_blob, gyro_blob, cn, c_blob in rows:
         n, jn, kn = int(n), tuple(jn), tuple(kn)
         t = _decode(t_blob, (n,))
         m = (t > start) & (t <= end)
@@ -259,6 +269,8 @@ def assemble(
             sel = slice(None) if m.all() else m
             acc = _decode(acc_blob, (n, len(kn), 3))[sel]
             imu_parts.append(_Part(kn, t[sel], (acc, _decode(gyro_blob, (n, len(kn), 3))[sel])))
+            if c_blob is not None:
+                chan_parts.append(_Part(tuple(cn), t[sel], (_decode(c_blob, (n, len(cn)))[sel],)))
         if tq_blob is not None:
             multirate = True
             n_enc = int(n_q)
@@ -277,11 +289,27 @@ def assemble(
         imu_parts, "imus", order, keep="all" if partial_imus == "drop" else "any"
     )
     te, joints, (q, qd) = _merge_stream(enc_parts, "joints", order, keep="all")
+    extra = _channels(chan_parts, t, order)
     if not multirate:
-        return Recording(t=t, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro)
+        return Recording(t=t, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro, extra=extra)
     if not min(t[-1], te[-1]) > max(t[0], te[0]):
         return None  # the two streams do not overlap in this window
-    return Recording(t=t, t_q=te, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro)
+    return Recording(
+        t=t, t_q=te, joint_names=joints, q=q, qd=qd, imu_names=imus, acc=acc, gyro=gyro, extra=extra
+    )
+
+
+def _channels(parts: list[_Part], t: np.ndarray, order: dict[str, int]) -> dict[str, np.ndarray]:
+    """The window's extra channels on its IMU stamps ``t``, as ``Recording.extra``. A channel heard
+    on only part of the window is left out, as a joint is; so are all of them when some chunk of the
+    window carries none (a source that stopped sending them): a foot force with a hole would read
+    as a foot in the air."""
+    if not parts:
+        return {}
+    tc, names, (v,) = _merge_stream(parts, "channels", order, keep="all")
+    if v is None or tc.shape != t.shape or not np.array_equal(tc, t):
+        return {}
+    return {n: v[:, i] for i, n in enumerate(names)}
 
 
 def _merge_stream(

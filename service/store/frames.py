@@ -245,6 +245,8 @@ class FramesMixin(RobotsMixin):
                 Chunk.qd,
                 Chunk.acc,
                 Chunk.gyro,
+                Chunk.channel_names,
+                Chunk.channels,
             )
             q = q.where(Chunk.robot_id == rid, Chunk.epoch == (row.epoch if epoch is None else epoch))
             if math.isfinite(end):

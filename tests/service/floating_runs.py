@@ -3,12 +3,13 @@ batches, under a wall clock that follows the worker's cycles."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import pytest
 
 from bodyschema.recording import Recording
-from service.frames import FrameBatch
+from service.ingest.replay import recording_batch
 from service.store import Store
 from tests.robot_data import MAPS, ROBOTS
 
@@ -26,15 +27,13 @@ def icub_log() -> Recording:
     return import_log(LOG, MAPS / "icub-walking.toml", "mat")[0]
 
 
-def feed(store: Store, rec: Recording) -> None:
-    """``rec``'s frames into the store in 1 s batches (what a live source writes)."""
+def feed(store: Store, rec: Recording, forces: bool = True) -> None:
+    """``rec``'s frames into the store in 1 s batches (what a live source writes), with its foot
+    forces as channels (``forces``) or without (a source that has none)."""
     n = round(rec.sample_rate)
     for s in range(0, rec.n_samples, n):
-        sl = slice(s, s + n)
-        batch = FrameBatch(
-            ROBOT, rec.t[sl], rec.joint_names, rec.q[sl], rec.imu_names, rec.acc[sl], rec.gyro[sl]
-        )
-        store.write(batch)
+        batch = recording_batch(ROBOT, rec, slice(s, s + n))
+        store.write(batch if forces else dataclasses.replace(batch, channel_names=(), channels=None))
 
 
 def ticking(start: float = 1000.0, step: float = 1e-3) -> Callable[[], float]:

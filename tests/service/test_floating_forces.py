@@ -1,9 +1,8 @@
 """The floating-base path on windows that carry foot forces: the stance-chain and stance-tilt checks.
 
-The store keeps no foot forces yet (its chunks hold ``t``, ``q``, ``acc`` and ``gyro``), so here the
-store's windows get the iCub log's own ``lf_force_z``/``rf_force_z`` back, sample for sample, on the
-way to the worker: what the worker does once frames carry them. The robot is then floating by its
-forces; the baseline (45 s: three 15 s windows) learns the contact threshold, a stance chain and the
+The iCub log's frames carry its ``lf_force_z``/``rf_force_z`` as channels, as the replay source sends
+them; the store keeps them with the chunks and hands them back with each window. The robot is floating
+by its forces; the baseline (45 s: three 15 s windows) learns the contact threshold, a stance chain and the
 tilt model; untouched windows raise nothing; a 2 deg turn of the IMU on its mount raises a pending
 ``imu_rotated`` alert through the tilt check (every threshold from ``stance_tilt``'s error model at its
 default ``p_false``). The baseline, chain and tilt model included, survives a restart of the worker.
@@ -11,38 +10,20 @@ default ``p_false``). The baseline, chain and tilt model included, survives a re
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bodyschema.faults import inject, parse_fault
-from bodyschema.recording import Recording
 from service.settings import Settings
-from service.store import Store, open_store
+from service.store import open_store
 from service.worker import Worker
 from tests.service.floating_runs import ROBOT, feed, icub_log, no_fixed_fit, ticking
 
 FORCES = ("lf_force_z", "rf_force_z")
 
 pytestmark = pytest.mark.slow
-
-
-def _with_forces(store: Store, rec: Recording) -> None:
-    """``store.read_window`` hands out ``rec``'s foot forces at the window's stamps (the frames came
-    from ``rec``, so every stamp is one of its own)."""
-    read = store.read_window
-
-    def read_window(robot: str, seconds: float, *args: object, **kwargs: object) -> Recording | None:
-        w = read(robot, seconds, *args, **kwargs)  # type: ignore[arg-type]
-        if w is None:
-            return None
-        idx = np.searchsorted(rec.t, w.t)
-        assert np.array_equal(rec.t[idx], w.t)
-        return dataclasses.replace(w, extra={k: rec.extra[k][idx] for k in FORCES})
-
-    store.read_window = read_window  # type: ignore[method-assign]
 
 
 def test_icub_with_foot_forces_runs_the_tilt_check_and_keeps_it_across_a_restart(tmp_path: Path) -> None:
@@ -53,9 +34,12 @@ def test_icub_with_foot_forces_runs_the_tilt_check_and_keeps_it_across_a_restart
     imu = rec.imu_names[0]
     bad = inject(rec.window(t0 + 45, t0 + 90), parse_fault(f"imu_rotated:imu={imu},deg=2"))
     store = open_store(url)
-    _with_forces(store, rec)
     worker = Worker(store, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
     feed(store, rec.window(t0, t0 + 45))
+    w = store.read_window(ROBOT, 15.0)  # the forces come back from the store, sample for sample
+    assert w is not None and set(FORCES) <= set(w.extra)  # with the other time-long extras (wrenches)
+    idx = np.searchsorted(rec.t, w.t)
+    assert all(np.array_equal(w.extra[k], rec.extra[k][idx]) for k in FORCES)
     res = worker.run_cycle()[ROBOT]
     assert res.baseline_set
     fr = worker.floating.robots[ROBOT]
@@ -72,7 +56,6 @@ def test_icub_with_foot_forces_runs_the_tilt_check_and_keeps_it_across_a_restart
     store.close()
 
     store = open_store(url)  # a restart: the baseline with its chain and tilt model read back
-    _with_forces(store, rec)
     again = Worker(store, settings, estimator=no_fixed_fit, clock=ticking(3000.0))  # type: ignore[arg-type]
     try:
         feed(store, bad.window(t0 + 60, t0 + 75))  # the forces are the log's: only the IMU turned

@@ -1,7 +1,8 @@
 """The worker on a floating-base robot: the iCub walking log's frames in a real store.
 
-The store keeps no foot forces, so the robot is taken as floating-base because dropping the velocity
-jumps at its contacts leaves too few samples for a fixed-base fit (:mod:`service.monitor.floating`).
+The frames here carry no foot forces (a source without them), so the robot is taken as floating-base
+because dropping the velocity jumps at its contacts leaves too few samples for a fixed-base fit
+(:mod:`service.monitor.floating`); with them, see ``test_floating_forces``.
 The baseline is learned on ``baseline_repeat_k`` windows of frames; untouched windows raise nothing;
 a frozen knee encoder raises a pending ``encoder_fault`` alert on the knee. The baseline is kept in
 the store: a worker restarted on the same SQLite file judges on without learning it again, and the
@@ -49,25 +50,25 @@ def test_icub_baseline_quiet_windows_and_a_frozen_knee(store: Store) -> None:
     worker = Worker(store, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
     t0 = float(rec.t[0])
 
-    feed(store, rec.window(t0, t0 + 30))
+    feed(store, rec.window(t0, t0 + 30), forces=False)
     res = worker.run_cycle()[ROBOT]
     assert res.baseline_set and res.skipped == ""
     fr = worker.floating.robots[ROBOT]
     assert fr.rule.startswith("one IMU, and velocity jumps at contacts")
-    assert fr.baseline is not None and fr.baseline.force_threshold is None  # no foot forces stored
+    assert fr.baseline is not None and fr.baseline.force_threshold is None  # no foot forces sent
     waits = store.waiting(ROBOT)[ROBOT]["waits"]
     assert len(waits) == 1 and "judged by the floating-base checks" in waits[0]["what"]
     assert "encoder offsets and a turned IMU undetermined" in waits[0]["what"]
 
     for s in (30, 40, 50):  # untouched windows: judged, nothing found, no alert
-        feed(store, rec.window(t0 + s, t0 + s + 10))
+        feed(store, rec.window(t0 + s, t0 + s + 10), forces=False)
         res = worker.run_cycle()[ROBOT]
         assert res.skipped == "" and res.diff is not None, s
         assert res.diff.findings == (), s
     assert store.alerts(ROBOT) == []
 
     bad = inject(rec.window(t0 + 60, t0 + 80), parse_fault("encoder_frozen:joint=l_knee"))
-    feed(store, bad.window(t0 + 60, t0 + 70))
+    feed(store, bad.window(t0 + 60, t0 + 70), forces=False)
     res = worker.run_cycle()[ROBOT]
     assert res.diff is not None
     assert [(f.kind, f.part) for f in res.diff.findings] == [("encoder_fault", "joint:l_knee")]
@@ -148,7 +149,7 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
     t0 = float(rec.t[0])
     first = open_store(url)
     worker = Worker(first, settings, estimator=no_fixed_fit, clock=ticking())  # type: ignore[arg-type]
-    feed(first, rec.window(t0, t0 + 30))
+    feed(first, rec.window(t0, t0 + 30), forces=False)
     assert worker.run_cycle()[ROBOT].baseline_set
     learned = worker.floating.robots[ROBOT]
     assert learned.baseline is not None
@@ -159,7 +160,7 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
     store = open_store(url)
     try:
         again = Worker(store, settings, estimator=no_fixed_fit, clock=ticking(2000.0))  # type: ignore[arg-type]
-        feed(store, rec.window(t0 + 30, t0 + 40))
+        feed(store, rec.window(t0 + 30, t0 + 40), forces=False)
         res = again.run_cycle()[ROBOT]
         assert not res.baseline_set and res.skipped == "" and res.diff is not None
         assert res.diff.findings == ()
@@ -173,7 +174,7 @@ def test_icub_baseline_is_kept_in_the_store_across_a_restart(tmp_path: Path) -> 
         assert store.floating_baseline(ROBOT) == kept  # judged on: nothing learned or stored again
 
         bad = inject(rec.window(t0 + 40, t0 + 60), parse_fault("encoder_frozen:joint=l_knee"))
-        feed(store, bad.window(t0 + 40, t0 + 50))
+        feed(store, bad.window(t0 + 40, t0 + 50), forces=False)
         res = again.run_cycle()[ROBOT]
         assert [(t.kind, t.part, t.state) for t in res.pending] == [
             ("encoder_fault", "joint:l_knee", "pending")
