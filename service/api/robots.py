@@ -81,6 +81,8 @@ def _batch(robot: str, body: FramesIn) -> FrameBatch:
         tuple(body.imu_names),
         _array("acc", body.acc),
         _array("gyro", body.gyro),
+        channel_names=tuple(body.channel_names),
+        channels=_array("channels", body.channels) if body.channels else None,
     )
 
 

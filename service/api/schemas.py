@@ -16,7 +16,7 @@ from bodyschema.findings import DAMAGE_KINDS, KINEMATIC_KINDS
 from bodyschema.lever_pool import POOL_KEY
 from bodyschema.topology import Topology
 from service.diagnostics import DiagnosticStatus
-from service.frames import ACC_LIMIT, GYRO_LIMIT, NAME_PATTERN, NAME_RULE, Q_LIMIT, T_LIMIT
+from service.frames import ACC_LIMIT, CHANNEL_LIMIT, GYRO_LIMIT, NAME_PATTERN, NAME_RULE, Q_LIMIT, T_LIMIT
 from service.status import MAX_ALTERNATIVES, MethodsVerdict, RobotStatus
 from service.store import AlertRecord, RobotInfo, StoredFloating, StoredKinematics, TopologyRecord
 
@@ -54,6 +54,8 @@ Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Stamp = Annotated[float, Field(ge=0, le=T_LIMIT)]
 #: A joint position, rad or m (service.frames.Q_LIMIT).
 Position = Annotated[float, Field(ge=-Q_LIMIT, le=Q_LIMIT)]
+#: A value of an extra channel (a foot force), in the channel's own unit (service.frames.CHANNEL_LIMIT).
+ChannelValue = Annotated[float, Field(ge=-CHANNEL_LIMIT, le=CHANNEL_LIMIT)]
 #: One accelerometer triple, m/s² (service.frames.ACC_LIMIT per axis).
 Acc3 = Annotated[
     list[Annotated[float, Field(ge=-ACC_LIMIT, le=ACC_LIMIT)]], Field(min_length=3, max_length=3)
@@ -657,6 +659,14 @@ class FramesIn(BaseModel):
     )
     gyro: list[list[Gyro3]] = Field(
         description=f"(T, K, 3) angular rate, rad/s, each axis within ±{GYRO_LIMIT:.2f} (4 x 2000 deg/s)"
+    )
+    channel_names: list[PartName] = Field(
+        default_factory=list, description="names of extra series on t (foot forces), unique; optional"
+    )
+    channels: list[list[ChannelValue]] | None = Field(
+        default=None,
+        description=f"(T, channels) values of the named channels on t, each within ±{CHANNEL_LIMIT:g} in the "
+        "channel's own unit; given exactly when channel_names is not empty",
     )
 
 

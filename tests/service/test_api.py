@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -389,6 +390,24 @@ def test_frames_push_and_bad_frames(client: TestClient, sstore: Store) -> None:
     r = client.post("/api/v1/robots/arm/frames", json=back)
     assert r.status_code == 422 and "increasing" in r.json()["detail"]
     assert sstore.sample_count("arm") == before + 10
+
+
+def test_frames_with_channels_are_stored_and_bad_channels_refused(client: TestClient, sstore: Store) -> None:
+    body = {**_frames_body(4), "channel_names": ["lf_force_z"], "channels": [[0.0], [120.5], [300.0], [2.0]]}
+    assert client.post("/api/v1/robots/walker/frames", json=body).status_code == 201
+    w = sstore.read_between("walker", -math.inf, math.inf)
+    assert w is not None and list(w.extra["lf_force_z"]) == [0.0, 120.5, 300.0, 2.0]
+    later = [10.04 + k * 0.01 for k in range(4)]
+    for change, status in [
+        ({"channels": None}, 422),  # names without values
+        ({"channel_names": []}, 422),  # values without names
+        ({"channels": [[0.0, 1.0]] * 4}, 422),  # a column too many
+        ({"channels": [[2e6]] * 4}, 422),  # beyond the bound
+        ({"channel_names": ["lf force"]}, 422),
+    ]:
+        r = client.post("/api/v1/robots/walker/frames", json={**body, "t": later, **change})
+        assert r.status_code == status, (change, r.text)
+    assert sstore.sample_count("walker") == 4
 
 
 def test_oversized_body_is_413(client: TestClient, sstore: Store) -> None:
