@@ -14,7 +14,6 @@ from bodyschema.recording import Recording
 from service.frames import FrameBatch, FrameError
 from service.ingest.replay import ReplaySource, recording_batch
 from service.store import Store
-from tests.service.test_store_multirate import multirate_batch
 
 FORCES = ("lf_force_z", "rf_force_z")
 
@@ -87,12 +86,13 @@ def test_bad_channels_are_refused_and_nothing_stored_is_lost(
 
 def test_a_multirate_window_keeps_its_channels_on_the_imu_stamps(store: Store) -> None:
     rng = np.random.default_rng(3)
-    b = multirate_batch(rng, seconds=1.0)
-    f = rng.uniform(0.0, 400.0, (b.t.shape[0], 1))
-    store.write(dataclasses.replace(b, channel_names=("foot_force.0",), channels=f))
-    w = store.read_between("r1", -math.inf, math.inf)
-    assert w is not None and w.t_q is not None
-    assert np.array_equal(w.t, b.t) and np.array_equal(w.extra["foot_force.0"], f[:, 0])
+    b = _batch(rng, 0.0, n=100, names=("foot_force.0",))
+    tq = np.arange(250) / 250.0  # encoders at 250 Hz on a clock of their own
+    b = dataclasses.replace(b, t_q=tq, q=rng.normal(size=(250, 2)))
+    store.write(b)
+    w = store.read_between("walker", -math.inf, math.inf)
+    assert w is not None and w.t_q is not None and np.array_equal(w.t_q, tq)
+    assert np.array_equal(w.t, b.t) and np.array_equal(w.extra["foot_force.0"], b.channels[:, 0])
 
 
 def test_replay_sends_the_time_long_extras_as_channels() -> None:
