@@ -78,11 +78,12 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
             spec = f"{fault}:" + tmpl.format(j=part, i=part)
             d, cpu = _cpu(floating_diff, base, inject(win, parse_fault(spec)))
             ranks = [k + 1 for k, f in enumerate(d.findings) if f.kind == kind and _names(f, part)]
+            why = None if ranks else _undetermined(fault, base) or _between(d.findings, kind, part)
             rows.append({
                 "fault": name, "spec": spec, "window_start_s": round(float(win.t[0] - rec.t[0]), 2),
                 "expected": kind, "found": bool(ranks), "rank": ranks[0] if ranks else None,
                 "first": d.findings[0].to_json() if d.findings else None, "cpu_s": round(cpu, 3),
-                "undetermined": _undetermined(fault, base, ranks) or _between(d.findings, kind, part),
+                "undetermined": why,
             })  # fmt: skip
     return rows
 
@@ -102,9 +103,9 @@ def _between(findings, kind: str, part: str) -> str | None:
     return None
 
 
-def _undetermined(fault: str, base, ranks: list[int]) -> str | None:
+def _undetermined(fault: str, base) -> str | None:
     """Why a fault the recording cannot show was not found (None: it could be)."""
-    if ranks or fault not in ("encoder_offset", "imu_rotated") or base.tilt is not None:
+    if fault not in ("encoder_offset", "imu_rotated") or base.tilt is not None:
         return None
     return "no flat-foot stance chain: no leg predicts the gravity the IMU reads"
 

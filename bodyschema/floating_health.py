@@ -362,5 +362,6 @@ def floating_diff(
     enc = _encoders(cur, base, opts)
     chain = [f for f in _chain_checks(cur, base, opts) if f.joint not in {e.joint for e in enc}]
     seen = {f.part for f in enc + chain}
-    tilt = [f for f in _tilt_checks(cur, base, opts) if f.part not in seen]
+    # a tilt that one of its candidate parts explains is that part's fault, already found
+    tilt = [f for f in _tilt_checks(cur, base, opts) if not {f.part, *f.candidates} & seen]
     return Diff(findings=tuple(found + enc + chain + tilt))

@@ -123,9 +123,7 @@ def test_a_repeated_test_id_fails_collection(tmp_path: Path) -> None:
 
 #: Test files that still import another one, and which: a file is dropped from here once it takes what it
 #: needs from a shared module.
-IMPORTS_A_TEST_FILE = {
-    "tests/e2e/test_dashboard_demo.py": {"tests.e2e.test_dashboard"},
-}
+IMPORTS_A_TEST_FILE: dict[str, set[str]] = {}
 
 
 def imported_test_modules(source: str, module: str) -> set[str]:

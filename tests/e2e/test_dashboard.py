@@ -22,12 +22,8 @@ from service.frames import FrameBatch
 from service.settings import Settings
 from service.store import Store, open_store
 from tests.e2e.browser import NEEDS_CHROMIUM
-from tests.e2e.conftest import browser
 from tests.e2e.processes import serve_in_thread
 from tests.service.geometry import geometry_json
-
-# tests/e2e/test_dashboard_demo.py takes the fixture and the marks from here
-__all__ = ["browser", "pytestmark"]
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, NEEDS_CHROMIUM]
 

@@ -8,11 +8,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
+from tests.e2e.browser import NEEDS_CHROMIUM
 from tests.e2e.processes import start_service
-from tests.e2e.test_dashboard import browser, pytestmark
 from tests.waits import cpu_bound
 
-__all__ = ["browser", "pytestmark"]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, NEEDS_CHROMIUM]
 
 
 def test_demo_dashboard_draws_every_robot_and_shows_an_injected_damage(
