@@ -81,14 +81,16 @@ def recording_batch(
     index: slice = slice(None),
     t_offset: float = 0.0,
     qindex: slice | None = None,
+    channels: tuple[tuple[str, ...], np.ndarray | None] | None = None,
 ) -> FrameBatch:
     """Samples ``index`` of ``rec`` as a frame batch of ``robot`` (a recording without encoders gives
     N = 0 joints). A multi-rate recording gives a multi-rate batch: ``index`` picks IMU samples and
     ``qindex`` (default: all) encoder samples; the encoders' own ``qd`` travels along, and so do the
-    extras along ``t`` (:func:`recording_channels`)."""
+    extras along ``t`` (``channels``: :func:`recording_channels` of ``rec``, which a caller cutting one
+    recording into many batches computes once)."""
     t = rec.t[index]
-    cn, ch = recording_channels(rec)
-    channels = {"channel_names": cn, "channels": None if ch is None else ch[index]}
+    cn, ch = recording_channels(rec) if channels is None else channels
+    extra = {"channel_names": cn, "channels": None if ch is None else ch[index]}
     if rec.t_q is not None:
         assert rec.q is not None  # a multi-rate recording always has encoders
         qi = slice(None) if qindex is None else qindex
@@ -103,7 +105,7 @@ def recording_batch(
             rec.gyro[index],
             t_q=t_q + t_offset if t_offset else t_q,
             qd=None if rec.qd is None else rec.qd[qi],
-            **channels,
+            **extra,
         )
     q = rec.q[index] if rec.q is not None else np.zeros((t.shape[0], 0))
     names = rec.joint_names if rec.q is not None else ()
@@ -115,7 +117,7 @@ def recording_batch(
         rec.imu_names,
         rec.acc[index],
         rec.gyro[index],
-        **channels,
+        **extra,
     )
 
 
@@ -164,6 +166,7 @@ class ReplaySource(Source):
             raise ValueError(f"cannot replay {stem!r}: {err}{hint}") from err
         super().__init__(name or f"replay:{self.robot}")
         self.recording = rec
+        self._channels = recording_channels(rec)  # once, not per batch: they span the whole file
         self.speed = float(speed)
         self.loop = bool(loop)
         self.resume = bool(resume)
@@ -246,7 +249,9 @@ class ReplaySource(Source):
                             self._sleep(timeout)
                         break
                     self._sleep(wait)
-            batch = recording_batch(self.robot, self.recording, slice(a, b), self._offset, slice(aq, bq))
+            batch = recording_batch(
+                self.robot, self.recording, slice(a, b), self._offset, slice(aq, bq), self._channels
+            )
             if min(batch.t[0], batch.encoder_t[0]) <= self._start_after:  # the first chunk after a resume
                 batch = _after(batch, self._start_after)
             if batch is not None:
