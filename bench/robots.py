@@ -97,9 +97,9 @@ def _between(findings, kind: str, part: str) -> str | None:
     """Why ``part`` was left undetermined: a finding of the right kind holds it among parts the data
     fit equally well (None: none does)."""
     for f in findings:
-        parts = {f.part, *f.candidates}
-        if f.kind == kind and f.candidates and part in {p.split(":", 1)[1] for p in parts}:
-            return f"{kind} on one of {', '.join(sorted(p.split(':', 1)[1] for p in parts))}: they fit alike"
+        names = {p.split(":", 1)[1] for p in (f.part, *f.candidates)}
+        if f.kind == kind and f.candidates and part in names:
+            return f"{kind} on one of {', '.join(sorted(names))}: they fit alike"
     return None
 
 

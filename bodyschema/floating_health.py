@@ -27,7 +27,7 @@ Nothing here reads ``injected_faults`` or any ``truth_*`` field. Pure numpy/scip
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import f as f_dist
@@ -336,11 +336,10 @@ def _tilt_checks(cur: Recording, base: FloatingBaseline, opts: FloatingOptions) 
             f"fits within the error model as well: undetermined between them (their axes tilt the stance "
             f"feet alike in these postures); stances that turn one axis against the other would decide"
         )
+    said = {"confidence": conf, "detail": detail, "candidates": tuple(names)}
     if kind == "imu":
-        found = Finding("imu_rotated", imu=cur.imu_names[0], confidence=conf, detail=detail)
-    else:
-        found = Finding("encoder_fault", joint=cur.joint_names[part], confidence=conf, detail=detail)
-    return [replace(found, candidates=tuple(names))]
+        return [Finding("imu_rotated", imu=cur.imu_names[0], **said)]
+    return [Finding("encoder_fault", joint=cur.joint_names[part], **said)]
 
 
 def _tilt_part(cur: Recording, h: tuple[str, str, int, float, float]) -> str:
