@@ -74,6 +74,10 @@ FETCH_TIMEOUT_SECONDS = 5.0
 #: 2-core machine, rounded up.
 ASSUMED_RETRAIN_SECONDS = 120.0
 
+#: The least ``Retry-After`` of a full queue, s: the header's unit. A retrain past its expected wall
+#: time is expected "now" by the schedule, but its slot is only free once a cycle collected it.
+MIN_RETRY_SECONDS = 1.0
+
 #: Recent wall times kept per method; their median is the expected wall time of the next one.
 RECENT_WALLS = 16
 
@@ -263,9 +267,11 @@ class RemoteRetrains:
             return self._retry_after()
 
     def _retry_after(self) -> float:
+        """Seconds until a full queue has room: never under ``MIN_RETRY_SECONDS``, since a retrain that
+        ran past its expected wall time, or finished but is not collected yet, still holds its slot."""
         ends = sorted(e for _, e in self._expected())
         excess = len(self._in_flight) + len(self._wanted) - self.capacity() + 1
-        return ends[min(excess, len(ends)) - 1] if ends and excess > 0 else 0.0
+        return max(ends[min(excess, len(ends)) - 1] if ends and excess > 0 else 0.0, MIN_RETRY_SECONDS)
 
     def in_flight(self) -> dict[tuple[str, str], str]:
         """(robot, method) → the key of the task in flight for it."""

@@ -7,7 +7,8 @@
 * a retrain queued on a busy cluster while retention passes its window trains on that window, and
   the frames go once it is collected;
 * the retrain route answers 429 with ``Retry-After`` from the recent wall times while the queue is
-  full, and 202 for a retrain already in flight.
+  full (at least 1 s, also once the one in flight ran past its expected time), and 202 for a retrain
+  already in flight.
 """
 
 from __future__ import annotations
@@ -228,20 +229,25 @@ def test_a_queued_retrain_trains_on_its_window_while_retention_passes_it(
         assert len(store.window_pins) == 0 and remote.queue_status() == []
         store.prune()
         assert store.read_window("arm", WINDOW, end=end, epoch=0) is None
-        _full_queue_is_429(store, remote, res.wall_seconds)
+        _full_queue_is_429(store, remote, client, res.wall_seconds)
     finally:
         client.close()
         cluster.close()
         store.close()
 
 
-def _full_queue_is_429(store: Store, remote: RemoteRetrains, wall: float) -> None:
+def _full_queue_is_429(store: Store, remote: RemoteRetrains, client: Client, wall: float) -> None:
     """With one retrain in flight (cap 1) the route refuses another robot's with ``Retry-After`` the
-    rest of the recent wall time, and takes the robot's own (answered by the one in flight)."""
+    rest of the recent wall time, and takes the robot's own (answered by the one in flight). The one
+    in flight waits behind a held task: a 2-epoch retrain can end before the request comes, and a
+    finished one frees its slot."""
     feed(store, synth(np.random.default_rng(5), seconds=4), robot="arm2")
     settings = Settings(database_url=store.url, window_seconds=WINDOW, retrain_min_interval_seconds=0)
     worker = Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=remote.metrics)
     feed(store, synth(np.random.default_rng(6), seconds=4), offset=16.0)  # a window not learned yet
+    gate = Event("gate-2", client=client)
+    held = client.submit(_hold, "held-2", "gate-2", MAX_WALL, key="hold-2", pure=False)
+    assert Event("held-2", client=client).wait(MAX_WALL)
     t0 = time.monotonic()
     remote.want("arm", "network")
     assert remote.submit_wanted()
@@ -254,6 +260,11 @@ def _full_queue_is_429(store: Store, remote: RemoteRetrains, wall: float) -> Non
         # the one in flight is expected to finish after the recent wall time, less what it ran so far
         assert max(1, math.floor(wall - elapsed)) <= retry <= max(1, math.ceil(wall))
         assert ("arm2", "network") not in remote.wanted()
+        # past its expected wall time the one in flight is expected any moment, but it holds its slot
+        # until a cycle collects it: still refused, retry in a second
+        time.sleep(max(0.0, wall - (time.monotonic() - t0)) + 0.5)
+        late = http.post("/api/v1/robots/arm2/topology/retrain", params={"method": "network"})
+        assert late.status_code == 429 and late.headers["Retry-After"] == "1", late.text
         again = http.post("/api/v1/robots/arm/topology/retrain", params={"method": "network"})
         assert again.status_code == 202 and remote.wanted() == set()
     remote.want("arm2", "mlp")  # the worker's own wants beyond the cap wait, holding no window
@@ -270,6 +281,8 @@ def _full_queue_is_429(store: Store, remote: RemoteRetrains, wall: float) -> Non
     assert running.expected_seconds is not None and running.expected_seconds <= wall
     assert waiting.expected_seconds is None  # no mlp retrain finished here yet
     assert remote.metrics.retrains_waiting._value.get() == 1
+    gate.set()
+    held.result(timeout=MAX_WALL)
     _until(
         "the second retrain stored",
         lambda: len(_network_rows(store)) == 2,
