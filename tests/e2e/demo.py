@@ -5,7 +5,8 @@ tests/e2e/test_serve_postgres.py (PostgreSQL), which the suite's workers run sid
 Baselines are learned for every robot and must equal each robot's true body (every joint's parent,
 every IMU's joint, unique); then damages are injected in turn into ``paper-3-1`` over the REST API,
 and an active alert must name the kind and the part, with no alert of another kind or part raised on
-the way (``MAX_CYCLES`` says how many worker cycles it may take). The other robots stay undamaged and
+the way (``MAX_CYCLES`` says how many worker cycles it may take; :data:`PG_KINDS` splits the kinds
+over the two runs). The other robots stay undamaged and
 must not raise a single alert during the whole run. SIGTERM ends it with exit code 0.
 """
 
@@ -26,7 +27,7 @@ from simulators.robot import Robot
 from tests.e2e.processes import start_service
 from tests.waits import cpu_bound
 
-__all__ = ["DAMAGES", "Service", "check_demo", "demo_service"]
+__all__ = ["DAMAGES", "PG_KINDS", "Service", "check_demo", "demo_service"]
 
 DAMAGED = "paper-3-1"
 HEALTHY = ("ur5e-1", "quadruped-1")
@@ -42,6 +43,11 @@ DAMAGES: list[tuple[str, dict[str, Any], str]] = [
     ("link_lost", {"joint": "j5"}, "joint:j5"),
 ]
 
+#: Kinds the PostgreSQL run injects (an IMU's damage and a joint's); the SQLite run, with the geometry's
+#: estimates on, injects the other four. So each kind passes the whole process once, the two runs side
+#: by side on the suite's workers; every kind on every robot through the worker's real cycle is the
+#: damage suite's (tests/service/test_damage_worker*.py).
+PG_KINDS = ("imu_detached", "link_lost")
 
 #: Worker cycles within which each alert must come. Each cycle at 20x speed and a 2 s interval sees a
 #: fresh 20 s window, so a straddling window plus M = 2 makes 3 on an idle machine; but the farm paces
