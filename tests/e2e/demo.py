@@ -27,7 +27,7 @@ from simulators.robot import Robot
 from tests.e2e.processes import start_service
 from tests.waits import cpu_bound
 
-__all__ = ["DAMAGES", "PG_KINDS", "Service", "check_demo", "demo_service"]
+__all__ = ["DAMAGES", "PG_KINDS", "Service", "check_dashboard", "check_demo", "demo_service"]
 
 DAMAGED = "paper-3-1"
 HEALTHY = ("ur5e-1", "quadruped-1")
@@ -138,9 +138,51 @@ def wait_for(cond: Callable[[], Any], timeout: float, what: str, svc: Service, e
     raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}\n{svc.log_tail()}")
 
 
-def check_demo(service: Service, damages: list[tuple[str, dict[str, Any], str]]) -> None:
+def check_dashboard(service: Service, browser: Any, robots: list[dict], shot: Path) -> None:
+    """The page on the demo: it draws each learned tree (current and baseline) with one node per joint, a
+    damage injected from the page (``imu_dead`` on ``paper-3-1``'s imu30) becomes an alert row, pending
+    then active, its IMU is marked changed, every robot shows one of the three statuses and the damaged
+    one ``damaged``; a full-page screenshot goes to ``shot``."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.goto(service.url + "/")
+    for r in robots:
+        sel = f"article[data-robot='{r['name']}'] svg[data-tree='current'] circle.joint-node"
+        page.wait_for_function(f'document.querySelectorAll("{sel}").length > 0', timeout=30_000)
+        assert page.locator(sel).count() == len(r["joints"]), r["name"]
+        base_sel = sel.replace("'current'", "'baseline'")
+        assert page.locator(base_sel).count() == len(r["joints"]), r["name"]
+    form = page.locator(f"article[data-robot='{DAMAGED}'] form.damage")
+    form.locator("select").select_option("imu_dead")
+    form.locator("input[name='part']").fill("imu30")
+    form.locator("button").click()
+    # pending at the first cycle that sees it, active after alert_hysteresis_m cycles: the same budget
+    # as for the first sighting
+    alert_ms = 1000 * cpu_bound(ALERT_S)
+    row = "#alerts tr[data-kind='imu_dead'][data-part='imu:imu30']"
+    page.wait_for_selector(row, timeout=alert_ms)
+    page.wait_for_selector(row + "[data-state='active']", timeout=alert_ms)
+    page.wait_for_selector(
+        f"article[data-robot='{DAMAGED}'] rect.imu-node.changed[data-imu='imu30']", timeout=10_000
+    )
+    for r in robots:
+        verdict = page.locator(f"article[data-robot='{r['name']}'] .verdict")
+        assert verdict.inner_text() in ("healthy", "damaged", "undetermined"), r["name"]
+    # an active alert makes the robot damaged (at the latest by the next poll)
+    page.wait_for_selector(f"article[data-robot='{DAMAGED}'][data-status='damaged']", timeout=10_000)
+    page.screenshot(path=str(shot), full_page=True)
+    assert shot.stat().st_size > 10_000
+    page.close()
+
+
+def check_demo(
+    service: Service,
+    damages: list[tuple[str, dict[str, Any], str]],
+    page: Callable[[list[dict]], None] | None = None,
+) -> None:
     """The demo learns every robot's true body, raises each of ``damages`` (injected in turn) on its part
-    with no other alert on the way and none on the healthy robots, and stops cleanly on SIGTERM."""
+    with no other alert on the way and none on the healthy robots, and stops cleanly on SIGTERM.
+    ``page``, given the robots, runs once the baselines are learned, before the damages (the
+    dashboard's check, :func:`check_dashboard`, on the same process)."""
     assert re.fullmatch(r"http://127\.0\.0\.1:\d+", service.url)  # announced once bound
     t0 = time.monotonic()
     wait_for(lambda: service.get("/readyz"), cpu_bound(READY_S), "readiness", service)
@@ -166,6 +208,9 @@ def check_demo(service: Service, damages: list[tuple[str, dict[str, Any], str]])
         assert topo["baseline"]["imus"] == truth.imu_joint, r["name"]
         assert topo["baseline"]["unique"] is True, r["name"]
         assert set(learned) == set(r["joints"]) and set(topo["baseline"]["imus"]) == set(r["imus"])
+
+    if page is not None:
+        page(robots)
 
     def no_alert_on_healthy() -> None:
         bad = [a for a in service.get("/api/v1/alerts") if a["robot"] in HEALTHY]

@@ -2,9 +2,9 @@
 
 Two levels: the page against an in-process server on a prepared store (trees, highlights, alerts, the
 damage form, ack), and the whole demo daemon where a damage injected from the page becomes an alert
-(tests/e2e/test_dashboard_demo.py).
-Both run on SQLite and on PostgreSQL: the page reads what the store gives back, and the two backends
-must give back the same trees, alerts and acks. Skipped only when no Chromium is installed.
+(tests/e2e/test_serve.py, on SQLite as ``make run`` serves it). The first runs on SQLite and on
+PostgreSQL: the page reads what the store gives back, and the two backends must give back the same
+trees, alerts and acks. Skipped only when no Chromium is installed.
 """
 
 from __future__ import annotations

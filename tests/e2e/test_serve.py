@@ -1,29 +1,39 @@
 """The whole service as a process: ``bodyhealth serve --demo`` at 20× real time on a temporary SQLite
-file, four damage kinds injected in turn (tests/e2e/demo.py says what is checked; the PostgreSQL run,
-tests/e2e/test_serve_postgres.py, injects the other two); and a replaying service drains its ingest
-and exits 0 on SIGINT and SIGTERM.
+file, its dashboard in a headless Chromium, four damage kinds injected in turn (tests/e2e/demo.py says
+what is checked; the PostgreSQL run, tests/e2e/test_serve_postgres.py, injects the other two); and a
+replaying service drains its ingest and exits 0 on SIGINT and SIGTERM.
 """
 
 from __future__ import annotations
 
 import signal
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 
-from tests.e2e.demo import DAMAGES, PG_KINDS, check_demo, demo_service
+from tests.e2e.browser import NEEDS_CHROMIUM
+from tests.e2e.demo import DAMAGES, PG_KINDS, check_dashboard, check_demo, demo_service
 from tests.e2e.processes import start_service
 from tests.waits import cpu_bound
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 
+@NEEDS_CHROMIUM
 @pytest.mark.parametrize("e2e_db_url", ["sqlite"], indirect=True)
-def test_demo_learns_baselines_and_alerts_on_each_damage(e2e_db_url: str, tmp_path: Path) -> None:
+def test_demo_learns_baselines_and_alerts_on_each_damage(
+    e2e_db_url: str, tmp_path: Path, browser: Any
+) -> None:
+    """The demo as ``make run`` serves it (SQLite), with the dashboard on it: once the baselines are
+    learned, the page draws them and a damage injected from the page becomes an alert row; then the
+    damages over the API."""
     with demo_service(e2e_db_url, tmp_path) as service:
-        check_demo(service, [d for d in DAMAGES if d[0] not in PG_KINDS])
+        page = partial(check_dashboard, service, browser, shot=tmp_path / "dashboard.png")
+        check_demo(service, [d for d in DAMAGES if d[0] not in PG_KINDS], page=page)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
