@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import binascii
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -255,52 +255,39 @@ class FrameDecoder:
     def feed(self, data: bytes | bytearray | memoryview) -> list[DecodedFrame]:
         """Append ``data``; return the frames completed by it, in order."""
         if self.streams:
-            return self._feed_streams(data)
-        buf = self._buf
-        buf += data
-        n = len(buf)
-        out: list[DecodedFrame] = []
-        pos = 0
-        hsize, plen, flen = HEADER.size, self.payload_len, self.frame_len
-        while True:
-            i = buf.find(SYNC, pos)
-            if i < 0:
-                keep = n - 1 if n > pos and buf[n - 1] == SYNC[0] else n
-                self.bytes_discarded += keep - pos
-                pos = keep
-                break
-            self.bytes_discarded += i - pos
-            pos = i
-            if n - i < hsize:
-                break
-            _, length, seq, counter, nj, ni = HEADER.unpack_from(buf, i)
-            if length != plen or nj != self.n_joints or ni != self.n_imus:
-                self.bad_headers += 1
-                self.bytes_discarded += 1
-                pos = i + 1
-                continue
-            end = i + flen
-            if n < end:
-                break
-            (crc,) = CRC.unpack_from(buf, end - 4)
-            if binascii.crc32(buf[i + 2 : end - 4]) != crc:
-                self.crc_errors += 1
-                self.bytes_discarded += 1
-                pos = i + 1
-                continue
-            out.append(DecodedFrame(seq, counter, bytes(buf[i + hsize : end - 4])))
-            self.bytes_accepted += flen
-            pos = end
-        del buf[:pos]
-        return out
+            return self._scan(data, SYNC_STREAM, self._stream_frame)
+        return self._scan(data, SYNC, self._single_frame)
 
-    def _feed_streams(self, data: bytes | bytearray | memoryview) -> list[DecodedFrame]:
+    def _single_frame(self, header: tuple) -> tuple[int, int] | None:
+        """(frame length, stream) of a single-stream header of this decoder's shape; else None."""
+        _, length, _, _, nj, ni = header
+        if length != self.payload_len or nj != self.n_joints or ni != self.n_imus:
+            return None
+        return self.frame_len, 0
+
+    def _stream_frame(self, header: tuple) -> tuple[int, int] | None:
+        """(frame length, stream) of a stream frame's header of a declared stream and shape; else None."""
+        _, length, _, _, stream, count = header
+        shape = self._stream_shape.get(stream)
+        if shape is None or shape != (length, count) or count == 0:
+            return None
+        return HEADER.size + length + CRC.size, stream
+
+    def _scan(
+        self,
+        data: bytes | bytearray | memoryview,
+        sync: bytes,
+        frame: Callable[[tuple], tuple[int, int] | None],
+    ) -> list[DecodedFrame]:
+        """The frames ``data`` completes: find ``sync``, check the header (``frame`` gives the frame's
+        length and stream, or None) and the CRC; on a bad header or CRC step one byte past the sync and
+        look again (counted), so a corrupt frame costs only itself. The rest waits for more bytes."""
         buf = self._buf
         buf += data
         n = len(buf)
         out: list[DecodedFrame] = []
         pos = 0
-        hsize, sync, shapes = HEADER.size, SYNC_STREAM, self._stream_shape
+        hsize = HEADER.size
         while True:
             i = buf.find(sync, pos)
             if i < 0:
@@ -312,14 +299,15 @@ class FrameDecoder:
             pos = i
             if n - i < hsize:
                 break
-            _, length, seq, stamp, stream, count = HEADER.unpack_from(buf, i)
-            shape = shapes.get(stream)
-            if shape is None or shape != (length, count) or count == 0:
+            header = HEADER.unpack_from(buf, i)
+            got = frame(header)
+            if got is None:
                 self.bad_headers += 1
                 self.bytes_discarded += 1
                 pos = i + 1
                 continue
-            end = i + hsize + length + CRC.size
+            flen, stream = got
+            end = i + flen
             if n < end:
                 break
             (crc,) = CRC.unpack_from(buf, end - 4)
@@ -328,8 +316,9 @@ class FrameDecoder:
                 self.bytes_discarded += 1
                 pos = i + 1
                 continue
-            out.append(DecodedFrame(seq, stamp, bytes(buf[i + hsize : end - 4]), stream))
-            self.bytes_accepted += end - i
+            # seq, then the sample counter (a stream frame's time stamp)
+            out.append(DecodedFrame(header[2], header[3], bytes(buf[i + hsize : end - 4]), stream))
+            self.bytes_accepted += flen
             pos = end
         del buf[:pos]
         return out
