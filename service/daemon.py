@@ -105,7 +105,7 @@ class Daemon:
         remote = self._remote_retrains(metrics)
         estimator = self.estimator
         if estimator is None:  # estimates off the API's interpreter lock (service.estimation)
-            estimator = self._estimates = EstimatorProcess(s.imu_filter_delay)
+            estimator = self._estimates = EstimatorProcess(s.imu_filter_delay, s.network_heldout_check)
         self.worker = Worker(self.store, s, estimator=estimator, metrics=metrics, remote=remote)
         self.worker.start()
         app = create_app(

@@ -62,10 +62,12 @@ def _start_child(parent: int) -> None:
 class EstimatorProcess:
     """An :data:`~service.worker.Estimator` that runs
     :func:`~bodyschema.estimate.estimate_topology` in a child process (module doc); ``imu_delay`` (s)
-    is the IMUs' stated filter delay, as for :func:`service.worker.default_estimator`."""
+    is the IMUs' stated filter delay and ``heldout_check`` the networks' held-out test, as for
+    :func:`service.worker.default_estimator`."""
 
-    def __init__(self, imu_delay: float | None = None) -> None:
+    def __init__(self, imu_delay: float | None = None, heldout_check: bool = False) -> None:
         self.imu_delay = imu_delay
+        self.heldout_check = heldout_check
         self._pool: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
         self._aborted = False
@@ -73,7 +75,14 @@ class EstimatorProcess:
     def __call__(self, rec: Recording, method: str) -> Topology:
         from bodyschema.estimate import estimate_topology
 
-        return self.run(estimate_topology, rec, method, timer=time.process_time, imu_delay=self.imu_delay)
+        return self.run(
+            estimate_topology,
+            rec,
+            method,
+            timer=time.process_time,
+            imu_delay=self.imu_delay,
+            heldout_check=self.heldout_check,
+        )
 
     def run(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> T:
         """``fn(*args, **kwargs)`` in the child (a module-level function, picklable arguments): the

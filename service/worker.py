@@ -121,12 +121,17 @@ def next_wait(elapsed: float, interval: float, rest: float) -> float:
     return ticks * interval - elapsed
 
 
-def default_estimator(rec: Recording, method: str, imu_delay: float | None = None) -> Topology:
+def default_estimator(
+    rec: Recording, method: str, imu_delay: float | None = None, heldout_check: bool = False
+) -> Topology:
     """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
-    IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew."""
+    IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew;
+    ``heldout_check`` tests a network method's tree on held-out data (``Settings.network_heldout_check``)."""
     from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
 
-    return estimate_topology(rec, method=method, timer=time.process_time, imu_delay=imu_delay)
+    return estimate_topology(
+        rec, method=method, timer=time.process_time, imu_delay=imu_delay, heldout_check=heldout_check
+    )
 
 
 class Worker(AlertPath):
@@ -155,7 +160,9 @@ class Worker(AlertPath):
         self.compute = compute or _inline
         self.settings = settings or get_settings()
         self.estimator = estimator or functools.partial(
-            default_estimator, imu_delay=self.settings.imu_filter_delay
+            default_estimator,
+            imu_delay=self.settings.imu_filter_delay,
+            heldout_check=self.settings.network_heldout_check,
         )
         self.metrics = metrics or Metrics()
         self.clock = clock

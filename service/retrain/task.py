@@ -82,6 +82,9 @@ class RetrainJob:
     #: the encoder stamps are moved by this lag (s) first, and the move put back into the timing
     #: reported (:func:`bodyschema.timing.lag_hinted`; 0: not moved)
     lag_hint: float = 0.0
+    #: the networks' tree tested against its rivals on held-out data
+    #: (:func:`bodyschema.network_confidence.heldout_check`)
+    heldout_check: bool = False
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,7 @@ def _fit(job: RetrainJob, warm_start: Any, fits: list[TopologyFit], rec: Recordi
     from bodyschema.estimate import fit_topology
 
     kw: dict[str, Any] = {"warm_start": warm_start} if job.method in WARM_METHODS else {}
+    kw["heldout_check"] = job.heldout_check
     fit = fit_topology(
         rec, method=job.method, timer=time.process_time, imu_delay=job.imu_delay, network=job.network, **kw
     )
