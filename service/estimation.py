@@ -44,7 +44,7 @@ from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.children import SPAWN, exit_with_parent
 
-__all__ = ["EstimatorProcess"]
+__all__ = ["EstimatorProcess", "default_estimator"]
 
 T = TypeVar("T")
 
@@ -59,11 +59,23 @@ def _start_child(parent: int) -> None:
     set_blas_threads(1)
 
 
+def default_estimator(
+    rec: Recording, method: str, imu_delay: float | None = None, heldout_check: bool = False
+) -> Topology:
+    """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
+    IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew;
+    ``heldout_check`` tests a network method's tree on held-out data (``Settings.network_heldout_check``)."""
+    from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
+
+    return estimate_topology(
+        rec, method=method, timer=time.process_time, imu_delay=imu_delay, heldout_check=heldout_check
+    )
+
+
 class EstimatorProcess:
-    """An :data:`~service.worker.Estimator` that runs
-    :func:`~bodyschema.estimate.estimate_topology` in a child process (module doc); ``imu_delay`` (s)
-    is the IMUs' stated filter delay and ``heldout_check`` the networks' held-out test, as for
-    :func:`service.worker.default_estimator`."""
+    """An :data:`~service.worker.Estimator` that runs :func:`default_estimator` in a child process
+    (module doc), with the IMUs' stated filter delay ``imu_delay`` (s) and the networks' held-out test
+    ``heldout_check``."""
 
     def __init__(self, imu_delay: float | None = None, heldout_check: bool = False) -> None:
         self.imu_delay = imu_delay
@@ -73,16 +85,7 @@ class EstimatorProcess:
         self._aborted = False
 
     def __call__(self, rec: Recording, method: str) -> Topology:
-        from bodyschema.estimate import estimate_topology
-
-        return self.run(
-            estimate_topology,
-            rec,
-            method,
-            timer=time.process_time,
-            imu_delay=self.imu_delay,
-            heldout_check=self.heldout_check,
-        )
+        return self.run(default_estimator, rec, method, self.imu_delay, self.heldout_check)
 
     def run(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> T:
         """``fn(*args, **kwargs)`` in the child (a module-level function, picklable arguments): the

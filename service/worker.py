@@ -70,6 +70,7 @@ from bodyschema.timing import LagHint, measured_lag
 from bodyschema.topology import Topology
 from service.alert_path import Waits, queue_entries
 from service.alerts import AlertTracker
+from service.estimation import default_estimator
 from service.metrics import Metrics
 from service.monitor.baseline import BaselineAdoption
 from service.monitor.confirmation import NetworkAsks
@@ -119,19 +120,6 @@ def next_wait(elapsed: float, interval: float, rest: float) -> float:
     """
     ticks = max(1, math.ceil((elapsed + rest) / interval))
     return ticks * interval - elapsed
-
-
-def default_estimator(
-    rec: Recording, method: str, imu_delay: float | None = None, heldout_check: bool = False
-) -> Topology:
-    """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
-    IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew;
-    ``heldout_check`` tests a network method's tree on held-out data (``Settings.network_heldout_check``)."""
-    from bodyschema.estimate import estimate_topology  # heavy (torch) only when first needed
-
-    return estimate_topology(
-        rec, method=method, timer=time.process_time, imu_delay=imu_delay, heldout_check=heldout_check
-    )
 
 
 class Worker(AlertPath):

@@ -1,6 +1,7 @@
 """``Settings.network_heldout_check``: the service's network retrains test their tree against its
 rivals on held-out data (bodyschema.network_confidence) when it is set, on the cluster's task and in
-the worker's own estimator alike, and not when it is not (the default).
+the worker's own estimator (inline or in its child process) alike, and not when it is not (the
+default).
 
 The window: the synthetic three-joint arm with j3 held still (tests/builders.py), read back from a
 real SQLite store. The networks alone call its tree unique; with the check no part stands, the
@@ -12,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.estimation import EstimatorProcess
 from service.retrain import NetworkOptions, TrainingOptions
 from service.retrain.task import RetrainJob, run_retrain
 from service.settings import Settings
@@ -73,4 +75,15 @@ def test_the_workers_own_estimator_takes_the_setting(window: tuple[str, float]) 
         worker = Worker(store, settings)
         assert rec is not None
         topo = worker.estimator(rec, "network")
+    assert not topo.unique and set(topo.undetermined) == {"j1", "j2", "j3"} and topo.candidates
+
+
+def test_the_estimating_child_takes_the_setting(window: tuple[str, float]) -> None:
+    """The service's estimates run in a child process (service.estimation): the check goes with them."""
+    url, end = window
+    with open_store(url) as store:
+        rec = store.read_window("arm", WINDOW, end=end, epoch=0)
+    assert rec is not None
+    with EstimatorProcess(heldout_check=True) as estimate:
+        topo = estimate(rec, "network")
     assert not topo.unique and set(topo.undetermined) == {"j1", "j2", "j3"} and topo.candidates
