@@ -6,8 +6,8 @@ Baselines are learned for every robot and must equal each robot's true body (eve
 every IMU's joint, unique); then damages are injected in turn into ``paper-3-1`` over the REST API,
 and an active alert must name the kind and the part, with no alert of another kind or part raised on
 the way (``MAX_CYCLES`` says how many worker cycles it may take; :data:`PG_KINDS` splits the kinds
-over the two runs). The other robots stay undamaged and
-must not raise a single alert during the whole run. SIGTERM ends it with exit code 0.
+over the two runs). The other robots stay undamaged and must not raise a single alert during the whole
+run. SIGTERM ends it with exit code 0.
 """
 
 from __future__ import annotations

@@ -146,6 +146,22 @@ def _hold(started: str, gate: str, seconds: float) -> None:
     Event(gate).wait(seconds)
 
 
+class Occupied:
+    """The cluster's one thread held by a :func:`_hold` task (named ``name``) until :meth:`release`:
+    whatever is submitted meanwhile waits behind it."""
+
+    def __init__(self, client: Client, name: str) -> None:
+        self.gate = Event(f"gate-{name}", client=client)
+        self.task = client.submit(
+            _hold, f"held-{name}", f"gate-{name}", MAX_WALL, key=f"hold-{name}", pure=False
+        )
+        assert Event(f"held-{name}", client=client).wait(MAX_WALL)  # the one thread is busy now
+
+    def release(self) -> None:
+        self.gate.set()
+        self.task.result(timeout=MAX_WALL)
+
+
 @pytest.fixture(scope="module")
 def one_thread() -> Iterator[LocalCluster]:
     """One worker process of one thread: a second task waits for the first."""
@@ -190,9 +206,7 @@ def test_a_queued_retrain_trains_on_its_window_while_retention_passes_it(
     remote = RemoteRetrains(cluster, store, WINDOW, options=options, metrics=metrics, limits=limits)
     try:
         end = feed(store, synth(np.random.default_rng(3), seconds=8)) - 0.01  # last frame 7.99
-        gate = Event("gate", client=client)
-        held = client.submit(_hold, "held", "gate", MAX_WALL, key="hold", pure=False)
-        assert Event("held", client=client).wait(MAX_WALL)  # the one thread is busy now
+        held = Occupied(client, "1")
 
         remote.want("arm", "network")
         _until("the retrain submitted", lambda: bool(remote.in_flight()), MAX_WALL, remote.submit_wanted)
@@ -212,8 +226,7 @@ def test_a_queued_retrain_trains_on_its_window_while_retention_passes_it(
         np.testing.assert_array_equal(kept.t, window.t)
         np.testing.assert_array_equal(kept.gyro, window.gyro)
 
-        gate.set()
-        held.result(timeout=MAX_WALL)
+        held.release()
         _until(
             "the retrain stored",
             lambda: bool(_network_rows(store)),
@@ -245,9 +258,7 @@ def _full_queue_is_429(store: Store, remote: RemoteRetrains, client: Client, wal
     settings = Settings(database_url=store.url, window_seconds=WINDOW, retrain_min_interval_seconds=0)
     worker = Worker(store, settings, estimator=Scripted(GOOD), remote=remote, metrics=remote.metrics)
     feed(store, synth(np.random.default_rng(6), seconds=4), offset=16.0)  # a window not learned yet
-    gate = Event("gate-2", client=client)
-    held = client.submit(_hold, "held-2", "gate-2", MAX_WALL, key="hold-2", pure=False)
-    assert Event("held-2", client=client).wait(MAX_WALL)
+    held = Occupied(client, "2")
     t0 = time.monotonic()
     remote.want("arm", "network")
     assert remote.submit_wanted()
@@ -281,8 +292,7 @@ def _full_queue_is_429(store: Store, remote: RemoteRetrains, client: Client, wal
     assert running.expected_seconds is not None and running.expected_seconds <= wall
     assert waiting.expected_seconds is None  # no mlp retrain finished here yet
     assert remote.metrics.retrains_waiting._value.get() == 1
-    gate.set()
-    held.result(timeout=MAX_WALL)
+    held.release()
     _until(
         "the second retrain stored",
         lambda: len(_network_rows(store)) == 2,
