@@ -69,16 +69,18 @@ class PtyPort:
                 os.replace(tmp, self.link)
 
     def unplug(self) -> None:
-        """Close the pty: a reader gets an I/O error, and the path disappears."""
+        """Close the pty: a reader gets an I/O error, and the path disappears, the link with it (as udev
+        removes a ``/dev/serial/by-id`` link). A link left behind would name a freed pty number, which the
+        next pty made anywhere on the machine takes: a reader reopening it would find a stranger's port."""
         with self._lock:
             if self.master >= 0:
                 os.close(self.master)
             self.master = -1
+            if self.link and os.path.islink(self.link):
+                os.unlink(self.link)
 
     def close(self) -> None:
         self.unplug()
-        if self.link and os.path.islink(self.link):
-            os.unlink(self.link)
 
     def reader_present(self) -> bool:
         """Whether some process has the slave side open (the master reports a hang-up while none has)."""

@@ -32,6 +32,8 @@ import numpy as np
 import pytest
 from hypothesis import settings as hypothesis_settings
 
+from bodyschema.threads import set_blas_threads
+
 __all__ = ["NETWORK_SCHEDULE_ENV", "node_seed"]
 
 CI_ENV = "BODYHEALTH_CI"
@@ -50,6 +52,13 @@ os.environ.setdefault(NETWORK_SCHEDULE_ENV, "0")
 
 hypothesis_settings.register_profile("bodyhealth", derandomize=True, database=None, print_blob=True)
 hypothesis_settings.load_profile("bodyhealth")
+
+#: The suite's workers share the cores (``make test``: one per core), and they run the worker's fits in
+#: their own process where the service runs them in its one-thread estimator child
+#: (:mod:`service.estimation`). BLAS on every core in each of them spin-waits against the other: the
+#: geometry drift run took 93 s beside the damage suite, against 18 s alone. So each test process fits
+#: on one thread, as the service does.
+set_blas_threads(1)
 
 
 def node_seed(nodeid: str) -> int:

@@ -93,8 +93,9 @@ def test_abort_ends_an_estimate_in_flight_and_starts_no_other_child() -> None:
 
 
 def test_the_childs_blas_runs_on_one_thread() -> None:
-    """numpy's and scipy's BLAS in the child, each limited to one thread (the parent's are not: on a
-    machine of two or more cores they run on every core)."""
+    """numpy's and scipy's BLAS in the child, each limited to one thread by the child itself: a spawned
+    child starts on every core, whatever its parent set (the suite's test processes run on one thread,
+    tests/conftest.py, through threadpoolctl, which no child inherits)."""
     import scipy.linalg  # noqa: F401  (scipy's BLAS, loaded here as in the child)
     from threadpoolctl import threadpool_info
 

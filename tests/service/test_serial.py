@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -92,6 +93,7 @@ def test_pty_unplugged_and_replugged(tmp_path, rng):
 
     until(lambda: sum(b.n_samples for b in got) >= 500)
     em.unplug()
+    assert not os.path.lexists(link)  # gone with the device, as udev's by-id link is
     until(lambda: src.counters.extra.get("disconnects", 0) >= 1)
     assert not src.connected
     time.sleep(0.2)  # stays away a while; reads keep returning nothing, and do not raise
