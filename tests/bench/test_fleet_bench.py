@@ -37,13 +37,10 @@ def test_speedups_are_two_workers_over_one_per_fleet_size_on_the_stored_run() ->
 @pytest.mark.slow
 @pytest.mark.e2e
 def test_bench_fleet_retrains_every_robot_warm_beside_ingest_and_api_and_alone(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path,
 ) -> None:
-    # The bench trains at the service's priority settings. Their default idle class would starve the
-    # training beside work that fills every core (the suite beside two busy loops: the test still ran
-    # after 15 minutes); niced, the training still yields to that work and ends (87 s there).
-    # That the embedded cluster's retrains run in the idle class is tests/service/test_dask_training.py's.
-    monkeypatch.setenv("BODYHEALTH_TRAINING_IDLE", "0")
+    # The bench trains at the service's priority settings: niced, in the suite (tests/conftest.py),
+    # so it ends beside work that fills every core; the JSON and the table say which.
     argv = ["--robots", "2", "--workers", "2", "--window", "10", "--recordings", "1"]
     alone = ["--alone", "2", "--alone-workers", "1"]
     args = bench_args(bench, *argv, "--api-rps", "10", *alone, "--out", str(tmp_path))

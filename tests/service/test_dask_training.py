@@ -342,16 +342,17 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
             assert daemon.worker is not None
             # the worker thread stores the topology row, then files the result: wait for both, or the
             # check below can run between the two (seen once in ten fresh-clone runs)
-            # the retrain runs in the idle class: on a machine busy with other work it waits for a
-            # free core, so the bound catches a hang, not a slow start (90 s failed beside a bench)
+            # a worker process starting and 2 epochs: well under a minute on an idle machine, niced
+            # (the suite's class, tests/conftest.py), stretched by the load
             while not (_network_rows(daemon.store) and daemon.worker.remote.results):
-                assert time.monotonic() - t0 < 240, http.get("/readyz").json()
+                assert time.monotonic() - t0 < cpu_bound(60), http.get("/readyz").json()
                 time.sleep(0.2)
         ours = [p for p in _children() if p.pid not in before]
         assert ours, "the embedded cluster runs worker processes"
         (res,) = daemon.worker.remote.results
         assert res.pid in {p.pid for p in ours}
-        # the retrain ran at the settings' nice value and in the idle class (policy 5), on its worker's
+        # the retrain ran at the settings' nice value and scheduling class (the idle class, policy 5,
+        # in the product; tests/service/test_estimation.py moves a thread into it), on its worker's
         # task thread alone: fields 19 and 41 of /proc/PID/task/TID/stat
         stats = [
             (task / "stat").read_text().rsplit(")", 1)[1].split()
@@ -359,8 +360,9 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
         ]
         nice = {(int(f[16]), int(f[38])) for f in stats}
         base = os.getpriority(os.PRIO_PROCESS, 0)  # the workers' other threads: as this process
-        assert settings.training_nice == 10 and settings.training_idle, settings
-        assert (max(10, base), os.SCHED_IDLE) in nice and (base, os.SCHED_OTHER) in nice, nice
+        policy = os.SCHED_IDLE if settings.training_idle else os.SCHED_OTHER
+        assert settings.training_nice == 10, settings
+        assert (max(10, base), policy) in nice and (base, os.SCHED_OTHER) in nice, nice
     finally:
         daemon.stop()
         gc.unfreeze()

@@ -17,11 +17,13 @@ def _fresh_settings(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
 
 def test_defaults(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("BODYHEALTH_NETWORK_INTERVAL_CYCLES", raising=False)  # the suite's own (conftest)
+    monkeypatch.delenv("BODYHEALTH_TRAINING_IDLE", raising=False)  # the suite's own (conftest)
     s = Settings()
     assert s.database_url == "sqlite:///./var/bodyhealth.db"
     assert (s.window_seconds, s.retention_seconds, s.worker_interval_seconds) == (30.0, 600.0, 5.0)
     assert (s.network_interval_cycles, s.baseline_repeat_k, s.alert_hysteresis_m) == (12, 3, 2)
     assert s.network_on_change is True
+    assert (s.training_nice, s.training_idle) == (10, True)
     assert (s.queue_max_batches, s.host, s.port, s.max_request_bytes, s.log_json) == (
         1000,
         "127.0.0.1",
