@@ -70,7 +70,9 @@ def pytest_collection_modifyitems(items):
 def _child_pytest(tmp_path: Path, source: str, *args: str, **env: str) -> subprocess.CompletedProcess[str]:
     (tmp_path / "test_child.py").write_text(source)
     (tmp_path / "pytest.ini").write_text("[pytest]\n")
-    child_env = {k: v for k, v in os.environ.items() if k not in ("BODYHEALTH_CI", "BODYHEALTH_TEST_SEED")}
+    # the outer run's options are not the child's: PYTEST_ADDOPTS="-vv" made its --co print a tree
+    outer = ("BODYHEALTH_CI", "BODYHEALTH_TEST_SEED", "PYTEST_ADDOPTS")
+    child_env = {k: v for k, v in os.environ.items() if k not in outer}
     child_env.update(env)
     child_env["PYTHONPATH"] = str(ROOT)
     return subprocess.run(

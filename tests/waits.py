@@ -1,6 +1,7 @@
 """Waits of the tests: limits for CPU-bound work, the seconds the work takes on an idle machine
 stretched by the share of a core a process gets now (with L runnable tasks on C cores, each gets
-C/L of one), so a busy machine makes a test slower, never failing; and polling for a condition."""
+C/L of one), so a busy machine makes a test slower, never failing; the same for a niced thread, whose
+share is smaller by its scheduler weight; and polling for a condition."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["cpu_bound", "wait_until"]
+__all__ = ["cpu_bound", "niced_bound", "wait_until"]
 
 
 def cpu_bound(idle_seconds: float) -> float:
@@ -19,6 +20,22 @@ def cpu_bound(idle_seconds: float) -> float:
     True
     """
     return idle_seconds * max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+
+
+def niced_bound(idle_seconds: float, nice: int) -> float:
+    """``idle_seconds`` of work on a thread at ``nice``, stretched by the load as Linux shares a core.
+
+    The scheduler (CFS) shares a core in proportion to weights: 1024 at nice 0, about 1.25 times less
+    per step (110 at nice 10). Beside ``l`` runnable tasks of nice 0 per core (the load average per
+    core), a thread at ``nice`` gets ``w/(w + 1024 l)`` of a core, so its work takes ``1 + 1024 l/w``
+    times as long as on an idle machine: about 28x at load 3 per core and nice 10, where a nice-0
+    process gets a third.
+
+    >>> round(niced_bound(1.0, 0) / cpu_bound(1.0), 6) >= 1.0
+    True
+    """
+    per_core = os.getloadavg()[0] / (os.cpu_count() or 1)
+    return idle_seconds * (1.0 + per_core * 1.25**nice)
 
 
 def wait_until(cond: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:

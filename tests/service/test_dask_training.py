@@ -51,7 +51,7 @@ from service.worker import Worker
 from tests.builders import synth
 from tests.ports import free_port
 from tests.service.builders import GOOD, Scripted, feed
-from tests.waits import cpu_bound
+from tests.waits import cpu_bound, niced_bound
 
 pytestmark = pytest.mark.slow
 
@@ -325,16 +325,14 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
         training=TrainingOptions(network=NetworkOptions(seed=SEED, epochs=2)),
     )
     gc.unfreeze()  # what an earlier test of this process froze
-    t0 = time.monotonic()
     app = daemon.start()
-    started = time.monotonic() - t0
     try:
-        assert started < 5.0, started
         # the service's start-up heap (its libraries' modules, classes, functions) is out of the
         # collector's reach before it serves (service.heap)
         assert gc.get_freeze_count() > 100_000, gc.get_freeze_count()
         assert daemon.store is not None and daemon.cluster is not None
-        assert daemon.cluster.fault is None  # nothing asked for it yet: not started, not a fault
+        # nothing asked for it yet: not started (start did not wait for it), not a fault
+        assert daemon.cluster.fault is None
         feed(daemon.store, synth(np.random.default_rng(7), seconds=8))
         with TestClient(app, headers={"X-Requested-With": "bodyhealth"}) as http:
             assert http.post("/api/v1/robots/arm/topology/retrain?method=network").status_code == 202
@@ -342,10 +340,11 @@ def test_daemon_embedded_cluster_starts_lazily_and_closes_cleanly(tmp_path: Path
             assert daemon.worker is not None
             # the worker thread stores the topology row, then files the result: wait for both, or the
             # check below can run between the two (seen once in ten fresh-clone runs)
-            # a worker process starting and 2 epochs: well under a minute on an idle machine, niced
-            # (the suite's class, tests/conftest.py), stretched by the load
+            # a worker process starting and 2 epochs: well under a minute on an idle machine, on a
+            # thread niced to training_nice, stretched as the scheduler shares a core with that weight
             while not (_network_rows(daemon.store) and daemon.worker.remote.results):
-                assert time.monotonic() - t0 < cpu_bound(60), http.get("/readyz").json()
+                limit = niced_bound(60, settings.training_nice)
+                assert time.monotonic() - t0 < limit, http.get("/readyz").json()
                 time.sleep(0.2)
         ours = [p for p in _children() if p.pid not in before]
         assert ours, "the embedded cluster runs worker processes"
