@@ -19,7 +19,7 @@ def cpu_bound(idle_seconds: float) -> float:
     >>> cpu_bound(10.0) >= 10.0
     True
     """
-    return idle_seconds * max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+    return idle_seconds * max(1.0, _load_per_core())
 
 
 def niced_bound(idle_seconds: float, nice: int) -> float:
@@ -34,8 +34,12 @@ def niced_bound(idle_seconds: float, nice: int) -> float:
     >>> round(niced_bound(1.0, 0) / cpu_bound(1.0), 6) >= 1.0
     True
     """
-    per_core = os.getloadavg()[0] / (os.cpu_count() or 1)
-    return idle_seconds * (1.0 + per_core * 1.25**nice)
+    return idle_seconds * (1.0 + _load_per_core() * 1.25**nice)
+
+
+def _load_per_core() -> float:
+    """The one-minute load average per core: runnable tasks sharing each core."""
+    return os.getloadavg()[0] / (os.cpu_count() or 1)
 
 
 def wait_until(cond: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:
