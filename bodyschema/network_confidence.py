@@ -9,8 +9,10 @@ checked against its rivals with the exact gyro models of :mod:`bodyschema.fast_c
 
 * **IMU k on joint J** (the chosen answer) predicts k's gyro from the nearest other IMU up the chosen
   tree through the hinges crossed (``ω_k = A(q_J) ω_h + e q̇_J + b``; two hinges across a link
-  without another IMU; ``ω_k = e q̇_J + b`` from the base). Rivals: k on every other joint, and on
-  the base, each with the chosen tree above it.
+  without another IMU; ``ω_k = e q̇_J + b`` from the base). Rivals: k on every other joint under
+  every parent, and on the base. A rival joint hung under a joint of its own subtree is a tree only
+  if the IMUs its model reads above it leave its link for the link it hung from; it stays a rival
+  only where they fit there.
 * **joint J under P**: the IMUs on J's link predicted from P's link through J. Rivals: J under every
   joint outside its own subtree, and under the base.
 
@@ -312,21 +314,17 @@ class _Tree:
             p = self.parent[p]
 
 
-def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None = None) -> HeldOutTest:
-    """Test every part of ``topo`` (the chosen tree of ``rec``) against its rivals on held-out data
-    (the module docstring). ``rec`` needs positions and velocities on one clock (the networks'
-    training data: :meth:`Recording.derived`, aligned by :func:`bodyschema.timing.aligned_recording`)."""
-    opts = options or HeldOutOptions()
-    rec = rec.derived()
-    data = _Data(rec, opts)
-    joints, imus = list(rec.joint_names), list(rec.imu_names)
-    tree = _Tree(topo, joints, imus, data.sigma)
-    n_obs = 3 * data.n_heldout * data.n_eff
-    parts: dict[str, HeldOutPart] = {}
+class _Scorer:
+    """Held-out variance ratios of the models a part's answers make, on one window and chosen tree."""
 
-    def ratio(ks: Iterable[int], model: tuple[int, tuple[int, ...]] | None) -> float:
+    def __init__(self, data: _Data, tree: _Tree, opts: HeldOutOptions) -> None:
+        self.data, self.tree, self.opts = data, tree, opts
+
+    def ratio(self, ks: Iterable[int], model: tuple[int, tuple[int, ...]] | None) -> float:
+        """Held-out residual of IMUs ``ks`` under ``model`` over the error model's (inf: no hinge)."""
         if model is None:
             return np.inf
+        data = self.data
         h, hinges = model
         rss, ok = data.heldout_rss(h, hinges)
         ks = list(ks)
@@ -336,25 +334,61 @@ def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None 
         v = data.sigma[ks] ** 2 + sig_h + len(hinges) * data.qd_var + data.model_var[ks]
         return float(np.sum(rss[ks]) / (3 * data.n_heldout * np.sum(v)))
 
-    def base_ratio(k: int) -> float:
+    def base_ratio(self, k: int) -> float:
+        """IMU ``k`` on the base: its held-out rate against the error model."""
+        data = self.data
         y = data.gb[np.concatenate([data.fold_a, data.fold_b]), k]
         y = y - y.mean(axis=0)
         return float(np.mean(y * y) / (data.sigma[k] ** 2 + data.model_var[k]))
 
-    for k, imu in enumerate(imus):
-
-        def imu_model(j: int | None, k: int = k) -> float:
-            if j is None:
-                return base_ratio(k)
+    def imu_rivals(self, k: int) -> dict[int | None, float]:
+        """IMU ``k`` on each joint (or the base, None): the best ratio of each answer."""
+        tree = self.tree
+        out: dict[int | None, float] = {None: self.base_ratio(k)}
+        for j in range(len(tree.parent)):
             if j == tree.imu_joint[k]:
-                return ratio([k], tree.source(k, j, tree.parent[j]))
+                out[j] = self.ratio([k], tree.source(k, j, tree.parent[j]))
+                continue
             # a rival joint under any parent: which joint carries k must not hang on where the
             # chosen tree put that joint (two joints on one sine swap places with their IMUs)
-            return min(ratio([k], tree.source(k, j, p)) for p in [None, *range(len(joints))] if p != j)
+            below = tree.subtree(j)
+            out[j] = min(
+                (
+                    self.ratio([k], m) if p not in below or self._lifted_fit(m, j) else np.inf
+                    for p in [None, *range(len(tree.parent))]
+                    if p != j and (m := tree.source(k, j, p)) is not None
+                ),
+                default=np.inf,
+            )
+        return out
 
-        rivals = {j: imu_model(j) for j in [None, *range(len(joints))]}
+    def _lifted_fit(self, model: tuple[int, tuple[int, ...]], j: int) -> bool:
+        """Joint ``j`` hung under a joint of its own subtree is a tree only with the IMUs ``model``
+        reads above ``j`` moved off ``j``'s link, to the link ``j`` hung from: whether they fit there."""
+        tree = self.tree
+        h = model[0]
+        if h == _WORLD or tree.imu_joint[h] != j:
+            return True
+        up = tree.parent[j]
+        r = self.base_ratio(h) if up is None else self.ratio([h], tree.source(h, up, tree.parent[up]))
+        return r < self.opts.fit_ratio
+
+
+def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None = None) -> HeldOutTest:
+    """Test every part of ``topo`` (the chosen tree of ``rec``) against its rivals on held-out data
+    (the module docstring). ``rec`` needs positions and velocities on one clock (the networks'
+    training data: :meth:`Recording.derived`, aligned by :func:`bodyschema.timing.aligned_recording`)."""
+    opts = options or HeldOutOptions()
+    rec = rec.derived()
+    data = _Data(rec, opts)
+    joints, imus = list(rec.joint_names), list(rec.imu_names)
+    tree = _Tree(topo, joints, imus, data.sigma)
+    score = _Scorer(data, tree, opts)
+    n_obs = 3 * data.n_heldout * data.n_eff
+    parts: dict[str, HeldOutPart] = {}
+    for k, imu in enumerate(imus):
         parts[f"imu:{imu}"] = _decide(
-            f"imu:{imu}", tree.imu_joint[k], rivals, opts.fit_ratio, n_obs, tree, joints
+            f"imu:{imu}", tree.imu_joint[k], score.imu_rivals(k), opts.fit_ratio, n_obs, tree, joints
         )
     for j, name in enumerate(joints):
         ks = tree.on.get(j, [])
@@ -365,7 +399,7 @@ def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None 
             continue
         below = tree.subtree(j)
         cands = [p for p in [None, *range(len(joints))] if p is None or p not in below]
-        rivals = {p: ratio(ks, _models(tree, ks, j, p)) for p in cands}
+        rivals = {p: score.ratio(ks, _models(tree, ks, j, p)) for p in cands}
         parts[f"joint:{name}"] = _decide(
             f"joint:{name}", tree.parent[j], rivals, opts.fit_ratio, n_obs, tree, joints, joint=j
         )

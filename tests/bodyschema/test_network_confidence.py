@@ -30,9 +30,14 @@ def _sines(rng: np.random.Generator, t: np.ndarray, amp: float) -> np.ndarray:
     return amp * np.sum(np.sin(2 * np.pi * f[:, None] * t + ph[:, None]), axis=0) / 3
 
 
-def _recording(amps: tuple[float, float, float], same_sine: bool = False, seed: int = 3) -> Recording:
+def _recording(
+    amps: tuple[float, float, float],
+    same_sine: bool = False,
+    seed: int = 3,
+    links: tuple[int, ...] = (0, 0, 1, 1, 2, 2),
+) -> Recording:
     """60 s of the chain at 100 Hz; ``amps`` the joints' angle amplitudes (rad); ``same_sine`` drives
-    j2 with j1's angle."""
+    j2 with j1's angle; ``links[k]`` the joint whose link carries IMU ``ik``."""
     rng = np.random.default_rng(seed)
     t = np.arange(6000) / 100.0
     q = np.stack([_sines(rng, t, a) for a in amps], axis=1)
@@ -44,18 +49,19 @@ def _recording(amps: tuple[float, float, float], same_sine: bool = False, seed: 
         (None, 0, 1),
         np.eye(3)[[2, 0, 1]],
         np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.2], [0.2, 0.0, 0.2]]),
-        tuple(f"i{k}" for k in range(6)),
-        (0, 0, 1, 1, 2, 2),
-        np.stack([_rotation(rng) for _ in range(6)]),
-        rng.normal(scale=0.2, size=(6, 3)),
+        tuple(f"i{k}" for k in range(len(links))),
+        links,
+        np.stack([_rotation(rng) for _ in links]),
+        rng.normal(scale=0.2, size=(len(links), 3)),
     )
     _, _, omega = chain.motion(q, qd)
-    gyro = omega + rng.normal(scale=0.035, size=(1, 6, 3)) + rng.normal(scale=6e-4, size=omega.shape)
+    gyro = omega + rng.normal(scale=0.035, size=(1, len(links), 3))
+    gyro = gyro + rng.normal(scale=6e-4, size=omega.shape)
     return Recording(
         t=t,
         joint_names=list(JOINTS),
         q=q,
-        imu_names=[f"i{k}" for k in range(6)],
+        imu_names=[f"i{k}" for k in range(len(links))],
         acc=np.zeros_like(gyro),
         gyro=gyro,
     )
@@ -114,6 +120,23 @@ def test_two_joints_on_one_sine_leave_the_order_undetermined() -> None:
     assert any(c.joint_parent["j1"] != "j2" or c.imu_joint["i2"] != "j2" for c in topo.candidates)
     # the true tree is no better: the data cannot tell them apart
     assert not heldout_check(rec, TRUTH).unique
+
+
+def test_a_lone_imu_is_decided_against_its_joint_hung_under_its_own_child() -> None:
+    # i1 rides j1's link alone, under j0's IMU i0. The rival "i1 on j0, j0 hung under j1" reads i0
+    # through j1 then j0; a tree only if i0 leaves j0's link for the base, where j0's motion shows
+    # it does not belong. Kept as a rival, its nested model (j0's rate is i0's own, so j0's gain is
+    # free) fits as well as the answer and left i1 and j1 undetermined on well-moved data.
+    rec = _recording((0.8, 0.8, 0.8), links=(0, 1, 2, 2))
+    truth = Topology({"j0": None, "j1": "j0", "j2": "j1"}, {"i0": "j0", "i1": "j1", "i2": "j2", "i3": "j2"})
+    test = heldout_test(rec, truth)
+    assert test.parts["imu:i1"].decided and test.parts["joint:j1"].decided
+    assert test.parts["imu:i1"].rival_ratio > 25.0  # every rival left misfits the held-out gyro
+    topo = heldout_check(rec, truth)
+    assert topo.unique and topo.undetermined == ()
+    # moved to j0, the lone IMU is not decided: its true joint fits where the moved answer does not
+    moved = Topology(dict(truth.joint_parent), {**truth.imu_joint, "i1": "j0"}, unique=True)
+    assert not heldout_check(rec, moved).unique
 
 
 def test_too_short_a_window_decides_nothing() -> None:
