@@ -139,6 +139,53 @@ def test_a_lone_imu_is_decided_against_its_joint_hung_under_its_own_child() -> N
     assert not heldout_check(rec, moved).unique
 
 
+def _wrong_trees(truth: Topology) -> list[tuple[str, Topology]]:
+    """``truth`` with one part moved (an IMU to every other joint or the base, a joint under every
+    other parent), or a joint swapped with its parent, IMUs and all."""
+    out = []
+    for k, j0 in truth.imu_joint.items():
+        for j in [None, *JOINTS]:
+            if j != j0:
+                out.append(
+                    (f"imu:{k}", Topology(dict(truth.joint_parent), {**truth.imu_joint, k: j}, unique=True))
+                )
+    for j, p0 in truth.joint_parent.items():
+        for p in [None, *JOINTS]:
+            if p not in (j, p0):
+                try:
+                    moved = Topology({**truth.joint_parent, j: p}, dict(truth.imu_joint), unique=True)
+                except ValueError:  # a cycle is no tree
+                    continue
+                out.append((f"joint:{j}", moved))
+        if p0 is not None:
+            sw = {j: p0, p0: j}
+            out.append(
+                (
+                    f"swap:{j}",
+                    Topology(
+                        {sw.get(a, a): sw.get(b, b) for a, b in truth.joint_parent.items()},
+                        {k: sw.get(v, v) for k, v in truth.imu_joint.items()},
+                        unique=True,
+                    ),
+                )
+            )
+    return out
+
+
+@pytest.mark.parametrize("links", [(0, 0, 1, 1, 2, 2), (0, 1, 2, 2)], ids=["two-per-link", "lone-imu"])
+def test_no_tree_one_part_off_is_called_unique(links: tuple[int, ...]) -> None:
+    rec = _recording((0.8, 0.8, 0.8), links=links)
+    truth = Topology(dict(TRUTH.joint_parent), {f"i{k}": JOINTS[j] for k, j in enumerate(links)})
+    assert heldout_check(rec, truth).unique
+    wrong = _wrong_trees(truth)
+    assert len(wrong) == 3 * len(links) + 5  # 3 moves per IMU, 3 joint moves that keep a tree, 2 swaps
+    for part, topo in wrong:
+        out = heldout_check(rec, topo)
+        assert not out.unique, part
+        if not part.startswith("swap:"):
+            assert out.confidence[part] <= 0.5, part
+
+
 def test_too_short_a_window_decides_nothing() -> None:
     rec = _recording((0.8, 0.8, 0.8)).select(slice(0, 300))
     topo = heldout_check(rec, TRUTH)
