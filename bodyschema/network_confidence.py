@@ -275,6 +275,7 @@ class _Tree:
         self.imu_joint = [None if topo.imu_joint[k] is None else self.jx[topo.imu_joint[k]] for k in imus]
         self.sigma = sigma
         self.on: dict[int | None, list[int]] = {}
+        self._subtrees: dict[int, set[int]] = {}
         for k, j in enumerate(self.imu_joint):
             self.on.setdefault(j, []).append(k)
 
@@ -287,6 +288,12 @@ class _Tree:
         return out[::-1]
 
     def subtree(self, j: int) -> set[int]:
+        """``j`` and every joint below it (kept: each IMU's rivals ask for every joint's)."""
+        if j not in self._subtrees:
+            self._subtrees[j] = self._grow(j)
+        return self._subtrees[j]
+
+    def _grow(self, j: int) -> set[int]:
         out = {j}
         grew = True
         while grew:
