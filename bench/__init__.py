@@ -74,9 +74,17 @@ def machine_note() -> str:
     return f"{os.cpu_count()} cores, {model or platform.machine()}, Python {platform.python_version()}"
 
 
-def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: str, unit: str) -> list[Any]:
+def map_jobs(
+    fn: Callable[..., Any],
+    jobs: Sequence[tuple],
+    workers: int,
+    desc: str,
+    unit: str,
+    on_result: Callable[[Any], None] | None = None,
+) -> list[Any]:
     """``[fn(*job) for job in jobs]`` in order, on ``workers`` spawned processes when more than one,
-    with a progress bar (spawned: the parent may hold threads and MuJoCo state a fork would copy)."""
+    with a progress bar (spawned: the parent may hold threads and MuJoCo state a fork would copy).
+    ``on_result`` sees each result as it arrives, so a long bench can save what it has done."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -88,10 +96,14 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int, desc: 
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
             for res in pool.map(fn, *zip(*jobs, strict=True)):
                 out.append(res)
+                if on_result is not None:
+                    on_result(res)
                 bar.update(1)
     else:
         for job in jobs:
             out.append(fn(*job))
+            if on_result is not None:
+                on_result(out[-1])
             bar.update(1)
     bar.close()
     return out

@@ -18,12 +18,20 @@ reported confidence and whether the part's answer is right go into a reliability
 confidence bin against the share of them that are right. An undetermined answer that names no joint
 to move is counted too (it must be none). CPU seconds per robot are measured on one thread.
 Writes ``calibration.json``, ``calibration.md`` and ``calibration.png``.
+
+A hundred robots take hours on two cores, so each finished robot is saved to ``--checkpoint``
+(default ``calibration.partial.jsonl`` in the results folder) and a rerun of the same command picks
+up where the last one stopped. A saved robot is reused only while its job and the sources that decide
+its rows (``bodyschema/``, the generator, this file) are byte for byte the same; the file is removed
+once the results are written.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import itertools
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -33,6 +41,9 @@ import numpy as np
 from bench import RESULTS_DIR, machine_note, map_jobs, write_results
 
 __all__ = ["ANSWERS", "BINS", "FORMS", "add_arguments", "run"]
+
+#: What a calibration row depends on besides its job: a saved row is reused only while these hold.
+_SOURCES = ("bodyschema", "bench/generator.py", "bench/generator_sensing.py", "bench/calibration.py")
 
 ANSWERS = ("fast", "network", "combined")
 FORMS = ("single-clock", "multi-rate")
@@ -48,6 +59,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="robots estimated in parallel")
     parser.add_argument("--seed", type=int, default=0, help="first generator seed")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+    parser.add_argument(
+        "--checkpoint",
+        type=Path,
+        default=None,
+        help="finished robots, to resume a stopped run "
+        "(default: calibration.partial.jsonl in the results folder)",
+    )
+
+
+def _source_digest() -> str:
+    """One hash of every source file that decides a row, so a saved row from other code is not reused."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for name in _SOURCES:
+        path = root / name
+        for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            digest.update(str(file.relative_to(root)).encode())
+            digest.update(file.read_bytes())
+    return digest.hexdigest()
+
+
+def _job_key(job: dict[str, Any], sources: str) -> str:
+    return hashlib.sha256((json.dumps(job, sort_keys=True) + sources).encode()).hexdigest()[:24]
+
+
+def _saved(path: Path) -> dict[str, list[dict]]:
+    """Rows of finished robots by job key; a line cut short by a kill is skipped."""
+    saved: dict[str, list[dict]] = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            saved[entry["key"]] = entry["rows"]
+    return saved
 
 
 def _truth(rec: Any) -> tuple[dict, dict]:
@@ -150,21 +197,42 @@ def run(args: argparse.Namespace) -> Path:
     if unknown:
         raise SystemExit(f"unknown forms {unknown}; forms are {list(FORMS)}")
     jobs = [
-        ({"seed": args.seed + i, "joints": (lo, hi), "seconds": args.seconds, "forms": forms},)
+        {"seed": args.seed + i, "joints": [lo, hi], "seconds": args.seconds, "forms": forms}
         for i in range(args.robots)
     ]
+    checkpoint = Path(args.checkpoint or Path(args.out) / "calibration.partial.jsonl")
+    sources = _source_digest()
+    keys = [_job_key(job, sources) for job in jobs]
+    saved = _saved(checkpoint)
+    todo = [(job, key) for job, key in zip(jobs, keys, strict=True) if key not in saved]
+    if len(todo) < len(jobs):
+        print(f"bench calibration: {len(jobs) - len(todo)} robots reused from {checkpoint}", flush=True)
+    pending = iter(key for _, key in todo)
+    checkpoint.parent.mkdir(parents=True, exist_ok=True)
     start = time.time()
-    rows = [r for part in map_jobs(_robot_task, jobs, args.jobs, "bench calibration", "robot") for r in part]
+    with checkpoint.open("a") as log:
+
+        def keep(part: list[dict]) -> None:
+            key = next(pending)
+            saved[key] = part
+            log.write(json.dumps({"key": key, "rows": part}) + "\n")
+            log.flush()
+
+        map_jobs(_robot_task, [(job,) for job, _ in todo], args.jobs, "bench calibration", "robot", keep)
     wall = time.time() - start
+    rows = [r for key in keys for r in saved[key]]
     summary = _summary(rows)
     command = (
         f"bodyhealth bench calibration --robots {args.robots} --joints {args.joints} "
         f"--seconds {args.seconds:g} --forms {','.join(forms)} --jobs {args.jobs} --seed {args.seed}"
     )
     data = {"machine": machine_note(), "command": command, "wall_s": round(wall, 1), "summary": summary}
+    data["reused_robots"] = len(jobs) - len(todo)  # finished by an earlier, stopped run; not in wall_s
     data["rows"] = rows
     text = _markdown(summary, command, rows)
-    return write_results(Path(args.out), "calibration", data, text, lambda path: _plot(summary, path))
+    out = write_results(Path(args.out), "calibration", data, text, lambda path: _plot(summary, path))
+    checkpoint.unlink()
+    return out
 
 
 def _markdown(summary: dict, command: str, rows: list[dict]) -> str:
