@@ -117,6 +117,7 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/topology.md", "shapes", "shapes.json", shapes.figure),
     _f("docs/kinematics.md", "shapes-axis-floor", "shapes.json", shapes.axis_floor),
     _f("docs/robots.md", "robots", "robots.json", robots.figure),
+    _f("docs/robots.md", "robots-foot-plane", "robots.json", robots.foot_plane),
     _f("docs/alert-latency.md", "alerts", "alerts.json", alerts.figure),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),

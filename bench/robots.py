@@ -78,7 +78,7 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
             spec = f"{fault}:" + tmpl.format(j=part, i=part)
             d, cpu = _cpu(floating_diff, base, inject(win, parse_fault(spec)))
             ranks = [k + 1 for k, f in enumerate(d.findings) if f.kind == kind and _names(f, part)]
-            why = None if ranks else _undetermined(fault, base) or _between(d.findings, kind, part)
+            why = None if ranks else _undetermined(name, base) or _between(d.findings, kind, part)
             rows.append({
                 "fault": name, "spec": spec, "window_start_s": round(float(win.t[0] - rec.t[0]), 2),
                 "expected": kind, "found": bool(ranks), "rank": ranks[0] if ranks else None,
@@ -103,11 +103,16 @@ def _between(findings, kind: str, part: str) -> str | None:
     return None
 
 
-def _undetermined(fault: str, base) -> str | None:
-    """Why a fault the recording cannot show was not found (None: it could be)."""
-    if fault not in ("encoder_offset", "imu_rotated") or base.tilt is not None:
-        return None
-    return "no flat-foot stance chain: no leg predicts the gravity the IMU reads"
+def _undetermined(name: str, base) -> str | None:
+    """Why a fault (a key of :data:`FAULTS`) the recording cannot show was not found (None: it could be)."""
+    if name in ("encoder_offset", "imu_rotated") and base.tilt is None:
+        return "no flat-foot stance chain: no leg predicts the gravity the IMU reads"
+    if name == "encoder_sign" and not base.chains:
+        return (
+            "no stance chain: a reading flipped over the whole window shows only by the jump where the "
+            "flip begins, outside the window"
+        )
+    return None
 
 
 def _replay(rec, name: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -157,7 +162,21 @@ def _one(name: str, data: Path, sim2real: bool) -> dict[str, Any]:
             out["sim2real"] = {"result": _jsonable(s2r), "cpu_s": round(cpu, 2)}
         except Exception as err:  # the other model's failure must not lose this bench's figures
             out["sim2real"] = {"error": f"{type(err).__name__}: {err}"}
+        out["foot_plane"] = _foot_plane(rec, data / urdf, joints)
     return out
+
+
+def _foot_plane(rec: Any, urdf: Path, joints: tuple[str, ...]) -> dict[str, Any]:
+    """The feet's plane against the IMU's gravity, and the shift of the 2° offsets and mount turn."""
+    from sim2real.foot_plane import foot_plane_tilt
+    from sim2real.robots import read_robot
+
+    specs = [FAULTS["encoder_offset"][1].format(j=j) for j in joints]
+    specs.append(FAULTS["imu_rotated"][1].format(i=rec.imu_names[0]))
+    kinds = ["encoder_offset"] * len(joints) + ["imu_rotated"]
+    return foot_plane_tilt(
+        rec, read_robot(urdf, rec.joint_names), [f"{k}:{s}" for k, s in zip(kinds, specs, strict=True)]
+    )
 
 
 def _jsonable(x: Any) -> Any:
@@ -206,6 +225,8 @@ def _markdown(res: dict[str, Any]) -> str:
             lines += ["", _replay_line(r["service_replay"])]
         if "sim2real" in r:
             lines += ["", *_sim2real_lines(r["sim2real"])]
+        if "foot_plane" in r:
+            lines += ["", _foot_plane_line(r["foot_plane"])]
         lines.append("")
     return "\n".join(lines) + "\n"
 
@@ -219,6 +240,18 @@ def _replay_line(s: dict[str, Any]) -> str:
         f"wall, fixed-base baseline learned: {'yes' if s['has_baseline'] else 'no'}, floating-base baseline "
         f"learned: {'yes' if s.get('floating_baseline') else 'no'}, alerts: {s['alerts']} ({kinds}); "
         f"worker errors logged: {errs}, exit code {s['exit_code']}."
+    )
+
+
+def _foot_plane_line(p: dict[str, Any]) -> str:
+    """The point feet's plane against the IMU's gravity, in one line."""
+    if "skipped" in p:
+        return f"Feet's plane (sim2real/foot_plane.py): not measured: {p['skipped']}."
+    shifts = ", ".join(f"`{k}` {v}°" for k, v in p["fault_shift_deg"].items())
+    return (
+        f"Feet's plane against the IMU's gravity (sim2real/foot_plane.py, URDF geometry), on "
+        f"{p['plane_fraction']:.0%} of samples: healthy 1 s blocks spread {p['block_std_deg']}° (x, y), "
+        f"the halves' means differ by {p['halves_change_norm_deg']}°; each fault shifts the mean by {shifts}."
     )
 
 

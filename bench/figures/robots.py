@@ -6,7 +6,7 @@ from typing import Any
 
 from bench.figures.files import BenchFiles
 
-__all__ = ["figure"]
+__all__ = ["figure", "foot_plane"]
 
 
 def _faults(faults: list[dict[str, Any]]) -> str:
@@ -45,3 +45,22 @@ def figure(b: BenchFiles) -> str:
         "machine not recorded",
     )
     return f"`bodyhealth bench robots` on {machine} (docs/bench/robots.md): " + "; ".join(parts) + "."
+
+
+def foot_plane(b: BenchFiles) -> str:
+    """Per point-footed robot: the feet's plane against the IMU's gravity, healthy and under each fault."""
+    d = b.json("robots.json")
+    assert isinstance(d, dict)
+    parts = []
+    for name, r in d.items():
+        p = r.get("foot_plane") or {}
+        if "fault_shift_deg" not in p:
+            continue
+        shifts = "; ".join(f"`{k}` {v}°" for k, v in p["fault_shift_deg"].items())
+        parts.append(
+            f"{name}: a plane on {p['plane_fraction']:.0%} of samples; healthy, its tilt against the "
+            f"accelerometer's gravity spreads {p['block_std_deg'][0]}° and {p['block_std_deg'][1]}° "
+            f"(x, y) over 1 s blocks, and the two halves' means differ by {p['halves_change_norm_deg']}°; "
+            f"a fault shifts the mean by: {shifts}"
+        )
+    return "`bodyhealth bench robots` (docs/bench/robots.md): " + ". ".join(parts) + "."

@@ -4,7 +4,9 @@ and not missed."""
 
 from __future__ import annotations
 
-from bench.robots import _between, _names
+from types import SimpleNamespace
+
+from bench.robots import _between, _names, _undetermined
 from bodyschema.findings import Finding
 
 ALONE = Finding("encoder_fault", joint="l_knee")
@@ -23,3 +25,14 @@ def test_a_part_among_rivals_is_undetermined_whichever_the_finding_names() -> No
     assert _between((ALONE, RIVALS), "encoder_fault", "l_knee") is None  # named alone: no rivals
     assert _between((RIVALS,), "imu_rotated", "r_hip_roll") is None  # another kind
     assert _between((RIVALS,), "encoder_fault", "l_hip_roll") is None  # not among them
+
+
+def test_only_faults_the_recording_cannot_show_are_excused_as_undetermined() -> None:
+    """Point feet (no stance chain, no tilt model): an offset, a mount turn and a flip over the whole
+    window cannot show; a flip that begins inside the window jumps, and missing it stays a miss."""
+    point = SimpleNamespace(chains=(), tilt=None)
+    flat = SimpleNamespace(chains=("a chain",), tilt="a tilt model")
+    for name in ("encoder_offset", "imu_rotated", "encoder_sign"):
+        assert _undetermined(name, point) and _undetermined(name, flat) is None
+    for name in ("encoder_sign mid-window", "encoder_frozen", "imu_silent"):
+        assert _undetermined(name, point) is None
