@@ -113,12 +113,12 @@ def fit_topology(
 
     The sensor-network methods record in ``training["warm"]`` whether training began from the
     ``warm_start=`` weights (1) or from random ones (0: none given, or of another shape).
-    ``heldout_check=True`` tests the networks' tree against its rivals on held-out data
-    (:func:`bodyschema.network_confidence.heldout_check`) before any part is called decided.
+    A sensor-network tree is tested against its rivals on held-out data
+    (:func:`bodyschema.network_confidence.heldout_check`) before any part is called decided;
+    ``heldout_check=False`` returns the networks' own ranking untested.
     """
     _check_input(rec, method)
-    # opt-in until it stops leaving parts undetermined that the networks placed right (docs/topology.md)
-    heldout = bool(kw.pop("heldout_check", False))
+    heldout = bool(kw.pop("heldout_check", True))
     start = timer() if timer is not None else 0.0
     fast_opts = _fast_options(kw) if method == "fast" else None
     rec, timed, timing = _timed(rec, method, fast_opts, imu_delay)

@@ -60,7 +60,7 @@ def _start_child(parent: int) -> None:
 
 
 def default_estimator(
-    rec: Recording, method: str, imu_delay: float | None = None, heldout_check: bool = False
+    rec: Recording, method: str, imu_delay: float | None = None, heldout_check: bool = True
 ) -> Topology:
     """:func:`~bodyschema.estimate.estimate_topology` timed in CPU seconds; ``imu_delay`` (s) is the
     IMUs' stated filter delay (``Settings.imu_filter_delay_ms``), taken out of the lag for the skew;
@@ -77,7 +77,7 @@ class EstimatorProcess:
     (module doc), with the IMUs' stated filter delay ``imu_delay`` (s) and the networks' held-out test
     ``heldout_check``."""
 
-    def __init__(self, imu_delay: float | None = None, heldout_check: bool = False) -> None:
+    def __init__(self, imu_delay: float | None = None, heldout_check: bool = True) -> None:
         self.imu_delay = imu_delay
         self.heldout_check = heldout_check
         self._pool: ProcessPoolExecutor | None = None

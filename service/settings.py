@@ -105,11 +105,10 @@ class Settings(BaseSettings):
         "baseline shows a new finding (needs network_interval_cycles > 0)",
     )
     network_heldout_check: bool = Field(
-        False,
+        True,
         description="test the sensor networks' tree against its rival answers on held-out data before a "
         "part counts as decided (bodyschema.network_confidence); parts the data do not decide are then "
-        "undetermined rather than the networks' ranking. Off by default: it also leaves parts "
-        "undetermined that the networks placed right (docs/topology.md)",
+        "undetermined rather than the networks' ranking (false: the ranking, untested)",
     )
     kinematics_interval_cycles: int = Field(
         6,

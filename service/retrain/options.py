@@ -40,8 +40,9 @@ class TrainingOptions:
     nice: int = 0
     #: the training thread in Linux's idle scheduling class (:func:`service.retrain.task.lower_priority`)
     idle: bool = False
-    #: the networks' tree tested against its rivals on held-out data (``Settings.network_heldout_check``)
-    heldout_check: bool = False
+    #: the networks' tree tested against its rivals on held-out data (None: as
+    #: ``Settings.network_heldout_check`` says)
+    heldout_check: bool | None = None
     seed: InitVar[int | None] = None
 
     def __post_init__(self, seed: int | None) -> None:
@@ -60,7 +61,9 @@ class TrainingOptions:
             nice=settings.training_nice if embedded else 0,
             idle=settings.training_idle and embedded,
             imu_delay=base.imu_delay if base.imu_delay is not None else settings.imu_filter_delay,
-            heldout_check=base.heldout_check or settings.network_heldout_check,
+            heldout_check=(
+                base.heldout_check if base.heldout_check is not None else settings.network_heldout_check
+            ),
         )
 
 

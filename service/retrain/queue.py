@@ -517,5 +517,5 @@ class RemoteRetrains:
             warm_start=self.options.warm_start,
             nice=self.options.nice,
             idle=self.options.idle,
-            heldout_check=self.options.heldout_check,
+            heldout_check=self.options.heldout_check is not False,  # None: the default, on
         )

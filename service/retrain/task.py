@@ -84,7 +84,7 @@ class RetrainJob:
     lag_hint: float = 0.0
     #: the networks' tree tested against its rivals on held-out data
     #: (:func:`bodyschema.network_confidence.heldout_check`)
-    heldout_check: bool = False
+    heldout_check: bool = True
 
 
 @dataclass(frozen=True)

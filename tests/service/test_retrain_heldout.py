@@ -1,7 +1,7 @@
 """``Settings.network_heldout_check``: the service's network retrains test their tree against its
-rivals on held-out data (bodyschema.network_confidence) when it is set, on the cluster's task and in
-the worker's own estimator (inline or in its child process) alike, and not when it is not (the
-default).
+rivals on held-out data (bodyschema.network_confidence) when it is set (the default), on the cluster's
+task and in the worker's own estimator (inline or in its child process) alike, and not when it is
+switched off.
 
 The window: the synthetic three-joint arm with j3 held still (tests/builders.py), read back from a
 real SQLite store. The networks alone call its tree unique; with the check no part stands, the
@@ -38,12 +38,13 @@ def window(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, float]:
 
 
 def test_the_setting_reaches_the_training_options() -> None:
-    on = Settings(database_url="sqlite://", network_heldout_check=True)
-    off = Settings(database_url="sqlite://")
-    assert TrainingOptions.from_settings(on).heldout_check is True
+    """On by default; an explicit false in the settings or in the options given is kept."""
+    default = Settings(database_url="sqlite://")
+    off = Settings(database_url="sqlite://", network_heldout_check=False)
+    assert TrainingOptions.from_settings(default).heldout_check is True
     assert TrainingOptions.from_settings(off).heldout_check is False
-    kept = TrainingOptions.from_settings(off, TrainingOptions(heldout_check=True))
-    assert kept.heldout_check is True
+    assert TrainingOptions.from_settings(off, TrainingOptions(heldout_check=True)).heldout_check is True
+    assert TrainingOptions.from_settings(default, TrainingOptions(heldout_check=False)).heldout_check is False
 
 
 def test_a_retrain_task_with_the_check_leaves_an_undecided_window_undetermined(
@@ -69,7 +70,7 @@ def test_a_retrain_task_with_the_check_leaves_an_undecided_window_undetermined(
 
 def test_the_workers_own_estimator_takes_the_setting(window: tuple[str, float]) -> None:
     url, end = window
-    settings = Settings(database_url=url, window_seconds=WINDOW, network_heldout_check=True)
+    settings = Settings(database_url=url, window_seconds=WINDOW)  # the check is on by default
     with open_store(url) as store:
         rec = store.read_window("arm", WINDOW, end=end, epoch=0)
         worker = Worker(store, settings)
@@ -84,6 +85,6 @@ def test_the_estimating_child_takes_the_setting(window: tuple[str, float]) -> No
     with open_store(url) as store:
         rec = store.read_window("arm", WINDOW, end=end, epoch=0)
     assert rec is not None
-    with EstimatorProcess(heldout_check=True) as estimate:
+    with EstimatorProcess() as estimate:  # the check is on by default
         topo = estimate(rec, "network")
     assert not topo.unique and set(topo.undetermined) == {"j1", "j2", "j3"} and topo.candidates
