@@ -767,6 +767,12 @@ def _assemble(
         h = parent_of[g][0]
         up = 1.0 if h == world else edge_conf[h]
         joint_conf[active[a]] = min(edge_conf[g], up)
+    if sig.undetermined.any():
+        # A joint seen still is a placeholder that could hang anywhere, and an IMU on its link (or a
+        # joint under it) reads what one on the link above reads: every placement has that rival, so
+        # none is decided while one is listed (bodyschema.verdict), and none is more than even odds.
+        imu_conf = np.minimum(imu_conf, 0.5)
+        joint_conf = np.minimum(joint_conf, 0.5)
 
     edges = [
         (g, (-1 if h == world else h), tuple(int(active[a]) for a in js), float(r))

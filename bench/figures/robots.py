@@ -40,11 +40,14 @@ def figure(b: BenchFiles) -> str:
         if r.get("service_replay"):
             text += f"; {_replay(r['service_replay'])}"
         parts.append(text)
-    machine = next(
-        (ln.split(":", 1)[1].strip() for ln in b.text("robots.md").splitlines() if ln.startswith("Machine:")),
-        "machine not recorded",
+    return f"`bodyhealth bench robots` on {_machine(b)} (docs/bench/robots.md): " + "; ".join(parts) + "."
+
+
+def _machine(b: BenchFiles) -> str:
+    lines = b.text("robots.md").splitlines()
+    return next(
+        (ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("Machine:")), "machine not recorded"
     )
-    return f"`bodyhealth bench robots` on {machine} (docs/bench/robots.md): " + "; ".join(parts) + "."
 
 
 def foot_plane(b: BenchFiles) -> str:
@@ -63,4 +66,4 @@ def foot_plane(b: BenchFiles) -> str:
             f"(x, y) over 1 s blocks, and the two halves' means differ by {p['halves_change_norm_deg']}°; "
             f"a fault shifts the mean by: {shifts}"
         )
-    return "`bodyhealth bench robots` (docs/bench/robots.md): " + ". ".join(parts) + "."
+    return f"`bodyhealth bench robots` on {_machine(b)} (docs/bench/robots.md): " + ". ".join(parts) + "."

@@ -62,6 +62,8 @@ def test_joint_held_still_is_undetermined_and_nothing_false_is_said(rng):
     topo = estimate_topology(rec)
     assert topo.undetermined == (u,)
     assert topo.confidence[f"joint:{u}"] == 0.0
+    # any IMU or joint could ride the still joint's link unseen: no placement is more than even odds
+    assert max(topo.confidence.values()) <= 0.5
     assert topo.excitation[u] < 1e-9
     # everything else is exact on the tree with the still joint contracted
     jp, ij = contract(rec.truth_parent_map, rec.truth_imu_map, u)
