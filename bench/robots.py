@@ -66,7 +66,7 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
 
     rows = []
     imu = rec.imu_names[0]
-    for name, (kind, tmpl) in FAULTS.items():
+    for name, (kind, _) in FAULTS.items():
         fault = name.split()[0]
         if fault == "encoder_offset":  # the tilt it causes is judged per window: two of each
             targets = [(j, w) for j in joints for w in wins[:2]]
@@ -75,7 +75,7 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
         else:
             targets = [(imu, w) for w in wins[:2]]
         for part, win in targets:
-            spec = f"{fault}:" + tmpl.format(j=part, i=part)
+            spec = _spec(name, part)
             d, cpu = _cpu(floating_diff, base, inject(win, parse_fault(spec)))
             ranks = [k + 1 for k, f in enumerate(d.findings) if f.kind == kind and _names(f, part)]
             why = None if ranks else _undetermined(name, base) or _between(d.findings, kind, part)
@@ -86,6 +86,11 @@ def _faults(rec, base, wins, joints) -> list[dict[str, Any]]:
                 "undetermined": why,
             })  # fmt: skip
     return rows
+
+
+def _spec(name: str, part: str) -> str:
+    """The fault spec of :data:`FAULTS` entry ``name`` on ``part`` (a joint or the IMU)."""
+    return f"{name.split()[0]}:" + FAULTS[name][1].format(j=part, i=part)
 
 
 def _names(f, part: str) -> bool:
@@ -171,12 +176,8 @@ def _foot_plane(rec: Any, urdf: Path, joints: tuple[str, ...]) -> dict[str, Any]
     from sim2real.foot_plane import foot_plane_tilt
     from sim2real.robots import read_robot
 
-    specs = [FAULTS["encoder_offset"][1].format(j=j) for j in joints]
-    specs.append(FAULTS["imu_rotated"][1].format(i=rec.imu_names[0]))
-    kinds = ["encoder_offset"] * len(joints) + ["imu_rotated"]
-    return foot_plane_tilt(
-        rec, read_robot(urdf, rec.joint_names), [f"{k}:{s}" for k, s in zip(kinds, specs, strict=True)]
-    )
+    specs = [_spec("encoder_offset", j) for j in joints] + [_spec("imu_rotated", rec.imu_names[0])]
+    return foot_plane_tilt(rec, read_robot(urdf, rec.joint_names), specs)
 
 
 def _jsonable(x: Any) -> Any:

@@ -29,7 +29,7 @@ import numpy as np
 
 from bodyschema.contacts import force_contacts
 from bodyschema.faults import inject, parse_fault
-from bodyschema.floating_base import chain_motion, derivative, foot_plane_gravity
+from bodyschema.floating_base import chain_frames, foot_plane_gravity
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import lowpass
 from bodyschema.stance_chains import foot_forces
@@ -46,9 +46,8 @@ BLOCK_S = 1.0
 def _tilt(rec: Recording, model: RobotModel, down: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(samples with a plane, (n, 2) small-angle tilt of the accelerometer's gravity from the plane's
     about the IMU's x and y axes, rad)."""
-    q = rec.q
-    feet = [chain_motion(ch, q, derivative(rec.t, q), model.flat) for ch in model.feet.values()]
-    plane = foot_plane_gravity(np.stack([f.p for f in feet], axis=1), down, np.asarray(rec.gravity, float))
+    feet = np.stack([chain_frames(ch, rec.q)[1] for ch in model.feet.values()], axis=1)  # positions only
+    plane = foot_plane_gravity(feet, down, np.asarray(rec.gravity, float))
     ok = np.isfinite(plane[:, 0])
     measured = -lowpass(rec.acc[:, 0], rec.sample_rate, CUTOFF_HZ)[ok]
     a = plane[ok] / np.linalg.norm(plane[ok], axis=1, keepdims=True)
