@@ -22,7 +22,6 @@ from bodyschema.fast_core import (
     _hop_features,
     _TimedTerms,
     _two_hop_features,
-    noise_level,
 )
 from bodyschema.recording import Recording
 
@@ -69,24 +68,21 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
        then are thinned to 2.5 samples per band period;
     5. the model tests are those of :mod:`bodyschema.fast` with an **error model** in place of a tolerance:
        the expected residual variance of a right model, per gyro channel, is the in-band gyro noise
-       (white noise scaled by the band's share of the spectrum) + a relative model error ``ε²·RMS²``
-       with ``ε² = model_tol² + (2π f_rms δ)² + (1 - |H_imu(fc)|)²`` (``δ`` the lag's uncertainty: the
-       scatter of the per-quarter lags about their line, at least :data:`LAG_RESOLUTION`; ``f_rms`` the
-       gyro's RMS frequency in band; ``H_imu`` a first-order roll-off at ``imu_bandwidth``, or at the
-       IMU Nyquist frequency when not stated) + ``n_j² / 3`` for each joint ``j`` whose derived rate the
-       model uses (``n_j`` its in-band error, quantization and noise,
+       (:func:`bodyschema.timing.gyro_band_noise`: white noise through the stated low-pass) + a relative
+       model error ``ε²·RMS²`` with ``ε² = model_tol² + (2π f_rms δ)² + (1 - |H_imu(fc)|)²`` (``δ`` the
+       lag's uncertainty: the scatter of the per-quarter lags about their line, at least
+       :data:`LAG_RESOLUTION`; ``f_rms`` the gyro's RMS frequency in band; ``H_imu`` a first-order roll-off
+       at ``imu_bandwidth``, or at the IMU Nyquist frequency when not stated) + ``n_j² / 3`` for each joint
+       ``j`` whose derived rate the model uses (``n_j`` its in-band error, quantization and noise,
        :func:`bodyschema.timing.rate_noise`; it enters as ``e n_j`` with ``|e| = 1``, spread over three
-       channels). The on-base and same-link models compare gyros alone; they carry the largest
-       ``n_j² / 3``, which covers what the gyro noise estimate misses of a low-passed gyro. A joint
-       is tested when its in-band rate RMS is ``min_excitation_snr`` times each per-channel std a right
-       model leaves (gyro noise, the model error at :data:`LAG_RESOLUTION`, its own ``n_j / √3``);
-       else it is undetermined. A model is accepted when
-       its residual variance is below ``fit_ratio`` times that (a variance-ratio test), and rival models
-       are ranked by BIC with the effective sample size of the band-limited residuals,
-       ``2 fc`` independent values per second and channel; a rival through another joint that fits
-       within the F quantile of the chosen model's residual variance, for those degrees of freedom,
-       leaves both joints undetermined (:func:`bodyschema.fast_core._rival_joints`).
-    """
+       channels). The on-base and same-link models compare gyros alone; they carry the largest ``n_j² / 3``.
+       A joint is tested when its in-band rate RMS is ``min_excitation_snr`` times each per-channel std a
+       right model leaves (gyro noise, the model error at :data:`LAG_RESOLUTION`, its own ``n_j / √3``);
+       else it is undetermined. A model is accepted when its residual variance is below ``fit_ratio`` times
+       that (a variance-ratio test), and rival models are ranked by BIC with the effective sample size of
+       the band-limited residuals, ``2 fc`` independent values per second and channel; a rival through
+       another joint that fits within the F quantile of the chosen model's residual variance, for those
+       degrees of freedom, leaves both joints undetermined (:func:`bodyschema.fast_core._rival_joints`)."""
     q, gyro, t, t_q = _checked_timed(q, gyro, t, t_q)
     data, lag, shift = _centred_lag(q, gyro, t, t_q, opts)
     err = _error_model(q, data, lag, opts)
@@ -291,9 +287,8 @@ def _error_model(q: np.ndarray, data: _TimedGrid, lag: _Lag, opts: FastOptions) 
     from bodyschema import timing as tm
 
     f_imu, fc, step, K = data.f_imu, data.fc, data.step, data.gyro_g.shape[1]
-    share = min(1.0, fc / (f_imu / 2))
-    sigma_raw = noise_level(data.gyro_g[data.ok])
-    sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0) * np.sqrt(share)
+    sigma_raw = tm.gyro_band_noise(data.gyro_g[data.ok], f_imu, fc, opts.imu_bandwidth)
+    sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0)
     qd_noise = tm.rate_noise(q, data.f_enc, fc)
     gc = data.gyro_b.reshape(len(data.keep), K, 3)
     gc = gc - gc.mean(axis=0)

@@ -16,20 +16,19 @@ checked against its rivals with the exact gyro models of :mod:`bodyschema.fast_c
 * **joint J under P**: the IMUs on J's link predicted from P's link through J. Rivals: J under every
   joint outside its own subtree, and under the base.
 
-Error model (per output channel of IMU k, predicted from IMU h; both in the comparison band ``fc``
-of :func:`bodyschema.timing.choose_band`): ``v = σ_k² + σ_h² + n_hinges·σ_q̇² + ε² RMS_k²`` with
-``σ`` the in-band gyro noise (:func:`bodyschema.fast.noise_level` scaled to the band), ``σ_q̇`` the
-in-band derivative noise of the encoder positions (:func:`bodyschema.timing.derivative_noise`, largest
-over the joints) and ``ε² = model_tol² + (2π f_rms δ)²`` the relative model error of a velocity
-derived from 100 Hz positions and of the lag's uncertainty ``δ``. A model *fits* when its held-out
-residual variance is below ``fit_ratio · v`` (the fast method's variance-ratio test, same ratio). A part
-is decided when its chosen model fits and every rival that fits leaves significantly more held-out
-residual, beyond chance (the F quantile of the fast method's rival test) and beyond what the model
-error could leave (:func:`_close_rivals`); otherwise it is
-undetermined, with
-the joints whose motion would tell the answers apart (the joints on one answer's path and not on the
-other's). A joint whose in-band motion leaves less than ``fit_ratio · v`` of residual when left out
-cannot be resolved at all and is reported as insufficient excitation.
+Error model (per output channel of IMU k, predicted from IMU h; both in the comparison band ``fc`` of
+:func:`bodyschema.timing.choose_band`): ``v = σ_k² + σ_h² + n_hinges·σ_q̇² + ε² RMS_k²`` with ``σ`` the
+in-band gyro noise (:func:`bodyschema.timing.gyro_band_noise`, through the stated low-pass), ``σ_q̇`` the
+in-band derivative noise of the encoder positions (:func:`bodyschema.timing.derivative_noise`, largest over
+the joints) and ``ε² = model_tol² + (2π f_rms δ)²`` the relative model error of a velocity derived from 100
+Hz positions and of the lag's uncertainty ``δ``. A model *fits* when its held-out residual variance is below
+``fit_ratio · v`` (the fast method's variance-ratio test, same ratio). A part is decided when its chosen
+model fits and every rival that fits leaves significantly more held-out residual, beyond chance (the F
+quantile of the fast method's rival test) and beyond what the model error could leave
+(:func:`_close_rivals`); otherwise it is undetermined, with the joints whose motion would tell the answers
+apart (the joints on one answer's path and not on the other's). A joint whose in-band motion leaves less
+than ``fit_ratio · v`` of residual when left out cannot be resolved at all and is reported as insufficient
+excitation.
 
 Confidence of a decided part: ``1 / (1 + exp(-Λ))`` with ``Λ = ½ n (log s²_rival − log s²_chosen)``
 the log-likelihood ratio of the best rival on the ``n`` independent held-out values (the band keeps
@@ -45,7 +44,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bodyschema.fast_core import RIVAL_ALPHA, _hop_features, _two_hop_features, noise_level
+from bodyschema.fast_core import RIVAL_ALPHA, _hop_features, _two_hop_features
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
@@ -136,9 +135,8 @@ class _Data:
         self.gyroT = np.ascontiguousarray(rec.gyro.transpose(1, 2, 0))  # (K, 3, T)
         self.gb = self.band(rec.gyro, axis=0)  # (Tb, K, 3)
         K = rec.gyro.shape[1]
-        share = min(1.0, fc / (f / 2))
-        sig = noise_level(rec.gyro)
-        self.sigma = np.where(np.isfinite(sig), sig, 0.0) * np.sqrt(share)
+        sig = tm.gyro_band_noise(rec.gyro, f, fc, bw)
+        self.sigma = np.where(np.isfinite(sig), sig, 0.0)
         qd_noise = tm.derivative_noise(tm.position_noise(rec.q), f, fc)
         self.qd_var = float(np.max(qd_noise**2)) if qd_noise.size else 0.0
         gc = self.gb[np.concatenate([self.fold_a, self.fold_b])]

@@ -62,6 +62,7 @@ __all__ = [
     "encoder_count",
     "encoders_moved",
     "estimate_lag",
+    "gyro_band_noise",
     "lag_hinted",
     "lag_moved",
     "lag_search_centre",
@@ -200,6 +201,46 @@ def position_noise(q: np.ndarray) -> np.ndarray:
     cut = np.quantile(d3, 0.99, axis=0)
     d3 = np.where(d3 <= cut, d3, 0.0)
     return np.sqrt(d3.mean(axis=0) / 20.0)
+
+
+def gyro_band_noise(
+    gyro: np.ndarray, rate: float, fc: float, imu_bandwidth: float | None = None
+) -> np.ndarray:
+    """(K,) std per channel of the gyro noise of ``gyro`` (T, K, 3) sampled at ``rate`` inside 0..fc.
+
+    Model: white sensor noise of density ``N0`` through the IMU's stated low-pass (``imu_bandwidth``,
+    Hz), so the band keeps ``N0 fc``. Without a filter below ``rate / 2`` the noise is white to Nyquist
+    and :func:`bodyschema.fast_core.noise_level` (the third difference, which smooth motion hardly
+    reaches) gives it. A filter below Nyquist empties the top of the spectrum the third difference
+    reads: at 100 Hz a 20 Hz filter leaves it under 1 % of the noise, so ``N0`` is read instead from the
+    spectrum between half the bandwidth and the bandwidth (above the comparison band, which
+    :func:`choose_band` keeps under a quarter of it), divided by a first-order roll-off's power gain
+    there. The filter's true shape is not stated: a sharper one passes up to twice a first-order one's
+    power there (whose gain is ½ at the bandwidth, 0.8 at half of it), so the variance errs high by at
+    most 2, the side on which more models fit. Welch's median average and the median over frequencies
+    keep torque steps and motion lines out, as the median does for the third difference.
+
+    >>> rng = np.random.default_rng(0)
+    >>> x = rng.normal(scale=1e-3, size=(6000, 1, 3))  # white to 50 Hz: 1e-6 rad²/s² over 0..50 Hz
+    >>> bool(abs(gyro_band_noise(x, 100.0, 5.0)[0] / (1e-3 * np.sqrt(5 / 50)) - 1) < 0.05)
+    True
+    """
+    from scipy.signal import welch
+
+    from bodyschema.fast_core import noise_level
+
+    gyro = np.asarray(gyro, dtype=float)
+    share = min(1.0, fc / (rate / 2))
+    if imu_bandwidth is None or imu_bandwidth >= rate / 2 or gyro.shape[0] < 64:
+        return noise_level(gyro) * np.sqrt(share)
+    nper = int(min(gyro.shape[0] // 4, 2 ** np.ceil(np.log2(4 * rate))))
+    f, psd = welch(gyro - np.median(gyro, axis=0), fs=rate, nperseg=nper, axis=0, average="median")
+    sel = (f >= imu_bandwidth / 2) & (f <= imu_bandwidth)
+    if not sel.any():
+        return noise_level(gyro) * np.sqrt(share)
+    gain = 1.0 / (1.0 + (f[sel] / imu_bandwidth) ** 2)
+    density = np.median(psd[sel] / gain[:, None, None], axis=0)  # (K, 3), one-sided, per Hz
+    return np.sqrt(np.mean(density, axis=-1) * fc)
 
 
 def derivative_noise(sigma_q: np.ndarray, rate: float, fc: float) -> np.ndarray:

@@ -7,11 +7,13 @@ velocity derived), joints on sums of slow sines like the independent generator's
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from bodyschema.forward_kinematics import RobotChain
-from bodyschema.network_confidence import heldout_check, heldout_test
+from bodyschema.network_confidence import HeldOutOptions, heldout_check, heldout_test
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
@@ -34,12 +36,15 @@ def _recording(
     amps: tuple[float, float, float],
     same_sine: bool = False,
     seed: int = 3,
-    links: tuple[int, ...] = (0, 0, 1, 1, 2, 2),
+    links: tuple[int | None, ...] = (0, 0, 1, 1, 2, 2),
+    dlpf_cfg: int | None = None,
 ) -> Recording:
     """60 s of the chain at 100 Hz; ``amps`` the joints' angle amplitudes (rad); ``same_sine`` drives
-    j2 with j1's angle; ``links[k]`` the joint whose link carries IMU ``ik``."""
+    j2 with j1's angle; ``links[k]`` the joint whose link carries IMU ``ik``; ``dlpf_cfg`` an MPU-6050
+    on-chip low-pass the gyros sample through at 1 kHz (zero-phase, so no lag), stated in the file."""
     rng = np.random.default_rng(seed)
-    t = np.arange(6000) / 100.0
+    fine = 1 if dlpf_cfg is None else 10
+    t = np.arange(6000 * fine) / (100.0 * fine)
     q = np.stack([_sines(rng, t, a) for a in amps], axis=1)
     if same_sine:
         q[:, 2] = q[:, 1]
@@ -56,7 +61,14 @@ def _recording(
     )
     _, _, omega = chain.motion(q, qd)
     gyro = omega + rng.normal(scale=0.035, size=(1, len(links), 3))
-    gyro = gyro + rng.normal(scale=6e-4, size=omega.shape)
+    gyro = gyro + rng.normal(scale=6e-4 * np.sqrt(fine), size=omega.shape)
+    extra = {}
+    if dlpf_cfg is not None:
+        from simulators.sensing import DLPF_GYRO, dlpf_filter
+
+        gyro = dlpf_filter(gyro, 1000.0, DLPF_GYRO[dlpf_cfg][0])[::fine]
+        t, q = t[::fine], q[::fine]
+        extra["sensing"] = np.array(json.dumps({"dlpf_cfg": dlpf_cfg}))
     return Recording(
         t=t,
         joint_names=list(JOINTS),
@@ -64,6 +76,7 @@ def _recording(
         imu_names=[f"i{k}" for k in range(len(links))],
         acc=np.zeros_like(gyro),
         gyro=gyro,
+        extra=extra,
     )
 
 
@@ -216,3 +229,28 @@ def test_a_rival_is_rejected_only_beyond_chance_and_beyond_the_model_error() -> 
     assert _close_rivals(2.0, {0: 3.5}, 25.0, 4000.0) == ()
     # a rival that does not fit is no rival
     assert _close_rivals(20.0, {0: 26.0}, 25.0, 40.0) == ()
+
+
+def test_a_gyro_low_passed_on_chip_is_judged_by_the_noise_its_filter_leaves_in_band() -> None:
+    # at 100 Hz a 20 Hz on-chip filter leaves the third difference about a hundredth of the gyro's
+    # noise; read through the stated filter, a right model's held-out residual is the error model's
+    from dataclasses import replace
+
+    # i0 rides the base: its gyro reads noise alone, which is what the error model must size
+    links = (None, 0, 0, 1, 1, 2, 2)
+    truth = Topology(dict(TRUTH.joint_parent), {f"i{k}": _name(j) for k, j in enumerate(links)})
+    rec = _recording((0.8, 0.8, 0.8), links=links, dlpf_cfg=4)
+    test = heldout_test(rec, truth)
+    assert test.band_hz == 5.0  # a quarter of the filter's bandwidth
+    assert all(p.decided for p in test.parts.values())
+    assert 0.5 < test.parts["imu:i0"].ratio < 2.0  # noise alone, as the error model has it
+    topo = heldout_check(rec, truth)
+    assert topo.unique and topo.undetermined == ()
+    # the same samples without the filter stated: the noise is read as white, far too low, and the
+    # base IMU's right answer no longer fits
+    blind = heldout_test(replace(rec, extra={}), truth, HeldOutOptions(band=5.0))
+    assert blind.parts["imu:i0"].ratio > 25.0 and not blind.parts["imu:i0"].decided
+
+
+def _name(j: int | None) -> str | None:
+    return None if j is None else JOINTS[j]
