@@ -79,6 +79,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="recording length, s")
     parser.add_argument("--methods", default="fast,network", help="estimators to run")
     parser.add_argument(
+        "--cells",
+        default="all",
+        help="sensing conditions to run, comma-separated ('all': every one); a cell run alone gets the "
+        "same robots and the same sensing draws as in a run of all",
+    )
+    parser.add_argument(
         "--network-cells",
         default="ideal,pos 14 bit,robot preset",
         help="cells the network method runs on (it costs tens of CPU s per robot); 'all' for every cell",
@@ -164,6 +170,8 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
     fine = Simulation(robot, seed=sim_ss, rate=1000.0).advance(seconds=job["seconds"])
     rows = []
     for c, (cell, opts) in enumerate(CELLS.items()):
+        if cell not in job.get("cells", CELLS):
+            continue
         if opts is None:
             rec = fine.select(slice(None, None, 10))  # 100 Hz, synced, exact velocities
         else:
@@ -238,7 +246,8 @@ def run(args: argparse.Namespace) -> Path:
     net_cells = (
         list(CELLS) if args.network_cells == "all" else [c.strip() for c in args.network_cells.split(",")]
     )
-    unknown = [c for c in net_cells if c not in CELLS]
+    cells = list(CELLS) if args.cells == "all" else [c.strip() for c in args.cells.split(",")]
+    unknown = [c for c in [*net_cells, *cells] if c not in CELLS]
     if unknown:
         raise SystemExit(f"unknown cells {unknown}; cells are {list(CELLS)}")
     jobs = [
@@ -248,6 +257,7 @@ def run(args: argparse.Namespace) -> Path:
             "seed": args.seed,
             "seconds": args.seconds,
             "methods": methods,
+            "cells": cells,
             "network_cells": net_cells,
             "network_robots": args.network_robots,
             "single_clock": args.single_clock,
@@ -279,7 +289,9 @@ def run(args: argparse.Namespace) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     command = (
         f"bodyhealth bench realism --joints {args.joints} --robots {args.robots} --seconds {args.seconds:g} "
-        f"--methods {args.methods} --network-cells '{args.network_cells}' "
+        f"--methods {args.methods}"
+        + ("" if args.cells == "all" else f" --cells '{args.cells}'")
+        + f" --network-cells '{args.network_cells}' "
         f"--network-robots {args.network_robots} --catalog-seeds {args.catalog_seeds} --seed {args.seed}"
         + ("" if args.single_clock else " --no-single-clock")
     )

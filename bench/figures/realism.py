@@ -9,8 +9,9 @@ from bench.figures.files import BenchFiles
 __all__ = ["figure"]
 
 
-def figure(b: BenchFiles) -> str:
-    d = b.json("realism.json")
+def figure(b: BenchFiles, name: str = "realism") -> str:
+    """``bench realism``'s run in ``docs/bench/<name>.json``."""
+    d = b.json(f"{name}.json")
     assert isinstance(d, dict)
     summary, rows, catalog = d["summary"], d["rows"], d.get("catalog", [])
     sizes = sorted({r["joints"] for r in rows})
@@ -42,7 +43,7 @@ def figure(b: BenchFiles) -> str:
         )
     text = (
         f"On random MuJoCo robots of {', '.join(map(str, sizes))} joints ({n_robots} "
-        f"robots, {len({r['cell'] for r in rows})} sensing conditions; {b.provenance('realism')}): "
+        f"robots, {len({r['cell'] for r in rows})} sensing conditions; {b.provenance(name)}): "
         + "; ".join(parts)
         + "."
     )
