@@ -114,6 +114,18 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/sim2real.md", "gravity-networks", "gravity.json", gravity.networks),
     _f("docs/topology.md", "realism", "realism.json", realism.figure),
     _f("README.md", "realism", "realism.json", realism.figure),
+    _f(
+        "docs/topology.md",
+        "realism-onchip-filter",
+        "realism-onchip-filter/realism.json",
+        lambda b: realism.figure(b, "realism-onchip-filter/realism"),
+    ),
+    _f(
+        "README.md",
+        "realism-onchip-filter",
+        "realism-onchip-filter/realism.json",
+        lambda b: realism.figure(b, "realism-onchip-filter/realism"),
+    ),
     _f("docs/topology.md", "shapes", "shapes.json", shapes.figure),
     _f("docs/kinematics.md", "shapes-axis-floor", "shapes.json", shapes.axis_floor),
     _f("docs/robots.md", "robots", "robots.json", robots.figure),

@@ -175,7 +175,7 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
         if opts is None:
             rec = fine.select(slice(None, None, 10))  # 100 Hz, synced, exact velocities
         else:
-            rec = apply_sensing(fine, opts, np.random.default_rng(sense_ss.spawn(len(CELLS))[c]))
+            rec = apply_sensing(fine, opts, np.random.default_rng(_cell_seed(sense_ss, c)))
         shapes = (rec, single_clock(rec)) if job.get("single_clock", True) else (rec,)
         for method in job["methods"]:
             if method != "fast" and (cell not in job["network_cells"] or index >= job["network_robots"]):
@@ -187,6 +187,21 @@ def _robot_task(job: dict[str, Any]) -> list[dict[str, Any]]:
                     row["shape"] = shape
                 rows.append(row)
     return rows
+
+
+def _cell_seed(sense: np.random.SeedSequence, c: int) -> np.random.SeedSequence:
+    """The sensing draws of cell ``c``, whichever cells run: the ones a run of every cell has always
+    used (there cell ``c`` took child ``c`` of the ``c``-th ``spawn(len(CELLS))``, whose spawn key is
+    ``c·len(CELLS) + c``), so a cell rerun alone reproduces its rows of the full run.
+
+    >>> ss = np.random.SeedSequence(7)
+    >>> full = [ss.spawn(len(CELLS))[c] for c in range(len(CELLS))]
+    >>> all(_cell_seed(np.random.SeedSequence(7), c).generate_state(2).tolist()
+    ...     == full[c].generate_state(2).tolist() for c in range(len(CELLS)))
+    True
+    """
+    key = (*sense.spawn_key, c * (len(CELLS) + 1))
+    return np.random.SeedSequence(sense.entropy, spawn_key=key, pool_size=sense.pool_size)
 
 
 def _estimate(rec: Any, method: str, fine: Any, opts: SensingOptions | None) -> dict[str, Any]:

@@ -28,3 +28,13 @@ def test_small_realism_grid_is_exact_everywhere_and_written(tmp_path):
     assert "| robot preset | 1/0/**0**" in text
     assert data["machine"] in text
     assert (tmp_path / "realism.png").stat().st_size > 5000
+    # a cell rerun alone meets the same robot and the same sensing draws as in the run of all
+    some = tmp_path / "some"
+    args = parser.parse_args([*small, "--cells", "DLPF 20 Hz,robot preset", "--out", str(some)])
+    realism.run(args)
+    again = json.loads((some / "realism.json").read_text())
+    assert "--cells 'DLPF 20 Hz,robot preset'" in again["command"]
+    assert [r["cell"] for r in again["rows"]] == ["DLPF 20 Hz", "robot preset"]
+    for r in again["rows"]:
+        (same,) = [x for x in rows if x["cell"] == r["cell"]]
+        assert (r["verdict"], r["skew_ms"]) == (same["verdict"], same["skew_ms"])
