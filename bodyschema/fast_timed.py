@@ -82,7 +82,8 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
        that (a variance-ratio test), and rival models are ranked by BIC with the effective sample size of
        the band-limited residuals, ``2 fc`` independent values per second and channel; a rival through
        another joint that fits within the F quantile of the chosen model's residual variance, for those
-       degrees of freedom, leaves both joints undetermined (:func:`bodyschema.fast_core._rival_joints`)."""
+       degrees of freedom, leaves both joints undetermined (:func:`bodyschema.fast_core._rival_joints`).
+    """
     q, gyro, t, t_q = _checked_timed(q, gyro, t, t_q)
     data, lag, shift = _centred_lag(q, gyro, t, t_q, opts)
     err = _error_model(q, data, lag, opts)
