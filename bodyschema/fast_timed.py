@@ -288,8 +288,7 @@ def _error_model(q: np.ndarray, data: _TimedGrid, lag: _Lag, opts: FastOptions) 
     from bodyschema import timing as tm
 
     f_imu, fc, step, K = data.f_imu, data.fc, data.step, data.gyro_g.shape[1]
-    sigma_raw = tm.gyro_band_noise(data.gyro_g[data.ok], f_imu, fc, opts.imu_bandwidth)
-    sigma_b = np.where(np.isfinite(sigma_raw), sigma_raw, 0.0)
+    sigma_b = tm.gyro_band_noise(data.gyro_g[data.ok], f_imu, fc, opts.imu_bandwidth)
     qd_noise = tm.rate_noise(q, data.f_enc, fc)
     gc = data.gyro_b.reshape(len(data.keep), K, 3)
     gc = gc - gc.mean(axis=0)

@@ -38,13 +38,13 @@ and 0 when its chosen model does not fit.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bodyschema.fast_core import RIVAL_ALPHA, _hop_features, _two_hop_features
+from bodyschema.fast_core import RIVAL_ALPHA, FastOptions, _hop_features, _two_hop_features
+from bodyschema.fast_timed import stated_filter
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 
@@ -117,7 +117,7 @@ class _Data:
 
         assert rec.q is not None and rec.qd is not None
         f = tm.median_rate(rec.t)
-        bw = _stated_bandwidth(rec)
+        bw = stated_filter(rec, FastOptions()).imu_bandwidth
         fc = float(opts.band) if opts.band is not None else tm.choose_band(f, f, bw)
         self.fc, self.rate = fc, f
         self.step = max(1, int(f // (2.5 * fc)))
@@ -135,8 +135,7 @@ class _Data:
         self.gyroT = np.ascontiguousarray(rec.gyro.transpose(1, 2, 0))  # (K, 3, T)
         self.gb = self.band(rec.gyro, axis=0)  # (Tb, K, 3)
         K = rec.gyro.shape[1]
-        sig = tm.gyro_band_noise(rec.gyro, f, fc, bw)
-        self.sigma = np.where(np.isfinite(sig), sig, 0.0)
+        self.sigma = tm.gyro_band_noise(rec.gyro, f, fc, bw)
         qd_noise = tm.derivative_noise(tm.position_noise(rec.q), f, fc)
         self.qd_var = float(np.max(qd_noise**2)) if qd_noise.size else 0.0
         gc = self.gb[np.concatenate([self.fold_a, self.fold_b])]
@@ -200,15 +199,6 @@ class _Data:
     @property
     def n_heldout(self) -> int:
         return len(self.fold_a) + len(self.fold_b)
-
-
-def _stated_bandwidth(rec: Recording) -> float | None:
-    if "sensing" not in rec.extra:
-        return None
-    from bodyschema.timing import DLPF_GYRO
-
-    cfg = json.loads(str(rec.extra["sensing"])).get("dlpf_cfg")
-    return None if cfg is None else float(DLPF_GYRO[int(cfg)][0])
 
 
 def _hinge_gains_ok(

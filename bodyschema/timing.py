@@ -206,7 +206,8 @@ def position_noise(q: np.ndarray) -> np.ndarray:
 def gyro_band_noise(
     gyro: np.ndarray, rate: float, fc: float, imu_bandwidth: float | None = None
 ) -> np.ndarray:
-    """(K,) std per channel of the gyro noise of ``gyro`` (T, K, 3) sampled at ``rate`` inside 0..fc.
+    """(K,) std per channel of the gyro noise of ``gyro`` (T, K, 3) sampled at ``rate`` inside 0..fc
+    (0 where too few samples to tell).
 
     Model: white sensor noise of density ``N0`` through the IMU's stated low-pass (``imu_bandwidth``,
     Hz), so the band keeps ``N0 fc``. Without a filter below ``rate / 2`` the noise is white to Nyquist
@@ -230,17 +231,18 @@ def gyro_band_noise(
     from bodyschema.fast_core import noise_level
 
     gyro = np.asarray(gyro, dtype=float)
-    share = min(1.0, fc / (rate / 2))
-    if imu_bandwidth is None or imu_bandwidth >= rate / 2 or gyro.shape[0] < 64:
-        return noise_level(gyro) * np.sqrt(share)
-    nper = int(min(gyro.shape[0] // 4, 2 ** np.ceil(np.log2(4 * rate))))
-    f, psd = welch(gyro - np.median(gyro, axis=0), fs=rate, nperseg=nper, axis=0, average="median")
-    sel = (f >= imu_bandwidth / 2) & (f <= imu_bandwidth)
-    if not sel.any():
-        return noise_level(gyro) * np.sqrt(share)
-    gain = 1.0 / (1.0 + (f[sel] / imu_bandwidth) ** 2)
-    density = np.median(psd[sel] / gain[:, None, None], axis=0)  # (K, 3), one-sided, per Hz
-    return np.sqrt(np.mean(density, axis=-1) * fc)
+    sigma = None
+    if imu_bandwidth is not None and imu_bandwidth < rate / 2 and gyro.shape[0] >= 64:
+        nper = int(min(gyro.shape[0] // 4, 2 ** np.ceil(np.log2(4 * rate))))
+        f, psd = welch(gyro - np.median(gyro, axis=0), fs=rate, nperseg=nper, axis=0, average="median")
+        sel = (f >= imu_bandwidth / 2) & (f <= imu_bandwidth)
+        if sel.any():
+            gain = 1.0 / (1.0 + (f[sel] / imu_bandwidth) ** 2)
+            density = np.median(psd[sel] / gain[:, None, None], axis=0)  # (K, 3), one-sided, per Hz
+            sigma = np.sqrt(np.mean(density, axis=-1) * fc)
+    if sigma is None:
+        sigma = noise_level(gyro) * np.sqrt(min(1.0, fc / (rate / 2)))
+    return np.where(np.isfinite(sigma), sigma, 0.0)
 
 
 def derivative_noise(sigma_q: np.ndarray, rate: float, fc: float) -> np.ndarray:
