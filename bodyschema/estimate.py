@@ -140,9 +140,11 @@ def fit_topology(
         evidence=found.evidence,
     )
     if heldout and method != "fast":  # the networks' ranking is sure only where held-out rivals fail
-        from bodyschema.network_confidence import heldout_check
+        from bodyschema.network_confidence import HeldOutOptions, heldout_check
 
-        topo = heldout_check(rec, topo)
+        # the streams were aligned by the fast fit's lag, which is known as well as it measured it
+        lag_unc = timing.get("lag_unc_ms")
+        topo = heldout_check(rec, topo, HeldOutOptions(lag_unc=1e-3 * lag_unc) if lag_unc else None)
     topo = _with(
         topo, seconds=(timer() - start) if timer is not None else 0.0, timing=timing, training=found.training
     )
@@ -178,6 +180,7 @@ def _timed(
         "lag_ms": float(timed.lag_ms or 0.0),
         "skew_ms": float(timed.skew_ms or 0.0),
         **({} if timed.drift_ppm is None else {"drift_ppm": float(timed.drift_ppm)}),
+        **({} if timed.lag_unc_ms is None else {"lag_unc_ms": float(timed.lag_unc_ms)}),
         "band_hz": float(timed.band_hz or 0.0),
         "at_s": float(timed.lag_time or 0.0),
     }

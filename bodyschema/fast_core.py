@@ -184,8 +184,11 @@ class FastFit:
     #: at encoder-clock time ``lag_time`` s (the middle of the fit; clock skew plus filter delay), the
     #: skew alone (lag less the stated filter delay), the clock drift (the lag's slope; None from
     #: under 30 s of data, where there are not two 15 s segments to take a slope through), all as
-    #: estimated, and the comparison band.
+    #: estimated, the lag's uncertainty (the segments' scatter about the drift line, at least
+    #: :data:`~bodyschema.fast_timed.LAG_RESOLUTION`; None, like the drift, from under 30 s) and the
+    #: comparison band.
     lag_ms: float | None = None
+    lag_unc_ms: float | None = None
     lag_time: float | None = None
     skew_ms: float | None = None
     drift_ppm: float | None = None

@@ -87,7 +87,8 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
     q, gyro, t, t_q = _checked_timed(q, gyro, t, t_q)
     data, lag, shift = _centred_lag(q, gyro, t, t_q, opts)
     err = _error_model(q, data, lag, opts)
-    fit = _fit_at(data, err, lag, 2e-3, opts)  # the first lag is good to a ms or two
+    lag_unc = 2e-3  # the first lag is good to a ms or two
+    fit = _fit_at(data, err, lag, lag_unc, opts)
     n_seg = int(min(4, (data.tk[-1] - data.tk[0]) // 15.0))
     if fit.edges:
         # the lag again, now from the accepted models themselves (exact where the first search is only
@@ -99,6 +100,8 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
     fit.skew_ms = 1e3 * float(lag.mid + shift - (opts.imu_delay or 0.0))
     # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
     fit.drift_ppm = 1e6 * float(lag.drift) if n_seg >= 2 and fit.edges else None
+    # and the lag's uncertainty is their scatter about that line (one segment states 2 ms, unmeasured)
+    fit.lag_unc_ms = 1e3 * float(lag_unc) if n_seg >= 2 and fit.edges else None
     fit.band_hz = data.fc
     fit.path = "timed"
     return fit

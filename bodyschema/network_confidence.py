@@ -17,11 +17,12 @@ checked against its rivals with the exact gyro models of :mod:`bodyschema.fast_c
   joint outside its own subtree, and under the base.
 
 Error model (per output channel of IMU k, predicted from IMU h; both in the comparison band ``fc`` of
-:func:`bodyschema.timing.choose_band`): ``v = σ_k² + σ_h² + n_hinges·σ_q̇² + ε² RMS_k²`` with ``σ`` the
+:func:`bodyschema.timing.choose_band`): ``v = σ_k² + σ_h² + Σ_hinges σ_q̇² + ε² RMS_k²`` with ``σ`` the
 in-band gyro noise (:func:`bodyschema.timing.gyro_band_noise`, through the stated low-pass), ``σ_q̇`` the
-in-band derivative noise of the encoder positions (:func:`bodyschema.timing.derivative_noise`, largest over
-the joints) and ``ε² = model_tol² + (2π f_rms δ)²`` the relative model error of a velocity derived from 100
-Hz positions and of the lag's uncertainty ``δ``. A model *fits* when its held-out residual variance is below
+in-band derivative noise of the encoder positions (:func:`bodyschema.timing.derivative_noise`), summed over
+the hinges the model reads, and ``ε² = model_tol² + (2π f_rms δ)²`` the relative model error of a velocity
+derived from 100 Hz positions and of the lag's uncertainty ``δ`` (the fast fit's measured one where it
+aligned the streams: ``timing["lag_unc_ms"]``). A model *fits* when its held-out residual variance is below
 ``fit_ratio · v`` (the fast method's variance-ratio test, same ratio). A part is decided when its chosen
 model fits and every rival that fits leaves significantly more held-out residual, beyond chance (the F
 quantile of the fast method's rival test) and beyond what the model error could leave
@@ -136,8 +137,9 @@ class _Data:
         self.gb = self.band(rec.gyro, axis=0)  # (Tb, K, 3)
         K = rec.gyro.shape[1]
         self.sigma = tm.gyro_band_noise(rec.gyro, f, fc, bw)
-        qd_noise = tm.derivative_noise(tm.position_noise(rec.q), f, fc)
-        self.qd_var = float(np.max(qd_noise**2)) if qd_noise.size else 0.0
+        # per joint: a model's derived velocities carry the noise of the encoders it reads, not the
+        # noisiest joint's
+        self.qd_var = tm.derivative_noise(tm.position_noise(rec.q), f, fc) ** 2  # (N,)
         gc = self.gb[np.concatenate([self.fold_a, self.fold_b])]
         gc = gc - gc.mean(axis=0)
         ms = np.mean(gc * gc, axis=(0, 2))
@@ -326,7 +328,7 @@ class _Scorer:
         if not np.all(ok[ks]):
             return np.inf  # the fitted hinge is no rotation: the answer does not hold
         sig_h = 0.0 if h == _WORLD else data.sigma[h] ** 2
-        v = data.sigma[ks] ** 2 + sig_h + len(hinges) * data.qd_var + data.model_var[ks]
+        v = data.sigma[ks] ** 2 + sig_h + np.sum(data.qd_var[list(hinges)]) + data.model_var[ks]
         return float(np.sum(rss[ks]) / (3 * data.n_heldout * np.sum(v)))
 
     def base_ratio(self, k: int) -> float:
@@ -399,8 +401,10 @@ def heldout_test(rec: Recording, topo: Topology, options: HeldOutOptions | None 
             f"joint:{name}", tree.parent[j], rivals, opts.fit_ratio, n_obs, tree, joints, joint=j
         )
     _links_decided(parts, tree, joints, imus)
-    v_ref = float(np.median(2 * data.sigma**2 + data.qd_var + data.model_var))
-    weak = tuple(n for i, n in enumerate(joints) if data.excitation[i] ** 2 / 3 < opts.fit_ratio * v_ref)
+    # a joint is too weakly moved when its in-band rate is within the fit test of what a typical model
+    # through it leaves: two gyros' noise, the model error and its own derived velocity's noise
+    v_ref = float(np.median(2 * data.sigma**2 + data.model_var)) + data.qd_var
+    weak = tuple(n for i, n in enumerate(joints) if data.excitation[i] ** 2 / 3 < opts.fit_ratio * v_ref[i])
     exc = {n: float(x) for n, x in zip(joints, data.excitation, strict=True)}
     return HeldOutTest(parts, weak, data.fc, n_obs, exc)
 

@@ -54,6 +54,9 @@ def test_random_trees_are_exact_where_the_synced_estimator_is_wrong(seed, n_join
     assert abs(fit.lag_ms - _true_lag_ms(skew, fit.lag_time)) < 0.3
     assert abs(fit.skew_ms - 1e3 * (skew + fit.lag_time * DRIFT)) < 0.3  # the stated DLPF delay taken out
     assert abs(fit.drift_ppm - 30.0) < 10.0
+    # the lag's uncertainty (the networks' held-out tests read it): measured, and it covers the error
+    assert 0.25 <= fit.lag_unc_ms < 1.0
+    assert abs(fit.lag_ms - _true_lag_ms(skew, fit.lag_time)) < 3 * fit.lag_unc_ms
     assert fit.band_hz == pytest.approx(10.0, rel=1e-3)
     # the same data on one clock through the synced estimator: what a user got before
     synced = rec.synced().derived()  # velocities derived and then passed off as measured
@@ -82,6 +85,8 @@ def test_estimate_topology_takes_the_stamps_and_answers_the_true_tree(seed):
     # the skew in ms, with the drift accumulated up to the middle of the fit
     mid = 0.5 * (rec.t[0] + rec.t[-1])
     assert abs(topo.timing["skew_ms"] - 1e3 * (6e-3 + mid * DRIFT)) < 0.3
+    # like the drift, the lag's uncertainty is measured from two 15 s segments or more, not from 30 s
+    assert "lag_unc_ms" not in topo.timing and "drift_ppm" not in topo.timing
     assert topo.to_json()["timing"]["band_hz"] == pytest.approx(10.0, rel=1e-3)  # 0.1 x the jittered rate
 
 
