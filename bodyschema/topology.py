@@ -35,8 +35,8 @@ class Topology:
     best-guess parent but must not be trusted. ``candidates`` holds alternative complete answers when the
     answer is not unique (partially instrumented robots). ``timing`` is set when the encoders and the
     IMUs were logged on separate clocks (docs/recording-format.md): the IMU's estimated lag behind the
-    encoders and its parts, ``{"lag_ms", "skew_ms", "drift_ppm", "band_hz", "at_s"}`` (``drift_ppm`` only
-    from 30 s of data or more; the lag holds at
+    encoders and its parts, ``{"lag_ms", "lag_unc_ms", "skew_ms", "drift_ppm", "band_hz", "at_s"}``
+    (``drift_ppm`` and the lag's uncertainty ``lag_unc_ms`` only from 30 s of data or more; the lag holds at
     encoder-clock time ``at_s``; with a drift it changes away from it). ``training`` is set by the
     network methods: ``{"epochs", "converged", "loss"}``, the epochs trained, 1.0 when training stopped
     on a flat loss rather than at its epoch bound, and the last epoch's loss.
