@@ -134,8 +134,9 @@ def format_tree(topo: Topology) -> str:
     if topo.timing:
         tm = topo.timing
         drift = f"drift {tm['drift_ppm']:.0f} ppm" if "drift_ppm" in tm else "drift not estimated (< 30 s)"
+        unc = f" ± {tm['lag_unc_ms']:.2f}" if "lag_unc_ms" in tm else ""
         lines.append(
-            f"IMU-to-encoder skew {tm['skew_ms']:.2f} ms (IMU lag {tm['lag_ms']:.2f} ms at "
+            f"IMU-to-encoder skew {tm['skew_ms']:.2f}{unc} ms (IMU lag {tm['lag_ms']:.2f} ms at "
             f"{tm['at_s']:.1f} s, {drift}, compared below {tm['band_hz']:.1f} Hz)"
         )
     if topo.training:

@@ -204,6 +204,9 @@ class TimingOut(BaseModel):
     lag_ms: float | None = Field(
         None, description="IMU lag behind the encoders: clock skew plus filter delay"
     )
+    lag_unc_ms: float | None = Field(
+        None, description="the lag's uncertainty, ms (from 30 s of data on, like the drift)"
+    )
     skew_ms: float | None = Field(None, description="IMU-to-encoder clock skew, ms")
     drift_ppm: float | None = Field(None, description="clock drift between the two, ppm")
     band_hz: float | None = Field(None, description="band the gyro and encoder rates were compared in, Hz")

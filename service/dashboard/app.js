@@ -412,8 +412,10 @@ function renderStatus(card, st) {
         : ` at device time ${st.timing.at_s.toFixed(0)} s`;
       const drift = st.timing.drift_ppm === null || st.timing.drift_ppm === undefined ? ""
         : `, drift ${st.timing.drift_ppm.toFixed(0)} ppm`;
+      const unc = st.timing.lag_unc_ms === null || st.timing.lag_unc_ms === undefined ? ""
+        : ` ± ${st.timing.lag_unc_ms.toFixed(1)}`;
       extra.push(el("span", { class: "skew" },
-        `IMU-to-encoder skew ${st.timing.skew_ms.toFixed(1)} ms${at}${lag}${drift}`));
+        `IMU-to-encoder skew ${st.timing.skew_ms.toFixed(1)}${unc} ms${at}${lag}${drift}`));
     }
     if (st.training) {
       const t = st.training;

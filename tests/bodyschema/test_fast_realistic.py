@@ -85,7 +85,7 @@ def test_estimate_topology_takes_the_stamps_and_answers_the_true_tree(seed):
     # the skew in ms, with the drift accumulated up to the middle of the fit
     mid = 0.5 * (rec.t[0] + rec.t[-1])
     assert abs(topo.timing["skew_ms"] - 1e3 * (6e-3 + mid * DRIFT)) < 0.3
-    # like the drift, the lag's uncertainty is measured from two 15 s segments or more, not from 30 s
+    # like the drift, the lag's uncertainty takes two 15 s segments: 30 s less the band's edges hold one
     assert "lag_unc_ms" not in topo.timing and "drift_ppm" not in topo.timing
     assert topo.to_json()["timing"]["band_hz"] == pytest.approx(10.0, rel=1e-3)  # 0.1 x the jittered rate
 

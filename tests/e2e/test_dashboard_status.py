@@ -34,7 +34,14 @@ FULL = topology_from_dependency(
 # j2's link carries no IMU: two trees fit. Encoders and IMUs on separate clocks, 12.5 ms apart.
 SPARSE = dataclasses.replace(
     topology_from_dependency(np.array([[1, 0, 0], [1, 1, 1]]), ["imu0", "imu2"], JOINTS, method="fast"),
-    timing={"lag_ms": 14.25, "skew_ms": 12.5, "drift_ppm": 0.0, "band_hz": 10.0, "at_s": 0.4},
+    timing={
+        "lag_ms": 14.25,
+        "lag_unc_ms": 0.31,
+        "skew_ms": 12.5,
+        "drift_ppm": 0.0,
+        "band_hz": 10.0,
+        "at_s": 0.4,
+    },
 )
 SPARSE_TRUE = Topology({"j1": None, "j2": "j1", "j3": "j2"}, {"imu0": "j1", "imu2": "j3"}, method="fast")
 GREEN = "rgb(46, 125, 50)"
@@ -118,7 +125,7 @@ def test_status_shown_per_robot(browser: Any, served: tuple[str, Store], tmp_pat
         "to decide, move each on its own with the others still: j1, j2, j3"
     )
     assert sparse.locator(".skew").inner_text() == (
-        "IMU-to-encoder skew 12.5 ms at device time 0 s (IMU lag 14.3 ms), drift 0 ppm"
+        "IMU-to-encoder skew 12.5 ± 0.3 ms at device time 0 s (IMU lag 14.3 ms), drift 0 ppm"
     )
     # the reasons, without repeating the joints to move
     (reason,) = sparse.locator(".reasons li").all_inner_texts()

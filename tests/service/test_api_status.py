@@ -199,7 +199,15 @@ def test_unconfirmed_difference_is_undetermined_and_active_alerts_are_damage(sto
 def test_timing_and_training_of_the_judged_topology(store: Store) -> None:
     frames(store, "arm", ["imu0", "imu1", "imu2"])
     timed = dataclasses.replace(
-        FULL, timing={"lag_ms": 14.25, "skew_ms": 12.5, "drift_ppm": 3.0, "band_hz": 10.0, "at_s": 5.0}
+        FULL,
+        timing={
+            "lag_ms": 14.25,
+            "lag_unc_ms": 0.31,
+            "skew_ms": 12.5,
+            "drift_ppm": 3.0,
+            "band_hz": 10.0,
+            "at_s": 5.0,
+        },
     )
     store.save_topology("arm", timed, 100.0, 0.19)
     store.set_baseline("arm", FULL, "auto")
@@ -215,6 +223,7 @@ def test_timing_and_training_of_the_judged_topology(store: Store) -> None:
     assert (body["status"], body["method"]) == ("healthy", "fast")
     assert body["timing"] == {
         "lag_ms": 14.25,
+        "lag_unc_ms": 0.31,
         "skew_ms": 12.5,
         "drift_ppm": 3.0,
         "band_hz": 10.0,
