@@ -98,10 +98,11 @@ def timed_fit(q: np.ndarray, gyro: np.ndarray, t: np.ndarray, t_q: np.ndarray, o
     fit.lag_ms = 1e3 * float(lag.mid + shift)
     fit.lag_time = lag.t_mid
     fit.skew_ms = 1e3 * float(lag.mid + shift - (opts.imu_delay or 0.0))
-    # a drift is a slope through the lags of several 15 s segments: none is claimed from fewer
-    fit.drift_ppm = 1e6 * float(lag.drift) if n_seg >= 2 and fit.edges else None
-    # and the lag's uncertainty is their scatter about that line (one segment states 2 ms, unmeasured)
-    fit.lag_unc_ms = 1e3 * float(lag_unc) if n_seg >= 2 and fit.edges else None
+    # a drift is a slope through the lags of several 15 s segments, and the lag's uncertainty their
+    # scatter about it: neither is claimed from fewer (one segment states 2 ms, unmeasured)
+    segments = n_seg >= 2 and bool(fit.edges)
+    fit.drift_ppm = 1e6 * float(lag.drift) if segments else None
+    fit.lag_unc_ms = 1e3 * float(lag_unc) if segments else None
     fit.band_hz = data.fc
     fit.path = "timed"
     return fit
