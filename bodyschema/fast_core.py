@@ -382,7 +382,7 @@ def _rival_joints(
     that joint's motion and fails by orders of magnitude; over a short stretch of slow motion the rates
     span a few smooth shapes (7 joints, 3 s of random excitation: singular values 1.1, 0.71, 0.11,
     0.04, 0.015, 0.003, 0.002 rad/s), the parent's gyro and the rotation terms mix them, and a model
-    through the wrong joint fits as well as the right one (seen: within 0.1 to 2 times): the joints
+    through the wrong joint fits about as well as the right one, better or worse: the joints
     are then undetermined, never guessed by BIC. Rivals through the same joint (the world model is
     nested in a sibling's) and the reversed edges of the group's own children (the same hinge) are no
     rivals; the BIC ranks those.

@@ -377,8 +377,8 @@ def _shift_window(
 
     ±4 ms around the lag in 1 ms steps, to be refined by a parabola: the residual is smooth in the
     shift (both sides band-limited to fc <= 10 Hz, whose period is >= 100 ms). The first lag can be
-    several ms off (seen: 6.5 ms on a UR5e): while the whole fit's best shift sits on the edge of the
-    window, the window moves there (at most ``max_lag`` away).
+    more than these 4 ms off: while the whole fit's best shift sits on the edge of the window, the
+    window moves there (at most ``max_lag`` away).
     """
     shifts = np.arange(-4.0e-3, 4.0e-3 + 1e-9, shift_step)
     base = data.grid - lag.at(data.grid)

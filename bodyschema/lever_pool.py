@@ -138,11 +138,26 @@ def _rho(arms: np.ndarray) -> float:
     return min(max(rho, 0.0), 0.9)
 
 
-def _mean_variance(k: int, rho: float) -> float:
+def _mean_variances(k_max: int, rho: float) -> np.ndarray:
     """The variance of the mean of ``k`` consecutive AR(1) errors of unit variance, lag-one
-    correlation ``rho``: ``(1 + 2 Σⱼ (1 - j/k) ρʲ) / k``; ``κ / k`` for large ``k``, 1 for one."""
-    j = np.arange(1, k)
-    return float(1.0 + 2.0 * np.sum((1.0 - j / k) * rho**j)) / k
+    correlation ``rho``, for each ``k`` from 1 to ``k_max``: ``(1 + 2 Σⱼ₌₁ᵏ⁻¹ (1 - j/k) ρʲ) / k``;
+    ``κ / k`` for large ``k``, 1 for one. All at once (running sums of ``ρʲ`` and ``j ρʲ``): a
+    comparison looks at every ``k`` up to ``n_recent``.
+
+    >>> np.round(_mean_variances(3, 0.5), 4).tolist()  # 1, (1 + ρ) / 2, (3 + 4ρ + 2ρ²) / 9
+    [1.0, 0.75, 0.6111]
+    """
+    j = np.arange(1.0, max(k_max, 1))
+    powers = rho**j
+    below = np.concatenate(([0.0], np.cumsum(powers)))  # Σ ρʲ over j < k
+    weighted = np.concatenate(([0.0], np.cumsum(j * powers)))  # Σ j ρʲ over j < k
+    k = np.arange(1.0, k_max + 1)
+    return (1.0 + 2.0 * (below[:k_max] - weighted[:k_max] / k)) / k
+
+
+def _mean_variance(k: int, rho: float) -> float:
+    """:func:`_mean_variances` of one ``k``."""
+    return float(_mean_variances(k, rho)[-1])
 
 
 def _limit(nu: float, alpha: float, p: int = 3) -> float:
@@ -168,6 +183,7 @@ class _Base:
     cov: np.ndarray
     rho: float
     nu: float
+    mean_variance: float  # of the pool's mean, per unit of one window's (:func:`_mean_variance`)
 
     @classmethod
     def of(cls, arms: np.ndarray, o: PoolOptions, axis: np.ndarray | None) -> _Base:
@@ -177,7 +193,8 @@ class _Base:
         rho = _rho(x)
         kappa = (1.0 + rho) / (1.0 - rho)
         cov = np.cov(x.T).reshape(p, p) + o.ridge_m**2 * np.eye(p)
-        return cls(plane, x.shape[0], x.mean(axis=0), cov, rho, max(x.shape[0] / kappa - 1.0, p + 1.0))
+        n = x.shape[0]
+        return cls(plane, n, x.mean(axis=0), cov, rho, max(n / kappa - 1.0, p + 1.0), _mean_variance(n, rho))
 
     def distances(self, recent: np.ndarray) -> np.ndarray:
         """Each of ``recent``'s (k, 3) squared distance from the pool's mean, in the pool's metric."""
@@ -190,7 +207,7 @@ class _Base:
         prediction: its own error is one window's, ``S``."""
         x = _in_plane(recent, self.plane)
         d = x.mean(axis=0) - self.mean
-        sigma = self.cov * (_mean_variance(self.n, self.rho) + _mean_variance(x.shape[0], self.rho))
+        sigma = self.cov * (self.mean_variance + _mean_variance(x.shape[0], self.rho))
         return float(d @ np.linalg.solve(sigma, d)), d
 
 
@@ -210,13 +227,23 @@ def _looks(pool: _Base, b: np.ndarray, o: PoolOptions) -> list[tuple[float, np.n
     full, part = _limits(pool, o)
     if o.n_recent == 1:
         return [(*pool.t2(b[-1:]), full, 1)]
-    far = pool.distances(b)  # once: each look's farthest is the argmax over its own tail of these
-    out = []
-    for k in range(2, b.shape[0] + 1):
-        x = b[-k:]
-        x = np.delete(x, int(np.argmax(far[-k:])), axis=0)
-        out.append((*pool.t2(x), full if k == o.n_recent else part, k))
-    return out
+    m = b.shape[0]
+    if m < 2:
+        return []
+    # every look at once (:meth:`_Base.t2` of each, vectorised: a pool is judged for every k up to
+    # n_recent, for every IMU, in each comparison): the newest k's sum less its farthest, their means'
+    # change, and T² with the variance of the mean of k - 1 estimates beside the pool's
+    far = pool.distances(b)
+    ks = np.arange(2, m + 1)
+    drop = np.array([m - k + int(np.argmax(far[-k:])) for k in ks])
+    x = _in_plane(b, pool.plane)
+    newest = np.cumsum(x[::-1], axis=0)[ks - 1]
+    d = (newest - x[drop]) / (ks - 1)[:, None] - pool.mean
+    scale = pool.mean_variance + _mean_variances(m - 1, pool.rho)[ks - 2]
+    t2 = np.einsum("ij,ij->i", d, np.linalg.solve(pool.cov, d.T).T) / scale
+    return [
+        (float(t), dk, full if k == o.n_recent else part, int(k)) for t, dk, k in zip(t2, d, ks, strict=True)
+    ]
 
 
 def pooled_shifts(

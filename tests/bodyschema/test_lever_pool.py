@@ -44,9 +44,10 @@ AFTER = 40
 def _arms(rng: np.random.Generator, n: int, rho: float, shift: float = 0.0) -> list[np.ndarray]:
     """``n`` consecutive windows' lever arms of one IMU, slid by ``shift`` m along y."""
     x = rng.normal(size=3)
+    c = np.sqrt(1.0 - rho**2)
     out = []
-    for _ in range(n):
-        x = rho * x + np.sqrt(1.0 - rho**2) * rng.normal(size=3)
+    for e in rng.normal(size=(n, 3)):  # the same draws, in the same order, as one call per window
+        x = rho * x + c * e
         out.append(ARM + [0.0, shift, 0.0] + SD * x)
     return out
 
@@ -115,9 +116,9 @@ def _windows_to_find(o: PoolOptions, sd: np.ndarray, shift: np.ndarray, seeds: i
     out = []
     for seed in range(seeds):
         rng = np.random.default_rng(seed)
-        base = [ARM + sd * rng.normal(size=3) for _ in range(o.n_base)]
-        seq = [ARM + sd * rng.normal(size=3) for _ in range(o.n_recent)]
-        seq += [ARM + shift + sd * rng.normal(size=3) for _ in range(after)]
+        base = list(ARM + sd * rng.normal(size=(o.n_base, 3)))
+        seq = list(ARM + sd * rng.normal(size=(o.n_recent, 3)))
+        seq += list(ARM + shift + sd * rng.normal(size=(after, 3)))
         hits = (
             m
             for m in range(1, after + 1)
