@@ -131,6 +131,12 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/robots.md", "robots", "robots.json", robots.figure),
     _f("docs/robots.md", "robots-foot-plane", "robots.json", robots.foot_plane),
     _f("docs/alert-latency.md", "alerts", "alerts.json", alerts.figure),
+    _f(
+        "docs/alert-latency.md",
+        "alerts-loaded",
+        "alerts-loaded.json",
+        lambda b: alerts.figure(b, "alerts-loaded"),
+    ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),
     _f("docs/recording-format.md", "import", "import.json", import_.doc),

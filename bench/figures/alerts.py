@@ -1,4 +1,5 @@
-"""Figures from ``bench alerts`` (docs/bench/alerts.json): alerts in time on a loaded machine."""
+"""Figures from ``bench alerts`` (docs/bench/alerts.json, and a run kept under another name): alerts in
+time on a loaded machine."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ def _metric(name: str, m: dict[str, Any]) -> str:
     return f"{name} max {m['max']:.0f} (median {m['median']:.0f}, target {m['target']:g})"
 
 
-def figure(b: BenchFiles) -> str:
-    d = b.json("alerts.json")
+def figure(b: BenchFiles, name: str = "alerts") -> str:
+    """One line per run file ``name``.json: the command, the loads and each timed target's max."""
+    d = b.json(f"{name}.json")
     assert isinstance(d, dict)
     s, runs = d["summary"], d["runs"]
     loads = [x for r in runs for x in (r["load_before"], r["load_after"])]
