@@ -207,8 +207,13 @@ class _Base:
         prediction: its own error is one window's, ``S``."""
         x = _in_plane(recent, self.plane)
         d = x.mean(axis=0) - self.mean
-        sigma = self.cov * (self.mean_variance + _mean_variance(x.shape[0], self.rho))
-        return float(d @ np.linalg.solve(sigma, d)), d
+        return float(self.t2s(d[None], np.array([x.shape[0]]))[0]), d
+
+    def t2s(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """``T²`` of each change ``d`` (m, p) of a mean of ``k`` (m,) recent estimates from the pool's:
+        every look of a comparison in one solve."""
+        scale = self.mean_variance + _mean_variances(int(k.max()), self.rho)[k - 1]
+        return np.einsum("ij,ij->i", d, np.linalg.solve(self.cov, d.T).T) / scale
 
 
 def _limits(pool: _Base, o: PoolOptions) -> tuple[float, float]:
@@ -230,17 +235,15 @@ def _looks(pool: _Base, b: np.ndarray, o: PoolOptions) -> list[tuple[float, np.n
     m = b.shape[0]
     if m < 2:
         return []
-    # every look at once (:meth:`_Base.t2` of each, vectorised: a pool is judged for every k up to
-    # n_recent, for every IMU, in each comparison): the newest k's sum less its farthest, their means'
-    # change, and T² with the variance of the mean of k - 1 estimates beside the pool's
+    # every look at once (a pool is judged for every k up to n_recent, for every IMU, in each
+    # comparison): the newest k's sum less its farthest, their means' change, and their T²
     far = pool.distances(b)
     ks = np.arange(2, m + 1)
     drop = np.array([m - k + int(np.argmax(far[-k:])) for k in ks])
     x = _in_plane(b, pool.plane)
     newest = np.cumsum(x[::-1], axis=0)[ks - 1]
     d = (newest - x[drop]) / (ks - 1)[:, None] - pool.mean
-    scale = pool.mean_variance + _mean_variances(m - 1, pool.rho)[ks - 2]
-    t2 = np.einsum("ij,ij->i", d, np.linalg.solve(pool.cov, d.T).T) / scale
+    t2 = pool.t2s(d, ks - 1)
     return [
         (float(t), dk, full if k == o.n_recent else part, int(k)) for t, dk, k in zip(t2, d, ks, strict=True)
     ]
