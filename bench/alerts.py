@@ -445,7 +445,12 @@ class _Run:
             "baseline_limit_s": self.limits.get("baseline_s", self.o.baseline_limit),
             "alert_limit_s": self.limits.get("alert_s", self.o.alert_limit),
             "damages": damages,
-            "false_alerts": classify(seen, self.injections, self.restart["t_s"] if self.restart else None),
+            "false_alerts": classify(
+                seen,
+                self.injections,
+                self.restart["t_s"] if self.restart else None,
+                self.watch.details_snapshot() if self.watch is not None else None,
+            ),
             "restart": self.restart,
             "approvals": self.approvals,
             "flood": self.flood,

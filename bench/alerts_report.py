@@ -54,16 +54,24 @@ def key_str(key: AlertKey) -> str:
     return " ".join(key)
 
 
-def update_first_seen(seen: dict[AlertKey, dict[str, float]], t: float, alerts: Iterable[Mapping]) -> None:
+def update_first_seen(
+    seen: dict[AlertKey, dict[str, float]],
+    t: float,
+    alerts: Iterable[Mapping],
+    details: dict[AlertKey, dict[str, Any]] | None = None,
+) -> None:
     """Record in ``seen`` the first time ``t`` each (robot, kind, part) is seen in each state.
 
     States are taken as the route names them (``pending``, ``active``, ``resolved`` or any the service
     adds), so a new state shows up in the results without a change here. Where an alert says whether
     the sensor networks confirmed it (``confirmed`` true or false), that is kept too, as ``STATE
-    confirmed`` or ``STATE unconfirmed`` beside the plain state.
+    confirmed`` or ``STATE unconfirmed`` beside the plain state. ``details`` keeps each key's finding
+    and note as first seen (what a false alert is read back from once the service's data is gone).
     """
     for a in alerts:
         key = (str(a["robot"]), str(a["kind"]), str(a["part"]))
+        if details is not None and key not in details:
+            details[key] = {"finding": a.get("finding"), "note": a.get("note", "")}
         states = seen.setdefault(key, {})
         state = str(a["state"])
         states.setdefault(state, float(t))
@@ -158,10 +166,12 @@ def classify(
     seen: Mapping[AlertKey, Mapping[str, float]],
     injections: Sequence[Injection],
     restart_t: float | None = None,
+    details: Mapping[AlertKey, Mapping[str, Any]] | None = None,
 ) -> list[dict[str, Any]]:
     """Every false alert: one whose (robot, kind, part) is no damage applied, or that was raised
     before its damage was. ``phase``: ``healthy`` before the first injection, else ``damaged``;
-    ``after_restart`` when first raised after the restart at ``restart_t``.
+    ``after_restart`` when first raised after the restart at ``restart_t``; its finding and note as
+    first seen, from ``details`` (:func:`update_first_seen`), where given.
 
     >>> inj = [Injection("r", "imu_moved", {}, t=100.0, part="imu:imu0")]
     >>> seen = {("r", "imu_moved", "imu:imu0"): {"pending": 120.0},
@@ -189,6 +199,7 @@ def classify(
                 "phase": "healthy" if first_injection is None or t < first_injection else "damaged",
                 "after_restart": restart_t is not None and t >= restart_t,
             }
+            | dict((details or {}).get(key, {}))
         )
     return out
 
@@ -377,7 +388,9 @@ def _baseline_item(r: Mapping[str, Any], robot: str, t: float | None) -> str:
 
 
 def _false_item(f: Mapping[str, Any]) -> str:
-    return f"; {f['robot']} {f['kind']} {f['part']} at {f['first_s']:.0f} s ({f['phase']})"
+    detail = (f.get("finding") or {}).get("detail")
+    said = f', "{detail}"' if detail else ""
+    return f"; {f['robot']} {f['kind']} {f['part']} at {f['first_s']:.0f} s ({f['phase']}{said})"
 
 
 def _statuses(counts: Mapping[str, int]) -> str:

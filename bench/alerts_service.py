@@ -232,6 +232,7 @@ class AlertWatch(_Loop):
         self.t0 = t0
         self.lock = threading.Lock()
         self.seen: dict[AlertKey, dict[str, float]] = {}
+        self.details: dict[AlertKey, dict[str, Any]] = {}
         self.errors = 0
         self.robots: Sequence[str] = ()
         self.per_robot = False
@@ -258,11 +259,16 @@ class AlertWatch(_Loop):
             return
         t = time.monotonic() - self.t0
         with self.lock:
-            update_first_seen(self.seen, t, alerts)
+            update_first_seen(self.seen, t, alerts, self.details)
 
     def snapshot(self) -> dict[AlertKey, dict[str, float]]:
         with self.lock:
             return {k: dict(v) for k, v in self.seen.items()}
+
+    def details_snapshot(self) -> dict[AlertKey, dict[str, Any]]:
+        """Each key's finding and note as first seen."""
+        with self.lock:
+            return {k: dict(v) for k, v in self.details.items()}
 
 
 class RetrainFlood(_Loop):

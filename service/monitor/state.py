@@ -73,7 +73,7 @@ class RobotState:
     streak: Streak = field(default_factory=Streak)
     #: each joint's encoder-to-gyro relation and each IMU's residual share on the baseline (learned
     #: state): set when a baseline is adopted, or after a restart, an approval or a new epoch from the
-    #: first window that matches the baseline
+    #: first full window with no hole that matches the baseline
     fingerprints: BaselineFingerprints | None = None
     #: methods asked for (on demand retrains), run in the next cycle; guarded by the worker's lock
     requests: set[str] = field(default_factory=set)
