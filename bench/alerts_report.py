@@ -178,6 +178,9 @@ def classify(
     ...         ("r", "imu_dead", "imu:imu3"): {"pending": 40.0, "resolved": 50.0}}
     >>> [(f["kind"], f["phase"], f["became_active"]) for f in classify(seen, inj)]
     [('imu_dead', 'healthy', False)]
+    >>> said = {("r", "imu_dead", "imu:imu3"): {"finding": {"detail": "zero"}, "note": ""}}
+    >>> classify(seen, inj, details=said)[0]["finding"]
+    {'detail': 'zero'}
     """
     applied = [i for i in injections if i.applied]
     first_injection = min((i.t for i in applied if i.t is not None), default=None)

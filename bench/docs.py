@@ -137,6 +137,12 @@ FIGURES: tuple[Figure, ...] = (
         "alerts-loaded.json",
         lambda b: alerts.figure(b, "alerts-loaded"),
     ),
+    _f(
+        "docs/alert-latency.md",
+        "alerts-restart",
+        "alerts-restart.json",
+        lambda b: alerts.figure(b, "alerts-restart"),
+    ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),
     _f("docs/recording-format.md", "import", "import.json", import_.doc),

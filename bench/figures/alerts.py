@@ -25,7 +25,10 @@ def figure(b: BenchFiles, name: str = "alerts") -> str:
         f"{k.split()[1]} p99 max {s[k]['max']:.0f} ms" for k in s if k.startswith("approval") and "p99" in k
     )
     false = s.get("false_alerts", {}).get("max")
+    restarts = [f"{r['restart']['t_s']:.0f} s" for r in runs if r.get("restart")]
+    when = f", restarted at {', '.join(restarts)}" if restarts else ""
     return (
-        f"`{d['command']}` on {d['machine']}, {len(runs)} runs, load average {min(loads):.1f} to "
-        f"{max(loads):.1f}: seconds {timed}; false alerts {false}; baseline approvals {approvals}."
+        f"`{d['command']}` on {d['machine']}, {len(runs)} run{'s' if len(runs) != 1 else ''}{when}, "
+        f"load average {min(loads):.1f} to {max(loads):.1f}: seconds {timed}; false alerts {false}; "
+        f"baseline approvals {approvals}."
     )
