@@ -292,9 +292,10 @@ class _Run:
 
     def approve_spread(self, n: int, seconds: float, label: str) -> None:
         """``n`` approvals spaced evenly over ``seconds``, the robots in turn (those no geometry damage
-        is planned for, where there are such); latency per request."""
+        is planned for, where there are such); latency per request, and each one's time, robot and
+        milliseconds (to match a slow one against the service's log)."""
         start = time.monotonic()
-        lat, statuses = [], {}
+        lat, statuses, each = [], {}, []
         robots = [r for r in self.robots if self.baselines.get(r) is not None]
         robots = [r for r in robots if r not in self.geometry_robots()] or robots
         for k in range(n if robots else 0):
@@ -306,10 +307,12 @@ class _Run:
             took, status = timed(lambda robot=robot: self.api.post(f"/api/v1/robots/{robot}/baseline"))
             self.last_approval_wall[robot] = time.time()
             lat.append(took)
+            each.append([round(self.now() - took, 1), robot, round(took * 1e3, 1)])
             statuses[status] = statuses.get(status, 0) + 1
         self.sleep_until(start + seconds)
         self.approvals[label] = {**percentiles_ms(lat), "statuses": statuses}
         _log(f"run {self.index}: approvals ({label}) {self.approvals[label]}")
+        self.approvals[label]["each"] = each
 
     def healthy(self) -> None:
         """The healthy phase: quiet approvals, the restart, approvals under the retrain flood."""
