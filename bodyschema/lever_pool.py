@@ -196,9 +196,13 @@ class _Base:
         n = x.shape[0]
         return cls(plane, n, x.mean(axis=0), cov, rho, max(n / kappa - 1.0, p + 1.0), _mean_variance(n, rho))
 
-    def distances(self, recent: np.ndarray) -> np.ndarray:
-        """Each of ``recent``'s (k, 3) squared distance from the pool's mean, in the pool's metric."""
-        e = _in_plane(recent, self.plane) - self.mean
+    def distances(self, x: np.ndarray) -> np.ndarray:
+        """Each of ``x``'s (k, p) squared distance from the pool's mean, in the pool's metric; ``x`` in
+        the plane's coordinates (:func:`_in_plane`)."""
+        return self._metric(x - self.mean)
+
+    def _metric(self, e: np.ndarray) -> np.ndarray:
+        """``e S⁻¹ eᵀ`` of each row of ``e`` (m, p), in one solve."""
         return np.einsum("ij,ij->i", e, np.linalg.solve(self.cov, e.T).T)
 
     def t2(self, recent: np.ndarray) -> tuple[float, np.ndarray]:
@@ -213,7 +217,7 @@ class _Base:
         """``T²`` of each change ``d`` (m, p) of a mean of ``k`` (m,) recent estimates from the pool's:
         every look of a comparison in one solve."""
         scale = self.mean_variance + _mean_variances(int(k.max()), self.rho)[k - 1]
-        return np.einsum("ij,ij->i", d, np.linalg.solve(self.cov, d.T).T) / scale
+        return self._metric(d) / scale
 
 
 def _limits(pool: _Base, o: PoolOptions) -> tuple[float, float]:
@@ -237,10 +241,10 @@ def _looks(pool: _Base, b: np.ndarray, o: PoolOptions) -> list[tuple[float, np.n
         return []
     # every look at once (a pool is judged for every k up to n_recent, for every IMU, in each
     # comparison): the newest k's sum less its farthest, their means' change, and their T²
-    far = pool.distances(b)
+    x = _in_plane(b, pool.plane)
+    far = pool.distances(x)
     ks = np.arange(2, m + 1)
     drop = np.array([m - k + int(np.argmax(far[-k:])) for k in ks])
-    x = _in_plane(b, pool.plane)
     newest = np.cumsum(x[::-1], axis=0)[ks - 1]
     d = (newest - x[drop]) / (ks - 1)[:, None] - pool.mean
     t2 = pool.t2s(d, ks - 1)
