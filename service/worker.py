@@ -507,7 +507,7 @@ class Worker(AlertPath):
         self.asks.on_change(robot, st, res.diff)
         if st.fingerprints is None and not res.diff.findings and self.geometry.one_motion(rec):
             # learned only on a window like those it is held against: one fitted on the first seconds
-            # of a new clock epoch misses the encoder relation, and every later window reads shifted
+            # of a new clock epoch misses the encoder relation, and later full windows read shifted
             st.fingerprints = self.compute(baseline_fingerprints, rec, base.topology, current=fast)
         self._judge_alerts(robot, res, (rec, learn), base, waits, full and not is_ambiguous(fast))
         self._write_waits(robot, waits)

@@ -409,8 +409,8 @@ def test_the_cpu_bound_steps_run_where_compute_says(
 def test_after_a_restart_the_fingerprints_wait_for_a_full_window(
     sqlite_store: Store, settings: Settings, rng: np.random.Generator
 ) -> None:
-    """Fingerprints fitted on the first seconds of a new clock epoch miss the encoder relation, and every
-    later window then reads as a shifted encoder (three false ``encoder_fault`` alerts after a late
+    """Fingerprints fitted on the first seconds of a new clock epoch miss the encoder relation, and later
+    full windows then read as a shifted encoder (three false ``encoder_fault`` alerts after a late
     restart in docs/bench/alerts.md): they are learned on the first full window with no hole."""
     rec = synth(rng, seconds=36)
     feed(sqlite_store, rec.window(0.0, 12.0), offset=50.0)
