@@ -21,6 +21,7 @@ import re
 import textwrap
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 from bench import REPO_ROOT
@@ -130,18 +131,10 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/kinematics.md", "shapes-axis-floor", "shapes.json", shapes.axis_floor),
     _f("docs/robots.md", "robots", "robots.json", robots.figure),
     _f("docs/robots.md", "robots-foot-plane", "robots.json", robots.foot_plane),
-    _f("docs/alert-latency.md", "alerts", "alerts.json", alerts.figure),
-    _f(
-        "docs/alert-latency.md",
-        "alerts-loaded",
-        "alerts-loaded.json",
-        lambda b: alerts.figure(b, "alerts-loaded"),
-    ),
-    _f(
-        "docs/alert-latency.md",
-        "alerts-restart",
-        "alerts-restart.json",
-        lambda b: alerts.figure(b, "alerts-restart"),
+    # the full bench, the run beside other work, the hour-long run with its restart on its own
+    *(
+        _f("docs/alert-latency.md", name, f"{name}.json", partial(alerts.figure, name=name))
+        for name in ("alerts", "alerts-loaded", "alerts-restart")
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),
