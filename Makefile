@@ -8,7 +8,7 @@ PORT    ?= 8000
 # built once); 2 fits the 2-core machines the suite's time bound is stated for
 TEST_WORKERS ?= 2
 
-.PHONY: setup setup-browser run test test-fast lint bench docs clean
+.PHONY: setup setup-browser run test test-fast coverage lint bench docs clean
 
 ## setup: create .venv/ and install the project with its dev tools (quick when nothing changed)
 setup: $(STAMP)
@@ -38,6 +38,12 @@ test: setup setup-browser lint
 ## test-fast: skip the slow and end-to-end tests while developing
 test-fast: setup
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow and not e2e"
+
+## coverage: every test, with the line coverage of the science and service packages (coverage.json);
+## the services the end-to-end tests start in processes of their own are not counted
+coverage: setup setup-browser
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --cov=bodyschema --cov=simulators \
+	  --cov=service --cov-report=term:skip-covered --cov-report=json:coverage.json
 
 ## lint: ruff (style, plus the size rules: C901 branches, PLR0915 statements) and the import layers
 lint: setup
