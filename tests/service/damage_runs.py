@@ -48,6 +48,8 @@ __all__ = [
     "DamageRun",
     "RobotRuns",
     "check",
+    "cycle_once",
+    "feed_farm",
     "quiet_alert_log",
     "robot_seed",
     "run_robot",
@@ -97,13 +99,14 @@ class RobotRuns:
     cpu_seconds: float
 
 
-def _feed(farm: Farm, store: Store, seconds: float) -> None:
+def feed_farm(farm: Farm, store: Store, seconds: float) -> None:
+    """Write ``seconds`` of the farm's device time into ``store``, in chunks of :data:`CHUNK`."""
     for _ in range(round(seconds / CHUNK)):
         for name, rec in farm.advance(CHUNK).items():
             store.write(recording_batch(name, rec))
 
 
-def _cycle(
+def cycle_once(
     worker: Worker, log: list[list[tuple[str, str]]], alerts: list[tuple[str, str, int]]
 ) -> dict | None:
     """One worker cycle; appends its findings and raised alerts, returns the first raised finding."""
@@ -156,15 +159,15 @@ def run_robot(
     worker = Worker(store, settings)
     history: list[list[tuple[str, str]]] = []
     nominal_alerts: list[tuple[str, str, int]] = []
-    _feed(farm, store, settings.window_seconds - interval)
+    feed_farm(farm, store, settings.window_seconds - interval)
     while store.baseline(ROBOT) is None:
         assert len(history) < 3 * settings.baseline_repeat_k, f"{catalog_name}: no baseline learned"
-        _feed(farm, store, interval)
-        _cycle(worker, history, nominal_alerts)
+        feed_farm(farm, store, interval)
+        cycle_once(worker, history, nominal_alerts)
     baseline_cycle = len(history)
     for _ in range(healthy_cycles):  # healthy cycles on the baseline: the worker learns its fingerprints
-        _feed(farm, store, interval)
-        _cycle(worker, history, nominal_alerts)
+        feed_farm(farm, store, interval)
+        cycle_once(worker, history, nominal_alerts)
 
     damages: dict[str, DamageRun] = {}
     for kind in kinds:
@@ -177,13 +180,13 @@ def run_robot(
             (truth,) = branch.apply_damage(ROBOT, kind, **(damage_kwargs or {}).get(kind, {})).findings
             run = DamageRun(kind, truth.part, truth.to_json())
             while run.first is None and len(run.findings) < post_cycles:
-                _feed(branch, bstore, interval)
-                run.first_finding = _cycle(bworker, run.findings, run.alerts)
+                feed_farm(branch, bstore, interval)
+                run.first_finding = cycle_once(bworker, run.findings, run.alerts)
             damages[kind] = run
 
     for _ in range(nominal_cycles):
-        _feed(farm, store, interval)
-        _cycle(worker, history, nominal_alerts)
+        feed_farm(farm, store, interval)
+        cycle_once(worker, history, nominal_alerts)
     store.close()
     return RobotRuns(
         catalog_name,

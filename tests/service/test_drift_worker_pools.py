@@ -14,7 +14,7 @@ from service.settings import Settings
 from service.store import Store, open_store
 from service.worker import FRAME_KEY, Worker
 from simulators.farm import Farm
-from tests.service.damage_runs import ROBOT, _cycle, _feed
+from tests.service.damage_runs import ROBOT, cycle_once, feed_farm
 
 pytestmark = pytest.mark.slow
 
@@ -47,11 +47,11 @@ def test_lever_pools_fill_in_the_store_and_outlive_a_restart(tmp_path: Path) -> 
 
     def cycles(worker: Worker, n: int) -> None:
         for _ in range(n):
-            _feed(farm, store, interval)
-            _cycle(worker, history, alerts)
+            feed_farm(farm, store, interval)
+            cycle_once(worker, history, alerts)
 
     worker = Seen(store, settings)
-    _feed(farm, store, settings.window_seconds - interval)
+    feed_farm(farm, store, settings.window_seconds - interval)
     while store.baseline(ROBOT) is None:
         assert len(history) < 3 * settings.baseline_repeat_k
         cycles(worker, 1)
