@@ -51,6 +51,7 @@ from service.db import migrate
 from service.db.engine import SQLITE_BUSY_TIMEOUT_MS, make_engine, normalize_url
 from service.settings import Settings, get_settings, overridden
 from service.store.identity import FileIdentity, sqlite_file
+from service.store.write_lock import WriteLock
 
 #: The key of :attr:`Session.info <sqlalchemy.orm.Session.info>` that holds the store's robot ids.
 ROBOT_IDS = "robot_ids"
@@ -144,7 +145,7 @@ class StoreBase:
         self.analysis_generation = 0
         self._generation_lock = threading.Lock()
         event.listen(self._sessions, "after_commit", self._committed)
-        self._write_lock = threading.RLock()
+        self._write_lock = WriteLock()
         self._schema_checked = False
         # Robots (and their parts) this store has registered, so a stream of frames does not look its
         # robot up batch after batch; see service.store.robots.
@@ -213,7 +214,8 @@ class StoreBase:
         Writers of one process queue on the lock, and the next wakes the moment the last commits.
         Without it they meet in SQLite's own lock, whose busy handler sleeps in steps of up to 100 ms
         before it tries again: under ingest load an operator's approval waited there for hundreds of
-        milliseconds behind frame commits that took tens."""
+        milliseconds behind frame commits that took tens. A long wait is logged with the writer it
+        waited behind (:mod:`service.store.write_lock`)."""
         with self._write_lock, self._session() as s, s.begin():
             yield s
 

@@ -1,0 +1,102 @@
+"""The store's write lock, which says who held it when another writer waited long.
+
+Writers of one process queue on it (:meth:`service.store.schema.StoreBase._writing`): the next wakes
+the moment the last commits, where SQLite's own busy handler would sleep in steps of up to 100 ms. An
+operator's request that waits here waits behind a frame commit, a worker's write, a prune or a WAL
+checkpoint; which one is what a slow approval needs explained. So a wait longer than ``slow_s`` is
+logged (INFO, ``store write waited``) with the holder (its thread and the store method it was in) and
+how long it had held the lock when the wait began, and counted (:attr:`WriteLock.slow_waits`,
+:attr:`WriteLock.longest_wait_s`).
+
+Example
+-------
+>>> lock = WriteLock(slow_s=0.1)
+>>> with lock:
+...     with lock:  # re-entrant, as the store's methods nest
+...         lock.holder is not None
+True
+>>> lock.holder is None, lock.slow_waits
+(True, 0)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import threading
+import time
+from types import FrameType, TracebackType
+
+__all__ = ["SLOW_WAIT_S", "WriteLock"]
+
+log = logging.getLogger(__name__)
+
+#: A wait for the write lock longer than this is logged with its holder: the approval latency target
+#: is 200 ms, so a wait of half of it is worth naming.
+SLOW_WAIT_S = 0.1
+
+#: Frames of these names are the lock's own plumbing, not the writer to name.
+_PLUMBING = frozenset({"_writing", "__enter__"})
+
+
+def _writer(frame: FrameType | None) -> str:
+    """The first function up the stack that is not the lock's plumbing (``contextlib``, ``_writing``)."""
+    while frame is not None and (
+        frame.f_code.co_name in _PLUMBING or frame.f_code.co_filename == contextlib.__file__
+    ):
+        frame = frame.f_back
+    return "?" if frame is None else frame.f_code.co_qualname
+
+
+class WriteLock:
+    """A re-entrant lock that remembers its holder, and logs and counts waits over ``slow_s`` seconds."""
+
+    def __init__(self, slow_s: float = SLOW_WAIT_S) -> None:
+        self._lock = threading.RLock()
+        self._depth = 0  # touched by the owner only
+        self.slow_s = slow_s
+        #: Who holds it now ("thread: method"), and since when (monotonic s); read without the lock,
+        #: for the log only.
+        self.holder: str | None = None
+        self._since = 0.0
+        self.slow_waits = 0
+        self.longest_wait_s = 0.0
+
+    def __enter__(self) -> WriteLock:
+        if self._lock.acquire(blocking=False):
+            self._taken(sys._getframe(1))
+            return self
+        t0 = time.monotonic()
+        holder, held = self.holder, t0 - self._since
+        self._lock.acquire()
+        waited = time.monotonic() - t0
+        self._taken(sys._getframe(1))
+        self.longest_wait_s = max(self.longest_wait_s, waited)
+        if waited > self.slow_s:
+            self.slow_waits += 1
+            log.info(
+                "store write waited %.0f ms behind %s",
+                1e3 * waited,
+                holder,
+                extra={
+                    "writer": self.holder,
+                    "waited_ms": round(1e3 * waited, 1),
+                    "held_ms": round(1e3 * held, 1),
+                },
+            )
+        return self
+
+    def _taken(self, frame: FrameType) -> None:
+        if self._depth == 0:
+            self.holder = f"{threading.current_thread().name}: {_writer(frame)}"
+            self._since = time.monotonic()
+        self._depth += 1
+
+    def __exit__(
+        self, kind: type[BaseException] | None, err: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            self.holder = None
+        self._lock.release()

@@ -1,0 +1,62 @@
+"""The store's write lock names the writer a long wait was behind, so a slow request can be explained:
+the waiting writer, the holder (thread and store method) and the count of slow waits."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+
+import pytest
+
+from service.store import open_store
+from service.store.write_lock import WriteLock
+
+
+class _Asking:
+    """The lock's inner lock, which says when a writer starts to wait on it."""
+
+    def __init__(self, inner: object) -> None:
+        self.inner, self.waiting = inner, threading.Event()
+
+    def acquire(self, blocking: bool = True) -> bool:
+        if blocking:
+            self.waiting.set()
+        return self.inner.acquire(blocking)  # type: ignore[attr-defined]
+
+    def release(self) -> None:
+        self.inner.release()  # type: ignore[attr-defined]
+
+
+def _hold_until(lock: WriteLock, held: threading.Event, release: threading.Event) -> None:
+    with lock:
+        held.set()
+        release.wait(10)
+
+
+def test_a_wait_is_logged_with_the_holder_and_the_writer(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    store = open_store(f"sqlite:///{tmp_path / 'lock.db'}")
+    lock = store._write_lock
+    assert isinstance(lock, WriteLock)
+    lock.slow_s = 0.0  # every wait counts: the holder lets go only once the writer waits
+    asking = _Asking(lock._lock)
+    lock._lock = asking  # type: ignore[assignment]
+    held = threading.Event()
+    holder = threading.Thread(target=_hold_until, args=(lock, held, asking.waiting), name="ingest")
+    holder.start()
+    assert held.wait(10)
+    assert lock.holder == "ingest: _hold_until"
+    with caplog.at_level(logging.INFO, logger="service.store.write_lock"):
+        store.mark_simulated("r", "ur5e")  # the writer's own nested takes count once
+    holder.join(10)
+    (rec,) = [r for r in caplog.records if r.msg.startswith("store write waited")]
+    assert rec.getMessage().endswith("behind ingest: _hold_until")
+    assert rec.writer.startswith("MainThread: ") and rec.writer.endswith("mark_simulated")
+    assert rec.waited_ms > 0 and lock.slow_waits == 1 and lock.longest_wait_s > 0
+    assert lock.holder is None and store.robot("r") is not None
+    # an uncontended write is not a wait
+    store.mark_simulated("r2", "ur5e")
+    assert lock.slow_waits == 1
+    store.close()
