@@ -16,7 +16,9 @@ from service.frames import FrameBatch
 from service.ingest.base import Source
 from service.ingest.pipeline import Pipeline
 from service.ingest.replay import ReplaySource
+from service.settings import Settings
 from service.store import Store, open_store
+from tests.waits import cpu_bound
 
 
 def recording(
@@ -160,11 +162,16 @@ def test_stop_drains_everything_received(db_url: str, rng: np.random.Generator) 
 def test_pacing_follows_speed(db_url: str, rng: np.random.Generator) -> None:
     ref = recording(rng, seconds=1.0)
     src = ReplaySource(ref, robot="r", speed=4.0, chunk_seconds=0.1)
-    with open_store(db_url) as store, Pipeline(store, [src]) as pipe:
+    # the writer commits what is queued at once: the default lingers up to a second for more frames,
+    # which would hide the pacing
+    eager = Settings(database_url=db_url, ingest_commit_interval_seconds=0)
+    with open_store(db_url) as store, Pipeline(store, [src], settings=eager) as pipe:
         t0 = time.monotonic()
         assert pipe.wait_exhausted(timeout=30)
         wall = time.monotonic() - t0
-    assert 0.2 <= wall < 1.5  # 1 s of data at 4x: about 0.25 s
+    # 1 s of data at 4x: 0.25 s of pacing plus the writes; at 1x it would take a second. The writes'
+    # share is stretched by the machine's load, so a busy machine does not fail the pacing
+    assert 0.2 <= wall < 0.25 + cpu_bound(0.75)
 
 
 def test_duplicate_source_names_rejected(store: Store, rng: np.random.Generator) -> None:
