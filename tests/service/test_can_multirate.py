@@ -22,7 +22,7 @@ from service.ingest.can_regroup import MultirateAssembler
 from service.ingest.device import DeviceConfig, DeviceConfigError, StreamSpec
 from service.ingest.serial_frame import ACC_LSB, GYRO_LSB, Q_LSB
 from simulators import simulate
-from tests.service.multirate_wire import assert_whole_streams_but_the_unpaired_end
+from tests.service.multirate_wire import assert_whole_streams_but_the_unpaired_end, read_until_drained
 
 EPS = 1e-9
 
@@ -136,13 +136,12 @@ def test_multirate_recording_round_trip_over_slcan(fd):
     assert cfg.streams is not None and cfg.extra.get("can", {}).get("layout") == ("fd" if fd else None)
     src = CanSource(cfg, lambda: open_bus("slcan", em.port.name), idle_flush_s=0.3)
     em.start()
-    got: list[FrameBatch] = []
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 40:
-        got += src.read(0.2)
+
+    def complete(got: list[FrameBatch]) -> bool:
         n_q = sum(len(b.t_q) for b in got)
-        if em.wait_done(0) and n_q >= len(rec.t_q) and sum(len(b.t) for b in got) >= rec.n_samples:
-            break
+        return em.wait_done(0) and n_q >= len(rec.t_q) and sum(len(b.t) for b in got) >= rec.n_samples
+
+    got = read_until_drained(src.read, lambda: em.wait_done(0), complete)
     src.close()
     em.stop()
     assert got and all(b.is_multirate for b in got)

@@ -7,8 +7,6 @@ values are rounded to their LSB (error at most half an LSB), plus float rounding
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -19,7 +17,7 @@ from service.ingest.device import DeviceConfig, DeviceConfigError, StreamSpec
 from service.ingest.serial import SerialSource
 from service.ingest.serial_frame import ACC_LSB, GYRO_LSB, Q_LSB, FrameEncoder, StreamFrameEncoder
 from simulators import simulate
-from tests.service.multirate_wire import assert_whole_streams_but_the_unpaired_end
+from tests.service.multirate_wire import assert_whole_streams_but_the_unpaired_end, read_until_drained
 
 EPS = 1e-9
 
@@ -88,16 +86,15 @@ def test_multirate_recording_round_trip_over_a_pty():
     assert cfg.streams is not None and cfg.streams["encoders"].period_s == pytest.approx(0.004, rel=2e-3)
     src = SerialSource(em.port.name, cfg)
     em.start()
-    got: list[FrameBatch] = []
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 30:
-        got += src.read(0.2)
-        if (
-            got
+
+    def complete(got: list[FrameBatch]) -> bool:
+        return (
+            bool(got)
             and got[-1].t[-1] >= rec.t[-1] + em.time_offset_s - 1e-3
             and sum(len(b.t_q) for b in got) >= len(rec.t_q)
-        ):
-            break
+        )
+
+    got = read_until_drained(src.read, lambda: em.wait_done(0), complete)
     src.close()
     em.stop()
     assert got and all(b.is_multirate for b in got)
