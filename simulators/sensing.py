@@ -226,6 +226,28 @@ def _jittered(stamps: np.ndarray, rate: float, jitter: float, rng: np.random.Gen
     return stamps + noise
 
 
+def _sensed(
+    rec: Recording,
+    opts: SensingOptions,
+    delay_g: float,
+    t: np.ndarray,
+    t_q: np.ndarray,
+    q: np.ndarray,
+    qd: np.ndarray | None,
+    acc: np.ndarray,
+    gyro: np.ndarray,
+) -> Recording:
+    """The sensed recording of the physics' ``rec``: the two streams, the options in ``extra`` and the
+    true skew the gyro's stamps carry (the clock skew plus the gyro filter's delay); the physics'
+    per-sample extras, which belong to its own instants, are left out."""
+    extra = {k: v for k, v in rec.extra.items() if np.ndim(v) == 0 or np.shape(v)[0] != rec.n_samples}
+    extra["sensing"] = np.array(json.dumps(opts.to_json()))
+    extra["truth_skew"] = np.array(opts.skew + delay_g)
+    return replace(
+        rec, t=t, t_q=t_q, q=q, qd=qd, qdd=None, acc=acc, gyro=gyro, ref_quat=None, ref_pos=None, extra=extra
+    )
+
+
 def apply_sensing(rec: Recording, sensing: str | SensingOptions, rng: np.random.Generator) -> Recording:
     """What a robot with ``sensing`` would log of the motion in ``rec`` (a single-clock recording
     sampled at least as fast as every stream; see the module docstring for the model).
@@ -284,22 +306,7 @@ def apply_sensing(rec: Recording, sensing: str | SensingOptions, rng: np.random.
     q = q[e_keep]
     qd = None if qd is None else qd[e_keep]
 
-    extra = {k: v for k, v in rec.extra.items() if np.ndim(v) == 0 or np.shape(v)[0] != len(t)}
-    extra["sensing"] = np.array(json.dumps(opts.to_json()))
-    extra["truth_skew"] = np.array(opts.skew + delay_g)
-    return replace(
-        rec,
-        t=t_imu,
-        t_q=t_enc,
-        q=q,
-        qd=qd,
-        qdd=None,
-        acc=acc_s,
-        gyro=gyro_s,
-        ref_quat=None,
-        ref_pos=None,
-        extra=extra,
-    )
+    return _sensed(rec, opts, delay_g, t_imu, t_enc, q, qd, acc_s, gyro_s)
 
 
 #: Physics samples kept beyond the filter's half-width around every interpolated instant, so the
@@ -485,20 +492,4 @@ class SensingStream:
         self._pending_enc.clear()
         rec = self._last
         assert rec is not None
-        n_fine = rec.n_samples
-        extra = {k: v for k, v in rec.extra.items() if np.ndim(v) == 0 or np.shape(v)[0] != n_fine}
-        extra["sensing"] = np.array(json.dumps(self.opts.to_json()))
-        extra["truth_skew"] = np.array(self.opts.skew + self.delay_g)
-        return replace(
-            rec,
-            t=t,
-            t_q=t_q,
-            q=q,
-            qd=qd,
-            qdd=None,
-            acc=acc,
-            gyro=gyro,
-            ref_quat=None,
-            ref_pos=None,
-            extra=extra,
-        )
+        return _sensed(rec, self.opts, self.delay_g, t, t_q, q, qd, acc, gyro)
