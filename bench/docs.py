@@ -113,19 +113,11 @@ FIGURES: tuple[Figure, ...] = (
     _f("docs/sim2real.md", "encoders", "sim2real-encoders.json", sim2real.encoders),
     _f("docs/sim2real.md", "gravity", "gravity.json", gravity.doc),
     _f("docs/sim2real.md", "gravity-networks", "gravity.json", gravity.networks),
-    _f("docs/topology.md", "realism", "realism.json", realism.figure),
-    _f("README.md", "realism", "realism.json", realism.figure),
-    _f(
-        "docs/topology.md",
-        "realism-onchip-filter",
-        "realism-onchip-filter/realism.json",
-        lambda b: realism.figure(b, "realism-onchip-filter/realism"),
-    ),
-    _f(
-        "README.md",
-        "realism-onchip-filter",
-        "realism-onchip-filter/realism.json",
-        lambda b: realism.figure(b, "realism-onchip-filter/realism"),
+    # the realism figures, the robot preset's and the on-chip filter's, on both pages
+    *(
+        _f(page, name, f"{stem}.json", partial(realism.figure, name=stem))
+        for page in ("docs/topology.md", "README.md")
+        for name, stem in (("realism", "realism"), ("realism-onchip-filter", "realism-onchip-filter/realism"))
     ),
     _f("docs/topology.md", "shapes", "shapes.json", shapes.figure),
     _f("docs/kinematics.md", "shapes-axis-floor", "shapes.json", shapes.axis_floor),
