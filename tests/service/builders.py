@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
 from service.frames import FrameBatch
-from service.store import Store
+from service.store import Store, open_store
 from tests.builders import LAYOUT
 
 # ------------------------------------------- the worker: scripted estimators, frames fed to a store
@@ -161,3 +162,12 @@ def frame_batch(
         np.zeros((n, len(imus), 3)),
         np.zeros((n, len(imus), 3)),
     )
+
+
+def simulated_store(path: Path) -> Store:
+    """A store on the SQLite file ``path`` holding ten frames of ``sim``, a simulated UR5e: a robot the
+    routes that act on the farm (damage, excitation) accept."""
+    s = open_store(f"sqlite:///{path}")
+    s.write(frame_batch("sim", np.arange(10) * 0.01))
+    s.mark_simulated("sim", "ur5e")
+    return s

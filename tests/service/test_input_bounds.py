@@ -24,18 +24,16 @@ from service.frames import NAME_PATTERN, FrameBatch, FrameError, check_names
 from service.ingest.farm import farm_robot_names
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
-from service.store import Store, open_store
+from service.store import Store
 from tests.service.access import StrictFarm
-from tests.service.builders import frame_batch, frames_body
+from tests.service.builders import frame_batch, frames_body, simulated_store
 
 SETTINGS = Settings(database_url="sqlite://")
 
 
 @pytest.fixture
 def store(tmp_path: Path) -> Iterator[Store]:
-    s = open_store(f"sqlite:///{tmp_path / 'bounds.db'}")
-    s.write(frame_batch("sim", np.arange(10) * 0.01))
-    s.mark_simulated("sim", "ur5e")
+    s = simulated_store(tmp_path / "bounds.db")
     yield s
     s.close()
 

@@ -22,9 +22,9 @@ from service.frames import ACC_LIMIT, GYRO_LIMIT, Q_LIMIT, QD_LIMIT, T_LIMIT, Fr
 from service.ingest.base import Source
 from service.ingest.pipeline import Pipeline
 from service.settings import Settings
-from service.store import Store, open_store
+from service.store import Store
 from tests.service.access import StrictFarm
-from tests.service.builders import frame_batch, frames_body
+from tests.service.builders import frame_batch, frames_body, simulated_store
 
 URL = "/api/v1/robots/arm/frames"
 SETTINGS = Settings(database_url="sqlite://", max_joints_per_robot=4, max_imus_per_robot=3)
@@ -32,9 +32,7 @@ SETTINGS = Settings(database_url="sqlite://", max_joints_per_robot=4, max_imus_p
 
 @pytest.fixture
 def store(tmp_path: Path) -> Iterator[Store]:
-    s = open_store(f"sqlite:///{tmp_path / 'values.db'}")
-    s.write(frame_batch("sim", np.arange(10) * 0.01))
-    s.mark_simulated("sim", "ur5e")
+    s = simulated_store(tmp_path / "values.db")
     yield s
     s.close()
 
