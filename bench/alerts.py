@@ -501,6 +501,7 @@ def run_once(opts: Options, index: int) -> dict[str, Any]:
         "busy_running_at_end": busy_alive,
         "exit_code": code,
         "window_gone": r.service.tail(n=1 << 30).count("WindowGone"),
+        "write_waits": r.service.write_waits(),
     }
     shutil.rmtree(data_dir, ignore_errors=True)
     return out

@@ -324,13 +324,29 @@ def markdown(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _write_waits_line(r: Mapping[str, Any]) -> str:
+    """The service's waits for the store's write lock over 100 ms: how many, the approvals among them
+    and the longest, with the writer it waited behind ("" for a run recorded before they were kept)."""
+    waits = r.get("write_waits")
+    if waits is None:
+        return ""
+    if not waits:
+        return "No write waited over 100 ms for the store's lock."
+    approvals = sum("approve_baseline" in (w.get("writer") or "") for w in waits)
+    top = max(waits, key=lambda w: w.get("waited_ms") or 0)
+    return (
+        f"Writes that waited over 100 ms for the store's lock: {len(waits)} ({approvals} approvals); the "
+        f"longest {fmt(top.get('waited_ms'), '.0f')} ms, {top.get('writer')} behind {top.get('behind')}."
+    )
+
+
 def _run_lines(r: Mapping[str, Any]) -> list[str]:
     lines = [
         f"## Run {r['run']}",
         "",
         f"Load average {fmt(r['load_before'], '.2f')} at the start, {fmt(r['load_after'], '.2f')} at the "
         f"end; {r['polls']} alert polls ({r['poll_errors']} failed); `WindowGone` in the service's log: "
-        f"{r.get('window_gone', '—')}.",
+        f"{r.get('window_gone', '—')}. {_write_waits_line(r)}",
         "",
         "Baseline: "
         + ", ".join(_baseline_item(r, k, v) for k, v in r["baselines"].items())

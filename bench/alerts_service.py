@@ -139,6 +139,20 @@ class Service:
         except OSError:
             return ""
 
+    def write_waits(self, most: int = 200) -> list[dict[str, Any]]:
+        """The service's logged waits for the store's write lock (over 100 ms each,
+        :mod:`service.store.write_lock`), in order, at most ``most``: who waited, behind whom, how long;
+        a slow approval shows as one whose writer is ``approve_baseline``."""
+        out: list[dict[str, Any]] = []
+        for line in self.tail(n=1 << 30).splitlines():
+            if '"store write waited' not in line:
+                continue
+            with contextlib.suppress(ValueError):
+                rec = json.loads(line)
+                keep = {k: rec.get(k) for k in ("ts", "writer", "waited_ms", "held_ms")}
+                out.append(keep | {"behind": rec["msg"].partition(" behind ")[2]})
+        return out[:most]
+
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 

@@ -140,6 +140,10 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
         "approvals": {},
         "flood": {"statuses": {"202": 3, "429": 40}, "requests": 43, "rps": 5.0},
         "notes": [],
+        "write_waits": [
+            {"writer": "worker: cycle", "waited_ms": 120.4, "held_ms": 5.0, "behind": "ingest: write_many"},
+            {"writer": "api: approve_baseline", "waited_ms": 180.6, "held_ms": 1, "behind": "worker: prune"},
+        ],
     }
     data = {
         "command": "bodyhealth bench alerts",
@@ -155,6 +159,10 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     assert "not injectable (422)" in md
     assert "False alerts: 1 (1 became active; 0 after the restart)" in md
     assert "202: 3, 429: 40" in md
+    assert (
+        "Writes that waited over 100 ms for the store's lock: 2 (1 approvals); the longest 181 ms, "
+        "api: approve_baseline behind worker: prune." in md
+    )
 
 
 def test_bad_options_are_one_clear_error() -> None:
@@ -198,6 +206,8 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     data = json.loads((tmp_path / "alerts.json").read_text())
     (run,) = data["runs"]
     assert run["exit_code"] == 0 and run["busy_running_at_end"] == 0
+    # the service's slow waits for the store's write lock, read back from its log
+    assert all(w["waited_ms"] > 100 and w["writer"] and w["behind"] is not None for w in run["write_waits"])
     # the service runs on this environment's settings (the suite's network schedule among them), and
     # the results say which
     env = {k: v for k, v in os.environ.items() if k.startswith("BODYHEALTH_") and "TOKEN" not in k}
