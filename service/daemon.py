@@ -106,7 +106,13 @@ class Daemon:
         estimator = self.estimator
         if estimator is None:  # estimates off the API's interpreter lock (service.estimation)
             estimator = self._estimates = EstimatorProcess(s.imu_filter_delay, s.network_heldout_check)
-        self.worker = Worker(self.store, s, estimator=estimator, metrics=metrics, remote=remote)
+        # the worker's other CPU-bound steps (the geometry's estimates above all: seconds of Python
+        # per robot) go to the same child; in the worker thread they held the lock that every
+        # request needs, and an operator's approval waited up to 0.4 s behind them
+        compute = None if self._estimates is None else self._estimates.run
+        self.worker = Worker(
+            self.store, s, estimator=estimator, metrics=metrics, remote=remote, compute=compute
+        )
         self.worker.start()
         app = create_app(
             self.store,
