@@ -165,3 +165,20 @@ def test_the_child_ends_with_a_sigkilled_parent(tmp_path: Path) -> None:
     while _alive(child) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(child)  # it polls its parent every second
+
+
+def test_the_service_runs_the_workers_cpu_bound_steps_in_the_estimators_child(tmp_path: Path) -> None:
+    """``bodyhealth serve`` (its :class:`~service.daemon.Daemon`) hands the worker's other CPU-bound
+    steps to the estimator's child: they run in that process, not under the API's interpreter lock."""
+    from service.daemon import Daemon
+    from service.settings import Settings
+
+    settings = Settings(database_url=f"sqlite:///{tmp_path / 'serve.db'}", dask_enabled=False)
+    daemon = Daemon(settings)
+    daemon.start()
+    try:
+        assert daemon.worker is not None
+        child = daemon.worker.compute(os.getpid)
+        assert child != os.getpid() and daemon.worker.compute(os.getpid) == child  # one child, kept
+    finally:
+        daemon.stop()
