@@ -231,3 +231,56 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert moved["part"] == "imu:imu0" and moved["t_s"] >= run["baseline_s"]
     assert rotated["part"] is not None and rotated["part"].startswith("imu:")
     assert run["polls"] > 0 and run["poll_errors"] < run["polls"]
+
+
+def test_write_waits_are_read_back_from_the_services_json_log(tmp_path: Path) -> None:
+    # the lines the store's write lock logs, in the service's JSON format, among other lines
+    import logging
+    import threading
+
+    from bench.alerts_service import Service
+    from service.log_config import JsonFormatter
+    from service.store.write_lock import WriteLock
+
+    svc = Service(tmp_path, 1.0, None)
+    lock = WriteLock(slow_s=0.0)
+    handler = logging.FileHandler(svc.err)
+    handler.setFormatter(JsonFormatter())
+    logger = logging.getLogger("service.store.write_lock")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    held, release = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with lock:
+            held.set()
+            release.wait(10)
+
+    holder = threading.Thread(target=hold, name="ingest")
+    holder.start()
+    assert held.wait(10)
+    inner = lock._lock
+
+    class Asking:  # the holder lets go only once the writer below waits: a wait every time
+        def acquire(self, blocking: bool = True) -> bool:
+            if blocking:
+                release.set()
+            return inner.acquire(blocking)
+
+        def release(self) -> None:
+            inner.release()
+
+    lock._lock = Asking()  # type: ignore[assignment]
+    try:
+        with lock:
+            pass
+    finally:
+        holder.join(10)
+        logger.removeHandler(handler)
+        handler.close()
+    with svc.err.open("a") as f:
+        f.write('{"msg": "service started"}\nnot json\n')
+    (w,) = svc.write_waits()
+    assert w["behind"].startswith("ingest: ") and w["behind"].endswith(".hold")
+    assert w["writer"].startswith("MainThread: ")
+    assert w["waited_ms"] > 0 and w["held_ms"] >= 0 and w["ts"] is not None
