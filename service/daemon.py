@@ -101,6 +101,7 @@ class Daemon:
         self._commit_log = CommitLog(self.commit_log) if self.commit_log else None
         self.pipeline = Pipeline(self.store, self.sources, settings=s, on_commit=self._commit_log)
         metrics.bind_counters(self.pipeline.totals)
+        metrics.bind_write_lock(self.store.write_lock)
         self.pipeline.start()
         remote = self._remote_retrains(metrics)
         estimator = self.estimator

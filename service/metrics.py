@@ -9,6 +9,10 @@ retries, write errors, pruned samples, and the samples dropped at a full queue (
 or after the write retries ran out (``dropped_write_failed``)) come out as
 ``bodyhealth_ingest_events_total{event=...}``; the queue between readers and the store writer as a
 gauge, and whether the store writer's newest write failed as ``bodyhealth_store_write_failing`` (1/0).
+Writes that waited over 100 ms for the store's write lock (:mod:`service.store.write_lock`) are counted
+as ``bodyhealth_store_write_slow_waits_total``, with the longest wait as a gauge, once
+:meth:`Metrics.bind_write_lock` names the lock: a slow operator request is then visible on a dashboard
+of the scrapes, not only in the log.
 
 Example
 -------
@@ -28,6 +32,7 @@ True
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import Protocol
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -46,6 +51,30 @@ _FRAME_COUNTERS = ("received", "stored", "dropped", "malformed")
 _QUEUE_DEPTH = "queue_depth"
 _WRITE_FAILING = "write_failing"
 _GAUGES = (_QUEUE_DEPTH, _WRITE_FAILING)
+
+
+class _LockCounts(Protocol):
+    """What the metrics read of the store's write lock (:class:`service.store.write_lock.WriteLock`)."""
+
+    slow_waits: int
+    longest_wait_s: float
+
+
+class _WriteLockCollector(Collector):
+    def __init__(self, lock: _LockCounts) -> None:
+        self._lock = lock
+
+    def collect(self) -> Iterator[CounterMetricFamily | GaugeMetricFamily]:
+        yield CounterMetricFamily(
+            "bodyhealth_store_write_slow_waits",
+            "writes that waited longer than 100 ms for the store's write lock (the log names the holder)",
+            value=float(self._lock.slow_waits),
+        )
+        yield GaugeMetricFamily(
+            "bodyhealth_store_write_longest_wait_seconds",
+            "the longest wait of a write for the store's write lock since the service started",
+            value=float(self._lock.longest_wait_s),
+        )
 
 
 class _FrameCollector(Collector):
@@ -139,6 +168,10 @@ class Metrics:
     def bind_counters(self, counters: Callable[[], dict[str, int]]) -> None:
         """Point the frame counters at a (new) pipeline."""
         self._counters = counters
+
+    def bind_write_lock(self, lock: _LockCounts) -> None:
+        """Report the store write lock's slow waits (once: a service has one store)."""
+        self.registry.register(_WriteLockCollector(lock))
 
     def render(self) -> bytes:
         return generate_latest(self.registry)

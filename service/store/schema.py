@@ -221,6 +221,11 @@ class StoreBase:
 
     # ----------------------------------------------------------------------------- plumbing
     @property
+    def write_lock(self) -> WriteLock:
+        """The lock this store's writers queue on; its counts of slow waits go to ``/metrics``."""
+        return self._write_lock
+
+    @property
     def dialect(self) -> str:
         return self.engine.dialect.name
 

@@ -60,3 +60,25 @@ def test_a_wait_is_logged_with_the_holder_and_the_writer(
     store.mark_simulated("r2", "ur5e")
     assert lock.slow_waits == 1
     store.close()
+
+
+def test_the_slow_waits_are_on_the_metrics_of_the_service(tmp_path: Path) -> None:
+    """``bodyhealth serve`` reports its store's slow write waits on ``/metrics``, counted as they are
+    logged: a dashboard of the scrapes shows a slow approval's cause without the log."""
+    from service.daemon import Daemon
+    from service.metrics import Metrics
+    from service.settings import Settings
+
+    daemon = Daemon(Settings(database_url=f"sqlite:///{tmp_path / 'serve.db'}", dask_enabled=False))
+    daemon.start()
+    try:
+        assert daemon.worker is not None and daemon.store is not None
+        lock = daemon.store.write_lock
+        lock.slow_waits, lock.longest_wait_s = 3, 0.25  # as three waits, the longest 250 ms, leave them
+        text = daemon.worker.metrics.render().decode()
+    finally:
+        daemon.stop()
+    assert "bodyhealth_store_write_slow_waits_total 3.0" in text
+    assert "bodyhealth_store_write_longest_wait_seconds 0.25" in text
+    # a registry without a lock bound has neither
+    assert "slow_waits" not in Metrics().render().decode()
