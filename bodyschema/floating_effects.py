@@ -7,7 +7,9 @@ residual may follow the robot's body:
   ``c F`` with ``F`` the leg's vertical load, so a flat stance foot's prediction of the base rate is
   off by ``-a c dF/dt`` (``a`` the joint's axis in the IMU frame, weighted by the foot's stance
   share), and its specific force by ``w (c d²F/dt² (a x p_j) - c F (a x g))`` (the base turned by
-  ``-c F`` about the joint's axis through ``p_j``); one ``c`` (rad/N) per leg;
+  ``-c F`` about the joint's axis through ``p_j``); one ``c`` (rad/N) per leg. A sole that turns
+  under the moment ``M`` of the ground's reaction is the same terms with ``M`` for ``F`` and the
+  sole's axis through its origin (rad/(N m));
 * ``acc_delay``: the accelerometer alone lags the model by ``tau`` beyond the common time offset
   (an accelerometer held at half the log's rate lags by half its update period): residual
   ``-tau d(acc)/dt``;

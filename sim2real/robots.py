@@ -330,7 +330,10 @@ def predict_encoders(
     }
     legs = max(len(c.columns) for c in model.feet.values())
     notes["kinematic_contacts"] = _kinematic_contacts(rec, feet, legs, w, v, down, rate, opts)
-    regs = _compliance(model, q, weights, forces, g_body, t, opts, could_not) if model.flat else {}
+    regs: dict[str, np.ndarray] = {}
+    if model.flat:
+        regs = _compliance(model, q, weights, forces, g_body, t, opts, could_not)
+        regs.update(_sole_compliance(rec, model, q, weights, g_body, t, opts, could_not))
     if not model.flat:
         could_not.append("leg_compliance: tested for flat feet only (a point foot's flex moves no rotation)")
     near = change_mask(down, rate, opts.change_half_s)
@@ -405,6 +408,50 @@ def _compliance(
     return out
 
 
+def _foot_wrenches(rec: Recording, feet: list[str], t: np.ndarray) -> np.ndarray | None:
+    """(T, F, 6) each foot's contact wrench (force, then moment about the sole's origin, in the sole's
+    frame) on the grid ``t``, from the extras ``lf_wrench``, ``rf_wrench`` (None when any is missing)."""
+    keys = [f"{f.split('_')[0].lower()}f_wrench" for f in feet]
+    if not all(k in rec.extra and np.shape(rec.extra[k])[1:] == (6,) for k in keys):
+        return None
+    return np.stack([_interp(t, rec.t, np.asarray(rec.extra[k], float)) for k in keys], axis=1)
+
+
+def _sole_compliance(
+    rec: Recording,
+    model: RobotModel,
+    q: np.ndarray,
+    weights: np.ndarray,
+    g_body: np.ndarray,
+    t: np.ndarray,
+    opts: RobotOptions,
+    could_not: list[str],
+) -> dict[str, np.ndarray]:
+    """Sole-compliance regressors, one candidate per axis of the sole (``compliance[sole_x]``: (T, 6,
+    legs)): the foot turns on its sole and ankle by ``c M`` under the moment ``M`` of the ground's
+    reaction about that axis, a joint at the sole's origin whose flex follows the moment rather than
+    the vertical load (the same terms as :func:`_compliance`). Weight moving from heel to toe turns
+    a stance foot the rigid model holds flat; rad/(N m)."""
+    wrench = _foot_wrenches(rec, list(model.feet), t)
+    if wrench is None:
+        could_not.append("sole compliance: the recording has no foot wrenches (lf_wrench, rf_wrench)")
+        return {}
+    rate = 1.0 / float(np.median(np.diff(t)))
+    M = lowpass(wrench[..., 3:].reshape(t.size, -1), rate, opts.cutoff).reshape(wrench[..., 3:].shape)
+    dM = derivative(t, M)
+    ddM = derivative(t, dM)
+    out: dict[str, list[np.ndarray]] = {}
+    for f, ch in enumerate(model.feet.values()):
+        R_sole, p_sole, _, _ = chain_frames(ch, q)
+        w = weights[:, f, None]
+        for k, axis in enumerate("xyz"):
+            a = R_sole[:, :, k]
+            gyro = -w * dM[:, f, k, None] * a
+            acc = w * (ddM[:, f, k, None] * np.cross(a, p_sole) - M[:, f, k, None] * np.cross(a, g_body))
+            out.setdefault(f"compliance[sole_{axis}]", []).append(np.concatenate([gyro, acc], axis=1))
+    return {k: np.stack(v, axis=2) for k, v in out.items()}
+
+
 def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(residual (T, 6) measured - predicted, both low-passed alike; samples used; their 2 s blocks)."""
     from bodyschema.imu_effects import specific_force
@@ -418,6 +465,10 @@ def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, n
     use[:m], use[-m:] = False, False
     block = np.floor((t - t[0]) / 2.0).astype(int)
     return meas - model, use, block
+
+
+#: A joint's flex under the leg's vertical load, and a sole's under the ground reaction's moment.
+_COMPLIANCE_UNIT = {False: "rad/N", True: "rad/(N m)"}
 
 
 def _extend(pred: Prediction, opts: RobotOptions) -> list[dict[str, object]]:
@@ -445,7 +496,8 @@ def _extend(pred: Prediction, opts: RobotOptions) -> list[dict[str, object]]:
         out.update({k: e[k] for k in ("value", "std", "interval", "p_value", "gain", "blocks")})
         out.update(
             named=True,
-            unit="rad/N",
+            unit="rad/N",  # a sole's moment compliance (compliance[sole_*]): rad/(N m), in ``units``
+            units=[_COMPLIANCE_UNIT[n.startswith("compliance[sole_")] for n in named for _ in range(legs)],
             columns=[f"{n}[leg {i}]" for n in named for i in range(legs)],
             channel="gyro and acc",
             channel_gain={
@@ -593,16 +645,25 @@ def _analyze(
 #: A MEMS IMU's scale tolerance (MPU-6050 datasheet: ±3 %): a scale error well beyond it is the
 #: model's error showing through the IMU, not the sensor's.
 SENSOR_SCALE_TOL = 0.03
+#: The same datasheet's accelerometer zero-g offset, the worst axis (±80 mg on z), m/s².
+SENSOR_ACC_BIAS_TOL = 0.08 * 9.81
 
 
 def _reading(cause: dict[str, object]) -> str:
-    """What a named IMU effect says on a robot: a scale beyond three times a sensor's tolerance is
-    the rigid model getting that axis wrong, not the IMU."""
+    """What a named IMU effect says on a robot: a scale or an accelerometer bias beyond three times
+    a sensor's tolerance is the rigid model getting that axis wrong, not the IMU."""
     if cause["effect"] in ("gyro_scale", "acc_scale"):
         worst = float(np.max(np.abs(np.ravel(cause["params"]["matrix"]) - 1.0)))
         if worst > 3 * SENSOR_SCALE_TOL:
             return (
                 f"scale off by {worst:.0%}, beyond 3x a sensor's ±3 %: the rigid model's error on that axis"
+            )
+    if cause["effect"] == "acc_bias":
+        worst = float(np.max(np.abs(cause["params"]["vector"])))
+        if worst > 3 * SENSOR_ACC_BIAS_TOL:
+            return (
+                f"bias of {worst:.2f} m/s², beyond 3x a sensor's ±{SENSOR_ACC_BIAS_TOL:.2f} m/s²: "
+                "the rigid model's error on that axis"
             )
     return "sensor or mount"
 
