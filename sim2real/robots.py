@@ -374,6 +374,26 @@ def _kinematic_contacts(
     return out
 
 
+def _with_rates(t: np.ndarray, x: np.ndarray, cutoff: float | None) -> tuple[np.ndarray, ...]:
+    """``x`` (T, ...) low-passed like the readings, and its first and second time derivatives."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    x = lowpass(x.reshape(t.size, -1), rate, cutoff).reshape(x.shape)
+    dx = derivative(t, x)
+    return x, dx, derivative(t, dx)
+
+
+def _flex(
+    w: np.ndarray, load: list[np.ndarray], a: np.ndarray, p: np.ndarray, g_body: np.ndarray
+) -> np.ndarray:
+    """(T, 6) gyro then specific force of a flex by ``c x`` (per unit ``c``) about the axis ``a``
+    (T, 3) through ``p`` (T, 3) of a stance foot weighted ``w`` (T, 1); ``load`` is ``x`` and its two
+    rates, each (T, 1). The base turns by ``-c x`` about ``a`` (:mod:`bodyschema.floating_effects`)."""
+    x, dx, ddx = load
+    gyro = -w * dx * a
+    acc = w * (ddx * np.cross(a, p) - x * np.cross(a, g_body))
+    return np.concatenate([gyro, acc], axis=1)
+
+
 def _compliance(
     model: RobotModel,
     q: np.ndarray,
@@ -388,20 +408,14 @@ def _compliance(
     (T, 6, legs), gyro then specific force, one column per leg; see
     :mod:`bodyschema.floating_effects`). Joints are matched across legs by their name without the
     leg's prefix (``l_hip_roll``, ``r_hip_roll`` -> ``hip_roll``)."""
-    rate = 1.0 / float(np.median(np.diff(t)))
-    F = lowpass(forces, rate, opts.cutoff)
-    dF = derivative(t, F)
-    ddF = derivative(t, dF)
+    F = _with_rates(t, forces, opts.cutoff)
     cand: dict[str, list[np.ndarray]] = {}
     for f, ch in enumerate(model.feet.values()):
         _, _, axes, points = chain_frames(ch, q)
-        w = weights[:, f, None]
         for i, c in enumerate(ch.columns):
-            a, pj = axes[:, i], points[:, i]
-            gyro = -w * dF[:, f, None] * a
-            acc = w * (ddF[:, f, None] * np.cross(a, pj) - F[:, f, None] * np.cross(a, g_body))
+            flex = _flex(weights[:, f, None], [x[:, f, None] for x in F], axes[:, i], points[:, i], g_body)
             key = model.joint_names[c].split("_", 1)[-1]
-            cand.setdefault(f"compliance[{key}]", []).append(np.concatenate([gyro, acc], axis=1))
+            cand.setdefault(f"compliance[{key}]", []).append(flex)
     out = {k: np.stack(v, axis=2) for k, v in cand.items() if len(v) == len(model.feet)}
     if not out:
         could_not.append("leg_compliance: the legs share no joint names, so no per-joint compliance")
@@ -436,19 +450,13 @@ def _sole_compliance(
     if wrench is None:
         could_not.append("sole compliance: the recording has no foot wrenches (lf_wrench, rf_wrench)")
         return {}
-    rate = 1.0 / float(np.median(np.diff(t)))
-    M = lowpass(wrench[..., 3:].reshape(t.size, -1), rate, opts.cutoff).reshape(wrench[..., 3:].shape)
-    dM = derivative(t, M)
-    ddM = derivative(t, dM)
+    M = _with_rates(t, wrench[..., 3:], opts.cutoff)
     out: dict[str, list[np.ndarray]] = {}
     for f, ch in enumerate(model.feet.values()):
         R_sole, p_sole, _, _ = chain_frames(ch, q)
-        w = weights[:, f, None]
         for k, axis in enumerate("xyz"):
-            a = R_sole[:, :, k]
-            gyro = -w * dM[:, f, k, None] * a
-            acc = w * (ddM[:, f, k, None] * np.cross(a, p_sole) - M[:, f, k, None] * np.cross(a, g_body))
-            out.setdefault(f"compliance[sole_{axis}]", []).append(np.concatenate([gyro, acc], axis=1))
+            flex = _flex(weights[:, f, None], [x[:, f, k, None] for x in M], R_sole[:, :, k], p_sole, g_body)
+            out.setdefault(f"compliance[sole_{axis}]", []).append(flex)
     return {k: np.stack(v, axis=2) for k, v in out.items()}
 
 
