@@ -50,6 +50,7 @@ from bodyschema.floating_base import (
 from bodyschema.floating_effects import forward_select, linear_effect, transition_ratio
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import lowpass, reference_motion
+from sim2real.robot_clocks import agreement, clock_closure, prediction_lag
 
 __all__ = [
     "RobotModel",
@@ -696,34 +697,20 @@ def _channel_gains(held: dict[str, object], robot: list[dict[str, object]]) -> d
     return out
 
 
-def _agreement(reports: dict[str, dict[str, object]]) -> dict[str, object]:
-    """Whether the encoder and mocap predictions agree on the time offset and the mount rotation:
-    each prediction's estimate in its final model (named or not; both channels) with a 95 %
-    interval from its block-robust standard error; they agree when the intervals overlap on every
-    axis."""
-    from scipy.stats import t as t_dist
-
-    if not {"encoders", "mocap"} <= set(reports):
-        return {}
-    out: dict[str, object] = {}
-    for effect in ("time_offset", "mounting_rotation"):
-        got = {}
-        for name, rep in reports.items():
-            ev = next((e for e in rep["evidence"] if e["effect"] == effect and e["channel"] == "both"), None)
-            if ev is None:
-                continue
-            q = float(t_dist.ppf(0.975, max(int(ev["clusters"]) - 1, 1)))
-            est, se = np.asarray(ev["estimate"], float), np.asarray(ev["stderr"], float)
-            named = any(c["effect"] == effect for c in rep["causes"])
-            got[name] = {
-                "estimate": est.tolist(),
-                "interval": np.c_[est - q * se, est + q * se].tolist(),
-                "named": named,
-            }
-        if len(got) == 2:
-            a, b = got["encoders"]["interval"], got["mocap"]["interval"]
-            agree = all(max(x[0], y[0]) <= min(x[1], y[1]) for x, y in zip(a, b, strict=True))
-            out[effect] = {"agree": bool(agree), **got}
+def _agreement(
+    reports: dict[str, dict[str, object]], enc: Prediction | None, mocap: Prediction | None, blocks: int
+) -> dict[str, object]:
+    """The two predictions' agreement (:func:`sim2real.robot_clocks.agreement`) and, for the time
+    offset, whether the clocks close: the encoder prediction (final model) against the mocap one."""
+    out = agreement(reports)
+    if "time_offset" in out and enc is not None and mocap is not None:
+        t = enc.ref.t
+        m = round(0.25 / float(np.median(np.diff(t))))
+        use = enc.valid.copy()
+        use[:m], use[-m:] = False, False
+        moc = _interp(t, mocap.ref.t, mocap.ref.omega)
+        lag = prediction_lag(t, enc.ref.omega, moc, use, blocks)
+        out["time_offset"]["clocks"] = clock_closure(out["time_offset"], lag)
     return out
 
 
@@ -790,7 +777,7 @@ def robot_sim2real(
         "feet": {"names": list(model.feet), "flat": model.flat},
         "cutoff_hz": opts.cutoff,
         "predictions": reports,
-        "agreement": _agreement(reports),
+        "agreement": _agreement(reports, enc, mocap, opts.n_blocks),
         "encoder_quantization": floor,
         "could_not": could_not,
     }
