@@ -50,7 +50,7 @@ from bodyschema.floating_base import (
 from bodyschema.floating_effects import forward_select, linear_effect, transition_ratio
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import lowpass, reference_motion
-from sim2real.robot_clocks import agreement, clock_closure, prediction_lag
+from sim2real.robot_agreement import agreement, closure, prediction_lag, prediction_rotation
 
 __all__ = [
     "RobotModel",
@@ -700,17 +700,24 @@ def _channel_gains(held: dict[str, object], robot: list[dict[str, object]]) -> d
 def _agreement(
     reports: dict[str, dict[str, object]], enc: Prediction | None, mocap: Prediction | None, blocks: int
 ) -> dict[str, object]:
-    """The two predictions' agreement (:func:`sim2real.robot_clocks.agreement`) and, for the time
-    offset, whether the clocks close: the encoder prediction (final model) against the mocap one."""
+    """The two predictions' agreement (:func:`sim2real.robot_agreement.agreement`) and whether each
+    estimate closes over what lies between the predictions themselves: the lag, then (on the mocap
+    moved by it) the rotation between their base rates, the encoders' final model against the mocap."""
     out = agreement(reports)
-    if "time_offset" in out and enc is not None and mocap is not None:
-        t = enc.ref.t
-        m = round(0.25 / float(np.median(np.diff(t))))
-        use = enc.valid.copy()
-        use[:m], use[-m:] = False, False
-        moc = _interp(t, mocap.ref.t, mocap.ref.omega)
-        lag = prediction_lag(t, enc.ref.omega, moc, use, blocks)
-        out["time_offset"]["clocks"] = clock_closure(out["time_offset"], lag)
+    if not out or enc is None or mocap is None:
+        return out
+    t = enc.ref.t
+    m = round(0.25 / float(np.median(np.diff(t))))
+    use = enc.valid.copy()
+    use[:m], use[-m:] = False, False
+    moc = _interp(t, mocap.ref.t, mocap.ref.omega)
+    lag = prediction_lag(t, enc.ref.omega, moc, use, blocks)
+    if "time_offset" in out:
+        out["time_offset"]["closure"] = closure(out["time_offset"], lag, -1)
+    if "mounting_rotation" in out:
+        moved = _interp(t, mocap.ref.t + lag["estimate"][0], mocap.ref.omega)
+        turn = prediction_rotation(t, enc.ref.omega, moved, use, blocks)
+        out["mounting_rotation"]["closure"] = closure(out["mounting_rotation"], turn, +1)
     return out
 
 

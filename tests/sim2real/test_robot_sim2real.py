@@ -145,11 +145,19 @@ def test_icub_soles_turn_alike_under_their_moments(icub_result: dict) -> None:
 def test_icub_time_offsets_close_over_the_encoders_and_vicon_clocks(icub_result: dict) -> None:
     """The IMU's offsets against the encoders and against the Vicon differ by the lag between the two
     predictions themselves (no IMU in it): the recording's two clocks, and a model that holds."""
-    clocks = icub_result["agreement"]["time_offset"]["clocks"]
-    assert clocks["closes"]
-    lo, hi = clocks["encoders_against_mocap_s"]["interval_s"]
+    close = icub_result["agreement"]["time_offset"]["closure"]
+    assert close["closes"]
+    ((lo, hi),) = close["between_predictions"]["interval"]
     assert hi < 0  # the encoders run ahead of the Vicon: the offsets cannot agree
-    assert lo <= clocks["offsets_difference_s"] <= hi
+    assert lo <= close["expected"][0] <= hi
+
+
+@needs_logs
+@pytest.mark.slow
+def test_icub_mount_rotations_close_over_the_turn_between_the_predictions(icub_result: dict) -> None:
+    """Likewise the mount: the two estimates differ by the rotation between the predictions' base
+    rates, on every axis."""
+    assert icub_result["agreement"]["mounting_rotation"]["closure"]["closes"]
 
 
 @needs_logs
