@@ -48,5 +48,12 @@ def format_robot(out: dict[str, object]) -> list[str]:
     for effect, a in out.get("agreement", {}).items():
         enc, moc = _fmt(a["encoders"]["interval"]), _fmt(a["mocap"]["interval"])
         lines.append(f"agreement {effect}: {a['agree']} (95 %: encoders {enc}, mocap {moc})")
+        if "closure" in a:
+            c = a["closure"]
+            between = _fmt(c["between_predictions"]["interval"])
+            lines.append(
+                f"  closes over the predictions' own {effect}: {c['closes']} "
+                f"(encoders against mocap, 95 %: {between}; expected {_fmt(c['expected'])})"
+            )
     lines += [f"could not: {c}" for c in out["could_not"]]
     return lines
