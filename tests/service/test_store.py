@@ -248,6 +248,31 @@ def test_retention_prunes_by_device_time(db_url: str, rng: np.random.Generator) 
         assert store.sample_count() == 0 and store.robot("r1").imus  # registrations stay
 
 
+def test_retention_drops_in_batches_letting_other_writers_in(
+    db_url: str, rng: np.random.Generator, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A prune of many chunks commits them a batch at a time, and the store's write lock is free
+    between batches: a writer never waits for a whole epoch's drop."""
+    from service.store import retention
+
+    monkeypatch.setattr(retention, "PRUNE_BATCH", 7)
+    with open_store(db_url, retention_seconds=0.995, chunk_max_samples=10) as store:
+        store.write_many(stream(rng, 3.0))  # 30 chunks of r1
+        before, takes = store.generation, []
+        lock = store.write_lock
+        enter = type(lock).__enter__
+
+        def counted(self: object) -> object:
+            takes.append(self._depth)  # type: ignore[attr-defined]
+            return enter(self)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(type(lock), "__enter__", counted)
+        assert store.prune(now_t=200.0) == 300
+        assert store.sample_count() == 0
+        # 30 chunks at 7 a batch: 5 transactions (the last finds 2), each taking the lock afresh
+        assert store.generation - before == 5 and takes == [0] * 5
+
+
 def test_malformed_batches_rejected_without_losing_data(store: Store, rng: np.random.Generator) -> None:
     good = make_batch(rng)
     store.write(good)
