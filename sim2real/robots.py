@@ -331,11 +331,12 @@ def predict_encoders(
     }
     legs = max(len(c.columns) for c in model.feet.values())
     notes["kinematic_contacts"] = _kinematic_contacts(rec, feet, legs, w, v, down, rate, opts)
-    regs: dict[str, np.ndarray] = {}
     if model.flat:
-        regs = _compliance(model, q, weights, forces, g_body, t, opts, could_not)
-        regs.update(_sole_compliance(rec, model, q, weights, g_body, t, opts, could_not))
-    if not model.flat:
+        frames = [chain_frames(ch, q) for ch in model.feet.values()]
+        regs = _compliance(model, frames, weights, forces, g_body, t, opts, could_not)
+        regs.update(_sole_compliance(rec, model, frames, weights, g_body, t, opts, could_not))
+    else:
+        regs = {}
         could_not.append("leg_compliance: tested for flat feet only (a point foot's flex moves no rotation)")
     near = change_mask(down, rate, opts.change_half_s)
     return Prediction("encoders", ref, gyro, acc, any_down, notes, regs, near)
@@ -397,7 +398,7 @@ def _flex(
 
 def _compliance(
     model: RobotModel,
-    q: np.ndarray,
+    frames: list[tuple[np.ndarray, ...]],
     weights: np.ndarray,
     forces: np.ndarray,
     g_body: np.ndarray,
@@ -407,12 +408,12 @@ def _compliance(
 ) -> dict[str, np.ndarray]:
     """Leg-compliance regressors, one candidate per joint of the legs (``compliance[hip_roll]``:
     (T, 6, legs), gyro then specific force, one column per leg; see
-    :mod:`bodyschema.floating_effects`). Joints are matched across legs by their name without the
-    leg's prefix (``l_hip_roll``, ``r_hip_roll`` -> ``hip_roll``)."""
+    :mod:`bodyschema.floating_effects`; ``frames``: each foot's :func:`chain_frames`). Joints are
+    matched across legs by their name without the leg's prefix (``l_hip_roll``, ``r_hip_roll`` ->
+    ``hip_roll``)."""
     F = _with_rates(t, forces, opts.cutoff)
     cand: dict[str, list[np.ndarray]] = {}
-    for f, ch in enumerate(model.feet.values()):
-        _, _, axes, points = chain_frames(ch, q)
+    for f, (ch, (_, _, axes, points)) in enumerate(zip(model.feet.values(), frames, strict=True)):
         for i, c in enumerate(ch.columns):
             flex = _flex(weights[:, f, None], [x[:, f, None] for x in F], axes[:, i], points[:, i], g_body)
             key = model.joint_names[c].split("_", 1)[-1]
@@ -435,7 +436,7 @@ def _foot_wrenches(rec: Recording, feet: list[str], t: np.ndarray) -> np.ndarray
 def _sole_compliance(
     rec: Recording,
     model: RobotModel,
-    q: np.ndarray,
+    frames: list[tuple[np.ndarray, ...]],
     weights: np.ndarray,
     g_body: np.ndarray,
     t: np.ndarray,
@@ -453,12 +454,19 @@ def _sole_compliance(
         return {}
     M = _with_rates(t, wrench[..., 3:], opts.cutoff)
     out: dict[str, list[np.ndarray]] = {}
-    for f, ch in enumerate(model.feet.values()):
-        R_sole, p_sole, _, _ = chain_frames(ch, q)
+    for f, (R_sole, p_sole, _, _) in enumerate(frames):
         for k, axis in enumerate("xyz"):
             flex = _flex(weights[:, f, None], [x[:, f, k, None] for x in M], R_sole[:, :, k], p_sole, g_body)
             out.setdefault(f"compliance[sole_{axis}]", []).append(flex)
     return {k: np.stack(v, axis=2) for k, v in out.items()}
+
+
+def _inner(pred: Prediction) -> np.ndarray:
+    """The prediction's usable samples less 0.25 s at either end (where the low-passes ring)."""
+    m = round(0.25 / float(np.median(np.diff(pred.ref.t))))
+    use = pred.valid.copy()
+    use[:m], use[-m:] = False, False
+    return use
 
 
 def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -469,9 +477,7 @@ def _rigid_residual(pred: Prediction, opts: RobotOptions) -> tuple[np.ndarray, n
     rate = 1.0 / float(np.median(np.diff(t)))
     meas = np.concatenate([lowpass(pred.gyro, rate, opts.cutoff), lowpass(pred.acc, rate, opts.cutoff)], 1)
     model = np.concatenate([ref.omega, specific_force(ref.R, ref.acc_world, ref.gravity)], 1)
-    m = round(0.25 * rate)
-    use = pred.valid.copy()
-    use[:m], use[-m:] = False, False
+    use = _inner(pred)
     block = np.floor((t - t[0]) / 2.0).astype(int)
     return meas - model, use, block
 
@@ -706,10 +712,7 @@ def _agreement(
     out = agreement(reports)
     if not out or enc is None or mocap is None:
         return out
-    t = enc.ref.t
-    m = round(0.25 / float(np.median(np.diff(t))))
-    use = enc.valid.copy()
-    use[:m], use[-m:] = False, False
+    t, use = enc.ref.t, _inner(enc)
     moc = _interp(t, mocap.ref.t, mocap.ref.omega)
     lag = prediction_lag(t, enc.ref.omega, moc, use, blocks)
     if "time_offset" in out:
