@@ -39,6 +39,7 @@ from bodyschema.health import HealthThresholds
 from bodyschema.recording import Recording
 from bodyschema.rigid_motion import lowpass
 from bodyschema.stance_chains import (
+    MODEL_TOL,
     ChainOptions,
     _phase_fits,
     chain_rates,
@@ -173,7 +174,7 @@ def _chain_models(rec: Recording, res, down: np.ndarray, opts: FloatingOptions) 
         cols = tuple(rec.joint_names.index(j) for j in p.joints)
         key = tuple(n in p.phase.split(" down")[0].split(" + ") for n in foot_forces(rec)[1])
         idx = np.flatnonzero(np.all(down == np.array(key), axis=1))
-        got = _phase_fits(rec, [cols], idx, band, opts.chains)
+        got = _phase_fits(rec, [cols], idx, band, opts.chains, MODEL_TOL)
         if got is None:
             continue
         fit = got[0][0]

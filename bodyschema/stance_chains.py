@@ -241,18 +241,24 @@ def chain_rates(axes: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     return out
 
 
-#: The chain fit stops when a step changes its cost or parameters by under this share. Stopping after
-#: a fixed number of steps instead left some fits mid-descent, so that a 1e-13 change of the input (or
-#: another machine's rounding) moved a stance phase's answer; at 1 % the residuals agree to 0.5 %, far
-#: inside the F quantile the chains are told apart by.
+#: The chain fit that tells candidate chains apart stops when a step changes its cost or parameters by
+#: under this share: at 1 % the residuals agree to 0.5 %, far inside the F quantile the chains are told
+#: apart by. (Stopping after a fixed number of steps instead left some fits mid-descent, so that a 1e-13
+#: change of the input, or another machine's rounding, moved a stance phase's answer.)
 FIT_TOL = 1e-2
+#: The fit of a chain the health checks model runs to convergence: its axes turn the stance foot's
+#: gravity in the tilt check, and a fit stopped at 1 % of the cost leaves them anywhere along the
+#: cost's flat valley, wherever the last step landed. Stopped at :data:`FIT_TOL`, a relative change of
+#: 1e-13 in the gyro moved the iCub's tilt T² from 586 to 218; run to this tolerance it moves by 1e-6.
+MODEL_TOL = 1e-10
 
 
 def fit_chain(
-    q: np.ndarray, qd: np.ndarray, w: np.ndarray, max_nfev: int = 50
+    q: np.ndarray, qd: np.ndarray, w: np.ndarray, tol: float = FIT_TOL
 ) -> tuple[np.ndarray, np.ndarray]:
     """Axes (J, 3) and gyro bias (3,) of ``w ≈ -chain_rates(axes, q, qd) + bias`` by least squares,
-    started from the constant-axis linear fit, run until it converges (:data:`FIT_TOL`)."""
+    started from the constant-axis linear fit, run until a step changes the cost or the parameters
+    by under ``tol`` (:data:`FIT_TOL` to compare chains, :data:`MODEL_TOL` for a model)."""
     X = np.c_[qd, np.ones(len(qd))]
     B, *_ = np.linalg.lstsq(X, w, rcond=None)
     A0 = -B[:-1]
@@ -262,9 +268,10 @@ def fit_chain(
     def res(p: np.ndarray) -> np.ndarray:
         return (p[-3:] - chain_rates(p[:-3].reshape(J, 3), q, qd) - w).ravel()
 
-    sol = least_squares(
-        res, np.r_[A0.ravel(), B[-1]], max_nfev=max_nfev, ftol=FIT_TOL, xtol=FIT_TOL, gtol=FIT_TOL
-    )
+    # the evaluation cap only guards against a fit that cannot converge; a tight fit needs about
+    # ten times the loose one's steps
+    nfev = 50 if tol >= FIT_TOL else 1000
+    sol = least_squares(res, np.r_[A0.ravel(), B[-1]], max_nfev=nfev, ftol=tol, xtol=tol, gtol=tol)
     axes = sol.x[:-3].reshape(J, 3)
     return axes / np.linalg.norm(axes, axis=1, keepdims=True), sol.x[-3:]
 
@@ -306,9 +313,15 @@ def _split(idx: np.ndarray, keep: int) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _phase_fits(
-    rec: Recording, cands: list[tuple[int, ...]], idx: np.ndarray, band: tuple, opts: ChainOptions
+    rec: Recording,
+    cands: list[tuple[int, ...]],
+    idx: np.ndarray,
+    band: tuple,
+    opts: ChainOptions,
+    tol: float = FIT_TOL,
 ) -> tuple[list[ChainFit], float, float] | None:
-    """Every candidate's held-out fit on ``idx``, the no-chain residual and the per-sample dof."""
+    """Every candidate's held-out fit on ``idx`` (run to ``tol``), the no-chain residual and the
+    per-sample dof."""
     q, qd, w, rate = band
     split = _split(idx, opts.max_fit_samples)
     if split is None:
@@ -319,7 +332,7 @@ def _phase_fits(
     fits = []
     for cols in cands:
         c = list(cols)
-        axes, bias = fit_chain(q[tr][:, c], qd[tr][:, c], w[tr])
+        axes, bias = fit_chain(q[tr][:, c], qd[tr][:, c], w[tr], tol)
         r = bias - chain_rates(axes, q[te][:, c], qd[te][:, c]) - w[te]
         names = tuple(rec.joint_names[i] for i in cols)
         fits.append(ChainFit(names, cols, float(np.sqrt(np.mean(r**2))), dof, axes, bias))
