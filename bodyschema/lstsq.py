@@ -40,7 +40,7 @@ class ScaledFit:
 def scaled_lstsq(X: np.ndarray, Y: np.ndarray, ridge: np.ndarray | None = None) -> ScaledFit:
     """``Y ≈ X β`` for X (n, p) and Y (n,) or (n, k); ``ridge`` (p,) adds ``Σ ridge_i β_i²`` (unscaled
     coefficients) to the squared residuals."""
-    scale = np.sqrt(np.mean(X * X, axis=0))
+    scale = np.sqrt(np.einsum("ij,ij->j", X, X) / X.shape[0])  # the columns' RMS, without a copy of X
     scale[scale < 1e-12] = 1.0
     Xs = X / scale
     G = Xs.T @ Xs

@@ -293,9 +293,11 @@ def smooth_random_motion(
 def skew(v: np.ndarray) -> np.ndarray:
     """``[v]×`` for (..., 3) vectors: (..., 3, 3)."""
     v = np.asarray(v, dtype=float)
-    z = np.zeros(v.shape[:-1])
+    out = np.zeros((*v.shape[:-1], 3, 3))  # filled in place: the kinematics' searches call this often
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w, y, -x
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w, -y, x
+    return out
 
 
 def rotation_about(u: np.ndarray, angle: np.ndarray) -> np.ndarray:

@@ -76,13 +76,34 @@ CHILD_BIASES = [3, 4, 5, 6, 7, 8]
 
 
 @dataclass(frozen=True)
+class _Modulated:
+    """The child model's regressors ``(R(q) f_p, gain columns, K_p, 1)`` modulated by ``1, cos q, sin q``
+    (index m), stacked so that :meth:`_ChildModel.build` turns each block with one matrix product over
+    the three modulations' ``P_m`` at once rather than a sum of three batched 3 x 3 products."""
+
+    F: np.ndarray  # (T, 9): F_m[t, j] at column 3 m + j
+    G: np.ndarray  # (T, 9) the same for the gain columns
+    G3: np.ndarray  # (T, 3, 3): G_m[t, j] at [t, m, j]
+    K: np.ndarray  # (9, T * 6): K_m[t, j, k] at [3 m + j, 6 t + k]
+    o: np.ndarray  # (T, 3): the modulations themselves, o_m[t] at [t, m]
+
+    @classmethod
+    def of(
+        cls, F_: list[np.ndarray], G_: list[np.ndarray], K_: list[np.ndarray], o_: list[np.ndarray]
+    ) -> _Modulated:
+        T = F_[0].shape[0]
+        G3 = np.stack(G_, axis=1)
+        K = np.stack(K_).transpose(0, 2, 1, 3).reshape(9, T * K_[0].shape[2])
+        return cls(F=np.concatenate(F_, axis=1), G=G3.reshape(T, 9), G3=G3, K=K, o=np.stack(o_, axis=1))
+
+
+@dataclass(frozen=True)
 class _ChildModel:
     """The child model's regressors, modulated by ``1, cos q, sin q`` and band-limited once, and the
     fits :func:`lever_child` searches over ``R0`` and the axis with."""
 
-    mods: tuple[np.ndarray, ...]
-    raw: tuple[list[np.ndarray], ...]  # (R(q) f_p, gain columns, K_p) regressors at the aligned rate
-    banded: tuple[list[np.ndarray], ...]  # the same through the common band, then the bands of ``mods``
+    raw: _Modulated  # (R(q) f_p, gain columns, K_p) regressors at the aligned rate
+    banded: _Modulated  # the same through the common band, then the bands of the modulations
     Y: np.ndarray
     u: np.ndarray
     KcU: np.ndarray
@@ -102,7 +123,7 @@ class _ChildModel:
     ) -> _ChildModel:
         r = sig.rec
         q = r.q[:, j]  # type: ignore[index]
-        mods = (np.ones_like(q), np.cos(q), np.sin(q))
+        mods = [np.ones_like(q), np.cos(q), np.sin(q)]
         fp = r.acc[:, p]
         Kp = np.concatenate(kmats(sig, f.omega_p), axis=2)  # (T, 3, 6): d_t then d
         # the regressors at the aligned rate (the model's prediction below) and through the common band
@@ -114,9 +135,8 @@ class _ChildModel:
         Fm, Gm, Km = ([sig.band_limit(x) for x in xs] for xs in raw)
         ones = [sig.band_limit(m) for m in mods]
         return cls(
-            mods=mods,
-            raw=raw,
-            banded=(Fm, Gm, Km, ones),
+            raw=_Modulated.of(*raw, mods),
+            banded=_Modulated.of(Fm, Gm, Km, ones),
             Y=sig.band_limit(r.acc[:, c]),
             u=u,
             KcU=lever_basis(sig, kc, perp_basis(u)),
@@ -126,20 +146,21 @@ class _ChildModel:
 
     @staticmethod
     def build(
-        R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, arrays: tuple[list[np.ndarray], ...]
+        R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, a: _Modulated
     ) -> tuple[np.ndarray, np.ndarray]:
         """Design (T, 3, 22) and the known part ``R(q) f_p`` (T, 3) from the modulated regressors."""
-        F_, G_, K_, o_ = arrays
         uu, ux = np.outer(axis, axis), skew(axis)
-        P = (uu @ R, (np.eye(3) - uu) @ R, -ux @ R)
-        RF = sum(F @ Pm.T for Pm, F in zip(P, F_, strict=True))
-        RG = sum(F @ Pm.T for Pm, F in zip(P, G_, strict=True))
-        X = np.zeros((RF.shape[0], 3, CHILD_COLS))
-        X[:, :, 0:3] = RG[:, :, None] * np.eye(3)
-        X[:, :, 3:6] = o_[0][:, None, None] * np.eye(3)
-        X[:, :, 6:9] = sum(Pm[None, :, :] * o[:, None, None] for Pm, o in zip(P, o_, strict=True))
-        X[:, :, 9:12] = sum(Pm[None, :, :] * F[:, None, :] for Pm, F in zip(P, G_, strict=True))
-        X[:, :, 12:18] = sum(np.matmul(Pm, K) for Pm, K in zip(P, K_, strict=True))
+        P = np.stack((uu @ R, (np.eye(3) - uu) @ R, -ux @ R))  # P_m[i, j] at [m, i, j]
+        Pt = P.transpose(0, 2, 1).reshape(9, 3)  # P_m[i, j] at [3 m + j, i]
+        T = a.F.shape[0]
+        RF, RG = a.F @ Pt, a.G @ Pt
+        X = np.zeros((T, 3, CHILD_COLS))
+        for i in range(3):
+            X[:, i, i] = RG[:, i]
+            X[:, i, 3 + i] = a.o[:, 0]
+            X[:, :, 9 + i] = a.G3[:, :, i] @ P[:, :, i]
+        X[:, :, 6:9] = (a.o @ P.reshape(3, 9)).reshape(T, 3, 3)
+        X[:, :, 12:18] = (P.transpose(1, 0, 2).reshape(3, 9) @ a.K).reshape(3, T, 6).transpose(1, 0, 2)
         X[:, :, 18:22] = kcu
         return X, RF
 
@@ -244,7 +265,7 @@ def lever_child(sig: Signals, j: int, c: int, p: int, u: np.ndarray, f: ChildInp
     fit = hac_fit(X, Yr, sig.lags)
     cov_r = U @ fit.cov[-2:, -2:] @ U.T
     kca = np.concatenate([kc[0] @ U, kc[1] @ U], axis=2)
-    Xa, RFa = m.build(R, axis, kca, (*m.raw, list(m.mods)))
+    Xa, RFa = m.build(R, axis, kca, m.raw)
     return LeverFit(
         r=U @ fit.coef[-2:],
         std_m=math.sqrt(max(float(np.trace(cov_r)), 0.0)),

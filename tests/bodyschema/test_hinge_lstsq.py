@@ -1,7 +1,8 @@
 """The shared hinge design and scaled least squares give what each method's own copy gave.
 
 The references below are the three design matrices and the two scaled solvers as the fast estimator,
-the health checks and the kinematics wrote them before they were shared; random inputs, fixed seeds.
+the health checks and the kinematics wrote them before they were shared, and the child lever-arm
+model's design as the sums it is defined by; random inputs, fixed seeds.
 The new code does the same floating-point operations in the same order, so the bound is round-off
 (1e-12 relative), not a tolerance of the model.
 """
@@ -15,7 +16,9 @@ from bodyschema.fast_core import _hop_features
 from bodyschema.hinge import hinge_design, hinge_features
 from bodyschema.joint_motion import _lstsq_residual
 from bodyschema.kinematics.least_squares import solve
+from bodyschema.kinematics.lever_arm import CHILD_COLS, _ChildModel, _Modulated
 from bodyschema.lstsq import scaled_lstsq
+from bodyschema.rigid_motion import rotvec, skew
 
 RTOL = 1e-12
 
@@ -115,3 +118,39 @@ def test_scaled_lstsq_equals_each_former_copy(seed: int) -> None:
 def test_unknown_hinge_column_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown hinge column 'bias'"):
         hinge_design(None, np.zeros(3), np.zeros(3), ("qd", "bias"))
+
+
+def _ref_child_design(
+    R: np.ndarray, axis: np.ndarray, kcu: np.ndarray, *arrays: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The child model's design written as the sums over the three modulations it is defined by."""
+    F_, G_, K_, o_ = arrays
+    uu = np.outer(axis, axis)
+    P = (uu @ R, (np.eye(3) - uu) @ R, -skew(axis) @ R)
+    RF = sum(F @ Pm.T for Pm, F in zip(P, F_, strict=True))
+    RG = sum(F @ Pm.T for Pm, F in zip(P, G_, strict=True))
+    X = np.zeros((RF.shape[0], 3, CHILD_COLS))
+    X[:, :, 0:3] = RG[:, :, None] * np.eye(3)
+    X[:, :, 3:6] = o_[0][:, None, None] * np.eye(3)
+    X[:, :, 6:9] = sum(Pm[None, :, :] * o[:, None, None] for Pm, o in zip(P, o_, strict=True))
+    X[:, :, 9:12] = sum(Pm[None, :, :] * F[:, None, :] for Pm, F in zip(P, G_, strict=True))
+    X[:, :, 12:18] = sum(np.matmul(Pm, K) for Pm, K in zip(P, K_, strict=True))
+    X[:, :, 18:22] = kcu
+    return X, RF
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stacked_child_design_equals_its_sums_over_the_modulations(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    T = 50
+    F_, G_ = ([rng.normal(size=(T, 3)) for _ in range(3)] for _ in range(2))
+    K_ = [rng.normal(size=(T, 3, 6)) for _ in range(3)]
+    o_ = [rng.normal(size=T) for _ in range(3)]
+    R = rotvec(rng.normal(size=3))
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    kcu = rng.normal(size=(T, 3, 4))
+    X, RF = _ChildModel.build(R, axis, kcu, _Modulated.of(F_, G_, K_, o_))
+    X0, RF0 = _ref_child_design(R, axis, kcu, F_, G_, K_, o_)
+    _close(X, X0)
+    _close(RF, RF0)
