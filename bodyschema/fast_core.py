@@ -708,27 +708,28 @@ def _edge_confidence(
     (those describe the same hinge). Nested rivals (a sibling's model around a base joint) pay their
     extra parameters, so they do not erode the confidence.
     """
-    G, world, Na = grp.G, grp.G, len(sig.active)
+    G, world = grp.G, grp.G
     sig_g, floor, rep = grp.sig_g, sig.floor, grp.rep
     n_obs = sig.n_obs
     edge_conf = np.zeros(G)
     half_log_n = 0.5 * np.log(n_obs)
+    p2 = np.full((G + 1, 1), 12.0)  # every rival parent's one-hinge model, the world's one regressor
+    p2[world] = 1.0
     for g in range(G):
         if g not in parent_of:
             continue
         h, js, r = parent_of[g]
-        child_edges = {(y, yjs[0]) for y, yjs, _ in nbrs[g] if y != h and len(yjs) == 1}
         p_best = 1 if h == world else 12 if len(js) == 1 else 40
         own = sig_g[g] ** 2 + floor[rep[g]] + sig.rate_var[list(js)].sum()
         s2_best = max(r * (own + (0 if h == world else sig_g[h] ** 2)), 1e-30)
-        lam = np.inf
-        for h2 in range(G + 1):
-            p2 = 1 if h2 == world else 12
-            for a in range(Na):
-                if (h2 == h and (a,) == js) or (h2, a) in child_edges or not np.isfinite(s2[g, h2, a]):
-                    continue
-                ll = 0.5 * n_obs * (np.log(max(s2[g, h2, a], 1e-30)) - np.log(s2_best))
-                lam = min(lam, ll + (p2 - p_best) * half_log_n)
+        rival = np.isfinite(s2[g])  # (G + 1, Na): every (parent, joint) but the chosen and the reversed
+        if len(js) == 1:
+            rival[h, js[0]] = False
+        for y, yjs, _ in nbrs[g]:
+            if y != h and len(yjs) == 1:
+                rival[y, yjs[0]] = False
+        ll = 0.5 * n_obs * (np.log(np.maximum(s2[g], 1e-30)) - np.log(s2_best))
+        lam = float(np.min(ll + (p2 - p_best) * half_log_n, where=rival, initial=np.inf))
         fit_ok = 1.0 if r <= fit_ratio else fit_ratio / r
         edge_conf[g] = fit_ok / (1.0 + np.exp(-float(np.clip(lam, -50.0, 50.0))))
     return edge_conf
