@@ -28,6 +28,7 @@ import httpx
 
 from bench import REPO_ROOT
 from bench.alerts_report import AlertKey, update_first_seen
+from service.api.timing import server_ms
 
 __all__ = ["AlertWatch", "Api", "BusyLoops", "RetrainFlood", "Service", "timed"]
 
@@ -320,11 +321,12 @@ class RetrainFlood(_Loop):
         }
 
 
-def timed(call: Callable[[], httpx.Response]) -> tuple[float, str]:
-    """(seconds, status) of one request; the status is the exception's name when there was no answer."""
+def timed(call: Callable[[], httpx.Response]) -> tuple[float, str, float | None]:
+    """(seconds, status, the service's own milliseconds from its ``Server-Timing``) of one request; the
+    status is the exception's name, and the service's time None, when there was no answer."""
     t = time.perf_counter()
     try:
-        status = str(call().status_code)
+        r = call()
     except httpx.HTTPError as err:
-        status = type(err).__name__
-    return time.perf_counter() - t, status
+        return time.perf_counter() - t, type(err).__name__, None
+    return time.perf_counter() - t, str(r.status_code), server_ms(r.headers.get("server-timing"))

@@ -61,6 +61,7 @@ from service.api.security import (
     mutating_routes,
     parse_origins,
 )
+from service.api.timing import ServerTiming
 from service.control import DamageControl, MonitorControl
 from service.ingest.pipeline import Pipeline
 from service.metrics import Metrics
@@ -225,13 +226,14 @@ def create_app(
         def dashboard() -> FileResponse:
             return FileResponse(DASHBOARD_DIR / "index.html")
 
-    # The last added runs first: one Host, a trusted one, then where a write comes from and its body's
-    # type (headers only), then the body's size and depth; a write that succeeds empties the read
-    # cache before its answer goes out.
+    # The last added runs first: the app's time (the Server-Timing header), one Host, a trusted one,
+    # then where a write comes from and its body's type (headers only), then the body's size and
+    # depth; a write that succeeds empties the read cache before its answer goes out.
     app.add_middleware(ClearOnWrite, cache=app.state.read_cache)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_request_bytes)
     origins = parse_origins(settings.allowed_origins or ())  # a bad one stops the app here
     app.add_middleware(WriteGuard, routes=lambda: mutating_routes(app), allowed=origins)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.trusted_hosts(), www_redirect=False)
     app.add_middleware(SingleHost)
+    app.add_middleware(ServerTiming)
     return app
