@@ -53,7 +53,7 @@ from bench.alerts_report import (
     plot,
     summarize,
 )
-from bench.alerts_service import AlertWatch, Api, BusyLoops, RetrainFlood, Service, timed
+from bench.alerts_service import AlertWatch, Api, Approver, BusyLoops, RetrainFlood, Service
 
 __all__ = ["DEFAULT_DAMAGES", "Options", "add_arguments", "run", "run_once"]
 
@@ -290,28 +290,39 @@ class _Run:
             self.watch.robots = self.robots
         self.phase("baseline", 0.0)
 
+    def client_approvals(self, robots: list[str], n: int, seconds: float) -> list[list[Any]]:
+        """The rows of :class:`Approver`: ``n`` approvals over ``seconds`` from its start."""
+        client = Approver(self.service.url, self.o.token)
+        try:
+            client.start(robots, self.approved, n, seconds, self.deadline)
+            start = time.monotonic()
+            client.go()
+            self.sleep_until(start + seconds)
+            return client.rows()
+        finally:
+            client.kill()
+
     def approve_spread(self, n: int, seconds: float, label: str) -> None:
         """``n`` approvals spaced evenly over ``seconds``, the robots in turn (those no geometry damage
-        is planned for, where there are such); latency per request, and each one's time, robot,
-        milliseconds and the service's own milliseconds (its ``Server-Timing``; what is left is the
-        network, the server's parsing and the bench's own scheduling)."""
-        start = time.monotonic()
-        lat, statuses, each = [], {}, []
+        is planned for, where there are such), sent and timed by a client process of their own
+        (:mod:`bench.approver`: this process's poller and flood would queue the timer behind them);
+        latency per request, and each one's time, robot, milliseconds and the service's own
+        milliseconds (its ``Server-Timing``; what is left is the network, the server's parsing and the
+        scheduling of both processes)."""
         robots = [r for r in self.robots if self.baselines.get(r) is not None]
         robots = [r for r in robots if r not in self.geometry_robots()] or robots
-        for k in range(n if robots else 0):
-            self.sleep_until(start + (k + 0.5) * seconds / n)
-            if time.monotonic() >= self.deadline:
-                break
-            robot = robots[self.approved % len(robots)]
+        rows = []
+        if robots and n:
+            rows = self.client_approvals(robots, n, seconds)
+        else:
+            self.sleep_until(time.monotonic() + seconds)
+        lat, statuses, each = [], {}, []
+        for t, robot, ms, app_ms, status, wall in rows:
             self.approved += 1
-            path = f"/api/v1/robots/{robot}/baseline"
-            took, status, app_ms = timed(lambda path=path: self.api.post(path))
-            self.last_approval_wall[robot] = time.time()
-            lat.append(took)
-            each.append([round(self.now() - took, 1), robot, round(took * 1e3, 1), app_ms])
+            self.last_approval_wall[robot] = max(wall, self.last_approval_wall.get(robot, 0.0))
+            lat.append(ms / 1e3)
+            each.append([round(t - self.t0, 1), robot, ms, app_ms])
             statuses[status] = statuses.get(status, 0) + 1
-        self.sleep_until(start + seconds)
         self.approvals[label] = {**percentiles_ms(lat), "statuses": statuses}
         _log(f"run {self.index}: approvals ({label}) {self.approvals[label]}")
         self.approvals[label]["each"] = each
@@ -563,6 +574,7 @@ def run(args: argparse.Namespace) -> Path:
             k: v for k, v in os.environ.items() if k.startswith("BODYHEALTH_") and "TOKEN" not in k
         },
         "targets": TARGETS,
+        "approvals_from": "a client process of its own",
         "note": (
             f"Short run: {opts.runs} run(s), healthy phases {opts.first_healthy_s:g} s, then "
             f"{opts.healthy_seconds:g} s (the full bench: {FULL_RUNS} runs, {FULL_HEALTHY_S:g} s, then "

@@ -282,6 +282,7 @@ def _cell(m: Mapping[str, Any], spec: str) -> str:
 def markdown(data: Mapping[str, Any]) -> str:
     """The report ``docs/bench/alerts.md``: targets and summary first, then each run."""
     o = data["options"]
+    approver = data.get("approvals_from")
     lines = [
         "# Benchmark: alerts in time on a busy machine",
         "",
@@ -292,7 +293,8 @@ def markdown(data: Mapping[str, Any]) -> str:
         f"run. The demo (`bodyhealth serve --demo`, speed {o['speed']:g}x, its own SQLite file) runs as "
         "a process of its own; this process polls the alerts route every "
         f"{o['poll_seconds']:g} s (times are when a poll first saw a state: up to one poll interval "
-        "plus the API's read cache late).",
+        "plus the API's read cache late)."
+        + (f" Approvals are sent and timed by {approver}." if approver else ""),
         "",
     ]
     if data.get("note"):

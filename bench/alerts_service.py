@@ -22,7 +22,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import httpx
 
@@ -30,7 +30,11 @@ from bench import REPO_ROOT
 from bench.alerts_report import AlertKey, update_first_seen
 from service.api.timing import server_ms
 
-__all__ = ["AlertWatch", "Api", "BusyLoops", "RetrainFlood", "Service", "timed"]
+#: Where :class:`Approver` hands its child (:mod:`bench.approver`) the API token: not on its command
+#: line, which other users can read.
+APPROVER_TOKEN_ENV = "BODYHEALTH_BENCH_TOKEN"
+
+__all__ = ["AlertWatch", "Api", "Approver", "BusyLoops", "RetrainFlood", "Service", "timed"]
 
 #: A busy loop: one Python process spinning on the core given as its first argument. It asks the kernel
 #: for a SIGKILL when its parent (the second argument) ends, so not even a killed bench leaves it spinning.
@@ -178,10 +182,14 @@ class Service:
         return None
 
 
+class _Listening(Protocol):
+    url: str
+
+
 class Api:
     """Requests to the service, wherever it listens now (a restart moves it to another port)."""
 
-    def __init__(self, service: Service, token: str | None, timeout: float = 60.0) -> None:
+    def __init__(self, service: _Listening, token: str | None, timeout: float = 60.0) -> None:
         self.service = service
         self.auth = {"Authorization": f"Bearer {token}"} if token else {}
         self.client = httpx.Client(timeout=timeout, trust_env=False)
@@ -330,3 +338,54 @@ def timed(call: Callable[[], httpx.Response]) -> tuple[float, str, float | None]
     except httpx.HTTPError as err:
         return time.perf_counter() - t, type(err).__name__, None
     return time.perf_counter() - t, str(r.status_code), server_ms(r.headers.get("server-timing"))
+
+
+class Approver:
+    """Baseline approvals from a process of their own (:mod:`bench.approver`): started and imported
+    before the phase's clock starts, so its start-up is not in the spread, and killed if the bench
+    stops first."""
+
+    def __init__(self, url: str, token: str | None, timeout: float = 120.0) -> None:
+        env = {k: v for k, v in os.environ.items() if k != APPROVER_TOKEN_ENV}
+        env |= {APPROVER_TOKEN_ENV: token} if token else {}
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+        self.url, self.env, self.timeout = url, env, timeout
+        self.proc: subprocess.Popen[str] | None = None
+
+    def start(self, robots: Sequence[str], first: int, n: int, seconds: float, until: float) -> None:
+        """Start it and wait until it is ready; RuntimeError when it is not within the timeout."""
+        args = ["--robots", ",".join(robots), "--first", str(first), "--n", str(n)]
+        args += ["--seconds", f"{seconds!r}", "--until", f"{until!r}"]
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "bench.approver", self.url, *args],
+            cwd=REPO_ROOT,
+            env=self.env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout is not None
+        ready, _, _ = select.select([self.proc.stdout], [], [], self.timeout)
+        if not ready or self.proc.stdout.readline().strip() != "ready":
+            self.kill()
+            raise RuntimeError(f"the approvals' client was not ready within {self.timeout:g} s")
+
+    def go(self) -> None:
+        assert self.proc is not None and self.proc.stdin is not None
+        self.proc.stdin.write("go\n")
+        self.proc.stdin.flush()
+
+    def rows(self) -> list[list[Any]]:
+        """Each approval's [monotonic start, robot, ms, the service's ms, status, wall time]; waits for
+        the last answer (the client's request timeout bounds it)."""
+        assert self.proc is not None
+        out, _ = self.proc.communicate(timeout=self.timeout)
+        self.proc = None
+        return list(json.loads(out.strip().splitlines()[-1])) if out.strip() else []
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(10)
+        self.proc = None

@@ -224,6 +224,11 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert data["summary"]["baseline_s"]["max"] == run["baseline_s"]
     assert sum(run["approvals"]["quiet"]["statuses"].values()) == 1
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
+    # timed by a client process of its own, the service's own time within the round trip
+    ((_, robot, client_ms, app_ms),) = run["approvals"]["quiet"]["each"]
+    assert robot in run["baselines"] and 0 < app_ms <= client_ms
+    md = (tmp_path / "alerts.md").read_text()
+    assert "Approvals are sent and timed by a client process of its own." in md
     # SIGTERM mid healthy phase: a clean exit, the same data served again, the flood answered after it
     assert run["restart"]["exit_code"] == 0 and run["restart"]["down_s"] >= run["restart"]["stop_s"] > 0
     # each retrain request is taken (202) or refused for now (429: too soon, or the training queue full)
