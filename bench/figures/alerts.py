@@ -24,6 +24,9 @@ def figure(b: BenchFiles, name: str = "alerts") -> str:
     approvals = ", ".join(
         f"{k.split()[1]} p99 max {s[k]['max']:.0f} ms" for k in s if k.startswith("approval") and "p99" in k
     )
+    own_p99 = [k for k in s if k.startswith("service's own") and k.endswith("p99_ms")]
+    own = ", ".join(f"{k.split()[2]} p99 max {s[k]['max']:.0f} ms" for k in own_p99)
+    approvals += f" (the service's own time {own})" if own else ""
     false = s.get("false_alerts", {}).get("max")
     restarts = [f"{r['restart']['t_s']:.0f} s" for r in runs if r.get("restart")]
     when = f", restarted at {', '.join(restarts)}" if restarts else ""

@@ -21,6 +21,8 @@ from bench.alerts_report import (
     parse_damage,
     summarize,
 )
+from bench.figures import alerts as alerts_figure
+from bench.figures.files import BENCH, BenchFiles
 from tests.bench.args import bench_args
 
 MOVED = {"robot": "paper-3-1", "kind": "imu_moved", "part": "imu:imu0"}
@@ -117,6 +119,25 @@ def test_summary_takes_max_and_median_and_a_miss_fails_its_target() -> None:
     assert (s["false_alerts"]["max"], s["false_alerts"]["met"]) == (2, False)
 
 
+def test_the_services_own_time_is_reported_beside_each_phases_round_trips(tmp_path: Path) -> None:
+    # rows [t, robot, round trip ms, the service's ms]; a row without the service's time is left out
+    each = [[10.0, "ur5e-1", 40.0, 12.0], [12.0, "ur5e-1", 250.0, 30.0], [14.0, "ur5e-1", 35.0, None]]
+    runs = [
+        _run(100.0, 40.0, 200.0, 0) | {"approvals": {"quiet": {"p99_ms": 240.0, "each": each}}},
+        _run(100.0, 40.0, 200.0, 0) | {"approvals": {"quiet": {"p99_ms": 60.0, "each": each[:1]}}},
+    ]
+    runs = [r | {"load_before": 1.0, "load_after": 2.0} for r in runs]
+    s = summarize(runs)
+    assert s["service's own quiet p99_ms"]["values"] == [29.82, 12.0]
+    assert s["service's own quiet p50_ms"]["values"] == [21.0, 12.0]
+    assert "service's own flood p99_ms" not in s  # no flood approvals, nothing to report
+    (tmp_path / BENCH).mkdir(parents=True)
+    data = {"command": "bodyhealth bench alerts", "machine": "2 cores", "summary": s, "runs": runs}
+    (tmp_path / BENCH / "alerts.json").write_text(json.dumps(data))
+    line = alerts_figure.figure(BenchFiles(tmp_path))
+    assert "baseline approvals quiet p99 max 240 ms (the service's own time quiet p99 max 30 ms)." in line
+
+
 def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     seen = first_seen(_timeline())
     damages = [
@@ -138,7 +159,10 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
         "damages": damages,
         "false_alerts": classify(seen, INJECTED),
         "restart": None,
-        "approvals": {},
+        "approvals": {
+            "quiet": {"n": 1, "p50_ms": 40.0, "p99_ms": 40.0, "max_ms": 40.0, "statuses": {"200": 1}}
+            | {"each": [[10.0, "paper-3-1", 40.0, 12.0]]}
+        },
         "flood": {"statuses": {"202": 3, "429": 40}, "requests": 43, "rps": 5.0},
         "notes": [],
         "write_waits": [
@@ -160,6 +184,9 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     assert "not injectable (422)" in md
     assert "False alerts: 1 (1 became active; 0 after the restart)" in md
     assert "202: 3, 429: 40" in md
+    # each phase's round trips, and the service's own time of the same approvals
+    assert "| quiet | 1 | 40 ms | 40 ms | 40 ms | 200: 1 | 12 / 12 ms |" in md
+    assert "| flood | 0 | — ms | — ms | — ms | — | — / — ms |" in md
     assert (
         "Writes that waited over 100 ms for the store's lock: 2 (1 approvals); the longest 181 ms, "
         "api: approve_baseline behind worker: prune." in md
