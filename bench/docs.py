@@ -126,7 +126,14 @@ FIGURES: tuple[Figure, ...] = (
     # the full bench, the run beside other work, the hour-long run with its restart on its own
     *(
         _f("docs/alert-latency.md", name, f"{name}.json", partial(alerts.figure, name=name))
-        for name in ("alerts", "alerts-first", "alerts-loaded", "alerts-restart", "alerts-approvals")
+        for name in (
+            "alerts",
+            "alerts-first",
+            "alerts-loaded",
+            "alerts-restart",
+            "alerts-approvals",
+            "alerts-approvals5",
+        )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
     _f("docs/topology.md", "calibration", "calibration.json", calibration.figure),
