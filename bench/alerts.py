@@ -306,9 +306,9 @@ class _Run:
         """``n`` approvals spaced evenly over ``seconds``, the robots in turn (those no geometry damage
         is planned for, where there are such), sent and timed by a client process of their own
         (:mod:`bench.approver`: this process's poller and flood would queue the timer behind them);
-        latency per request, and each one's time, robot, milliseconds and the service's own
-        milliseconds (its ``Server-Timing``; what is left is the network, the server's parsing and the
-        scheduling of both processes)."""
+        latency per request, and each one's time, robot, milliseconds, the service's own milliseconds
+        (its ``Server-Timing``; what is left is the network, the server's parsing and the scheduling of
+        both processes) and of those the milliseconds its store write waited for the lock and held it."""
         robots = [r for r in self.robots if self.baselines.get(r) is not None]
         robots = [r for r in robots if r not in self.geometry_robots()] or robots
         rows = []
@@ -317,11 +317,11 @@ class _Run:
         else:
             self.sleep_until(time.monotonic() + seconds)
         lat, statuses, each = [], {}, []
-        for t, robot, ms, app_ms, status, wall in rows:
+        for t, robot, ms, app_ms, status, wall, *store in rows:
             self.approved += 1
             self.last_approval_wall[robot] = max(wall, self.last_approval_wall.get(robot, 0.0))
             lat.append(ms / 1e3)
-            each.append([round(t - self.t0, 1), robot, ms, app_ms])
+            each.append([round(t - self.t0, 1), robot, ms, app_ms, *store])
             statuses[status] = statuses.get(status, 0) + 1
         self.approvals[label] = {**percentiles_ms(lat), "statuses": statuses}
         _log(f"run {self.index}: approvals ({label}) {self.approvals[label]}")

@@ -28,7 +28,7 @@ import httpx
 
 from bench import REPO_ROOT
 from bench.alerts_report import AlertKey, update_first_seen
-from service.api.timing import server_ms
+from service.api.timing import server_timings
 
 #: Where :class:`Approver` hands its child (:mod:`bench.approver`) the API token: not on its command
 #: line, which other users can read.
@@ -329,15 +329,16 @@ class RetrainFlood(_Loop):
         }
 
 
-def timed(call: Callable[[], httpx.Response]) -> tuple[float, str, float | None]:
-    """(seconds, status, the service's own milliseconds from its ``Server-Timing``) of one request; the
-    status is the exception's name, and the service's time None, when there was no answer."""
+def timed(call: Callable[[], httpx.Response]) -> tuple[float, str, dict[str, float]]:
+    """(seconds, status, the service's own milliseconds from its ``Server-Timing``: ``app``, and its
+    store writes' ``store-wait`` and ``store-held``) of one request; the status is the exception's
+    name, and the service's times empty, when there was no answer."""
     t = time.perf_counter()
     try:
         r = call()
     except httpx.HTTPError as err:
-        return time.perf_counter() - t, type(err).__name__, None
-    return time.perf_counter() - t, str(r.status_code), server_ms(r.headers.get("server-timing"))
+        return time.perf_counter() - t, type(err).__name__, {}
+    return time.perf_counter() - t, str(r.status_code), server_timings(r.headers.get("server-timing"))
 
 
 class Approver:
@@ -376,8 +377,9 @@ class Approver:
         self.proc.stdin.flush()
 
     def rows(self) -> list[list[Any]]:
-        """Each approval's [monotonic start, robot, ms, the service's ms, status, wall time]; waits for
-        the last answer (the client's request timeout bounds it)."""
+        """Each approval's [monotonic start, robot, ms, the service's ms, status, wall time, its store
+        write's ms waiting for the lock and holding it]; waits for the last answer (the client's
+        request timeout bounds it)."""
         assert self.proc is not None
         out, _ = self.proc.communicate(timeout=self.timeout)
         self.proc = None

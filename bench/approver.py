@@ -9,8 +9,9 @@ prints ``ready`` once imported, starts on a line from stdin, sends approval ``k`
 seconds / n`` after that (none past the monotonic ``--until``, the bench's deadline: the clock is the
 machine's, shared by both processes), and ends with one JSON line: per approval, its monotonic start,
 robot, milliseconds, the service's own milliseconds (``Server-Timing``), status and the wall time of its
-answer. The token, when there is one, comes in the environment
-(``bench.alerts_service.APPROVER_TOKEN_ENV``), not on the command line.
+answer, then the milliseconds its store writes waited for the store's write lock and held it. The token,
+when there is one, comes in the environment (``bench.alerts_service.APPROVER_TOKEN_ENV``), not on the
+command line.
 """
 
 from __future__ import annotations
@@ -54,8 +55,9 @@ def main(argv: list[str] | None = None) -> int:
             robot = robots[(a.first + k) % len(robots)]
             path = f"/api/v1/robots/{robot}/baseline"
             t = time.monotonic()
-            took, status, app_ms = timed(lambda path=path: api.post(path))
-            rows.append([t, robot, round(took * 1e3, 1), app_ms, status, time.time()])
+            took, status, own = timed(lambda path=path: api.post(path))
+            store = [own.get("store-wait"), own.get("store-held")]
+            rows.append([t, robot, round(took * 1e3, 1), own.get("app"), status, time.time(), *store])
     finally:
         api.close()
         print(json.dumps(rows), flush=True)

@@ -1,11 +1,13 @@
 """``Server-Timing`` on every answer: how long the app took, so a slow request can be told apart from
-a slow network or a slow client.
+a slow network or a slow client, and how much of it the request's store writes waited for the store's
+write lock and held it (``store-wait``, ``store-held``; :data:`service.store.write_lock.LOCK_TIMES`).
 
 A client's latency holds its own scheduling as well as the service's; on a loaded machine the two
 are of the same size, and only the service's own clock separates them. The header (W3C Server
 Timing) is shown by browsers' developer tools, and ``bodyhealth bench alerts`` keeps it beside each
 approval's round trip. It counts from the request reaching the app (after the server parsed it) to
-the response's start: the middlewares, the route and its wait for a worker thread.
+the response's start: the middlewares, the route and its wait for a worker thread. A slow write
+that waited is queued behind another writer; one that held the lock long ran slowly itself.
 
 Example
 -------
@@ -18,6 +20,8 @@ Example
 True
 >>> server_ms("app;dur=12.5"), server_ms(None)
 (12.5, None)
+>>> server_timings("app;dur=12.5, store-wait;dur=0.0, store-held;dur=3.1")
+{'app': 12.5, 'store-wait': 0.0, 'store-held': 3.1}
 """
 
 from __future__ import annotations
@@ -27,9 +31,11 @@ import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["ServerTiming", "server_ms"]
+from service.store.write_lock import LOCK_TIMES
 
-_DUR = re.compile(r"(?:^|,)\s*app;dur=([0-9.]+)")
+__all__ = ["ServerTiming", "server_ms", "server_timings"]
+
+_DUR = re.compile(r"(?:^|,)\s*([A-Za-z0-9_-]+);dur=([0-9.]+)")
 
 
 class ServerTiming:
@@ -43,19 +49,28 @@ class ServerTiming:
             await self.app(scope, receive, send)
             return
         start = time.perf_counter()
+        lock = [0.0, 0.0]  # this request's store writes: seconds waited for the lock, seconds held
+        token = LOCK_TIMES.set(lock)
 
         async def timed_send(msg: Message) -> None:
             if msg["type"] == "http.response.start":
                 ms = (time.perf_counter() - start) * 1e3
-                headers = list(msg.get("headers") or [])
-                headers.append((b"server-timing", f"app;dur={ms:.1f}".encode()))
-                msg = {**msg, "headers": headers}
+                wait, held = 1e3 * lock[0], 1e3 * lock[1]
+                value = f"app;dur={ms:.1f}, store-wait;dur={wait:.1f}, store-held;dur={held:.1f}"
+                msg = {**msg, "headers": [*(msg.get("headers") or []), (b"server-timing", value.encode())]}
             await send(msg)
 
-        await self.app(scope, receive, timed_send)
+        try:
+            await self.app(scope, receive, timed_send)
+        finally:
+            LOCK_TIMES.reset(token)
+
+
+def server_timings(header: str | None) -> dict[str, float]:
+    """Every ``name;dur=ms`` of a ``Server-Timing`` header value (empty without one)."""
+    return {m.group(1): float(m.group(2)) for m in _DUR.finditer(header or "")}
 
 
 def server_ms(header: str | None) -> float | None:
     """The app's milliseconds from a ``Server-Timing`` header value; None when it has none."""
-    m = _DUR.search(header or "")
-    return float(m.group(1)) if m else None
+    return server_timings(header).get("app")

@@ -6,7 +6,9 @@ operator's request that waits here waits behind a frame commit, a worker's write
 checkpoint; which one is what a slow approval needs explained. So a wait longer than ``slow_s`` is
 logged (INFO, ``store write waited``) with the holder (its thread and the store method it was in) and
 how long it had held the lock when the wait began, and counted (:attr:`WriteLock.slow_waits`,
-:attr:`WriteLock.longest_wait_s`).
+:attr:`WriteLock.longest_wait_s`). A unit of work that wants its own share (an API request:
+:mod:`service.api.timing`) sets :data:`LOCK_TIMES` to a fresh ``[0.0, 0.0]``; each outermost write in
+its context then adds the seconds it waited for the lock and the seconds it held it.
 
 Example
 -------
@@ -26,15 +28,20 @@ import logging
 import sys
 import threading
 import time
+from contextvars import ContextVar
 from types import FrameType, TracebackType
 
-__all__ = ["SLOW_WAIT_S", "WriteLock"]
+__all__ = ["LOCK_TIMES", "SLOW_WAIT_S", "WriteLock"]
 
 log = logging.getLogger(__name__)
 
 #: A wait for the write lock longer than this is logged with its holder: the approval latency target
 #: is 200 ms, so a wait of half of it is worth naming.
 SLOW_WAIT_S = 0.1
+
+#: [seconds waited for the lock, seconds held] added up over the writes of the context that set it (a
+#: list, so that the threads a request's context is copied into add to the same one); None: not kept.
+LOCK_TIMES: ContextVar[list[float] | None] = ContextVar("store_write_lock_times", default=None)
 
 #: Frames of these names are the lock's own plumbing, not the writer to name.
 _PLUMBING = frozenset({"_writing", "__enter__"})
@@ -65,13 +72,13 @@ class WriteLock:
 
     def __enter__(self) -> WriteLock:
         if self._lock.acquire(blocking=False):
-            self._taken(sys._getframe(1))
+            self._taken(sys._getframe(1), 0.0)
             return self
         t0 = time.monotonic()
         holder, held = self.holder, t0 - self._since
         self._lock.acquire()
         waited = time.monotonic() - t0
-        self._taken(sys._getframe(1))
+        self._taken(sys._getframe(1), waited)
         self.longest_wait_s = max(self.longest_wait_s, waited)
         if waited > self.slow_s:
             self.slow_waits += 1
@@ -87,10 +94,13 @@ class WriteLock:
             )
         return self
 
-    def _taken(self, frame: FrameType) -> None:
+    def _taken(self, frame: FrameType, waited: float) -> None:
         if self._depth == 0:
             self.holder = f"{threading.current_thread().name}: {_writer(frame)}"
             self._since = time.monotonic()
+            times = LOCK_TIMES.get()
+            if times is not None:
+                times[0] += waited
         self._depth += 1
 
     def __exit__(
@@ -99,4 +109,7 @@ class WriteLock:
         self._depth -= 1
         if self._depth == 0:
             self.holder = None
+            times = LOCK_TIMES.get()
+            if times is not None:
+                times[1] += time.monotonic() - self._since
         self._lock.release()

@@ -251,9 +251,11 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert data["summary"]["baseline_s"]["max"] == run["baseline_s"]
     assert sum(run["approvals"]["quiet"]["statuses"].values()) == 1
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
-    # timed by a client process of its own, the service's own time within the round trip
-    ((_, robot, client_ms, app_ms),) = run["approvals"]["quiet"]["each"]
+    # timed by a client process of its own, the service's own time within the round trip, and its
+    # store write's wait for the lock and hold of it within that
+    ((_, robot, client_ms, app_ms, wait_ms, held_ms),) = run["approvals"]["quiet"]["each"]
     assert robot in run["baselines"] and 0 < app_ms <= client_ms
+    assert held_ms > 0 and wait_ms + held_ms <= app_ms
     md = (tmp_path / "alerts.md").read_text()
     assert "Approvals are sent and timed by a client process of its own." in md
     # SIGTERM mid healthy phase: a clean exit, the same data served again, the flood answered after it

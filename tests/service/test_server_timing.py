@@ -3,14 +3,19 @@ approval's round trip."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from service.api import create_app
-from service.api.timing import ServerTiming, server_ms
+from service.api.timing import ServerTiming, server_ms, server_timings
 from service.store import open_store
+from service.store.write_lock import LOCK_TIMES, WriteLock
+
+#: How long the writers below keep the store's write lock.
+HOLD_S = 0.04
 
 
 def test_the_header_holds_the_routes_time_and_no_more_than_the_round_trip() -> None:
@@ -47,3 +52,43 @@ def test_other_timings_in_the_header_are_skipped_and_a_missing_one_is_none() -> 
     assert server_ms("db;dur=3.0, app;dur=7.25") == 7.25
     assert server_ms("db;dur=3.0") is None
     assert server_ms("") is None
+
+
+def test_a_requests_store_writes_say_how_long_they_waited_for_the_lock_and_held_it() -> None:
+    # the routes run in worker threads: the request's share reaches them through its context
+    app, lock = FastAPI(), WriteLock()
+    asked = threading.Event()
+
+    @app.post("/write")
+    def write() -> dict[str, bool]:
+        asked.set()
+        with lock, lock:  # a nested write is counted once
+            time.sleep(HOLD_S)
+        return {"ok": True}
+
+    @app.get("/read")
+    def read() -> dict[str, bool]:
+        return {"ok": True}
+
+    app.add_middleware(ServerTiming)
+    client = TestClient(app)
+    alone = server_timings(client.post("/write").headers["server-timing"])
+    assert alone["store-wait"] == 0.0 and 1e3 * HOLD_S <= alone["store-held"] <= alone["app"]
+    assert server_timings(client.get("/read").headers["server-timing"])["store-held"] == 0.0
+
+    def holder() -> None:  # another writer, holding the lock from before the request asks until after
+        with lock:
+            started.set()
+            asked.wait(10)
+            time.sleep(HOLD_S)
+
+    started = threading.Event()
+    asked.clear()
+    t = threading.Thread(target=holder)
+    t.start()
+    started.wait(10)
+    queued = server_timings(client.post("/write").headers["server-timing"])
+    t.join()
+    assert queued["store-wait"] >= 1e3 * HOLD_S and queued["store-held"] >= 1e3 * HOLD_S
+    assert queued["store-wait"] + queued["store-held"] <= queued["app"]
+    assert LOCK_TIMES.get() is None  # nothing is kept outside a request
