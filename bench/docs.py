@@ -133,6 +133,7 @@ FIGURES: tuple[Figure, ...] = (
             "alerts-restart",
             "alerts-approvals",
             "alerts-approvals5",
+            "alerts-store-lock",
         )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
