@@ -48,6 +48,16 @@ while True:
 """
 
 
+def _child_environment(token_var: str, token: str | None) -> dict[str, str]:
+    """This process's environment for a child the bench starts: no variable named ``token_var*``
+    but ``token_var`` itself set to ``token`` when there is one, and this checkout first on the path."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(token_var)}
+    if token:
+        env[token_var] = token
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+    return env
+
+
 class BusyLoops:
     """``n`` processes each spinning ``while True: pass`` on a core of its own (round robin over the
     cores this process may use): the other work of a busy robot computer."""
@@ -94,11 +104,7 @@ class Service:
     def environment(self) -> dict[str, str]:
         """This process's environment without API tokens, with ``--token`` as the service's token; the
         code run is this checkout's."""
-        env = {k: v for k, v in os.environ.items() if not k.startswith("BODYHEALTH_API_TOKEN")}
-        if self.token:
-            env["BODYHEALTH_API_TOKEN"] = self.token
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
-        return env
+        return _child_environment("BODYHEALTH_API_TOKEN", self.token)
 
     def start(self, timeout: float) -> str:
         """Start it and return its base URL once bound; RuntimeError (with its stderr's tail) when it
@@ -347,10 +353,8 @@ class Approver:
     stops first."""
 
     def __init__(self, url: str, token: str | None, timeout: float = 120.0) -> None:
-        env = {k: v for k, v in os.environ.items() if k != APPROVER_TOKEN_ENV}
-        env |= {APPROVER_TOKEN_ENV: token} if token else {}
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
-        self.url, self.env, self.timeout = url, env, timeout
+        self.url, self.timeout = url, timeout
+        self.env = _child_environment(APPROVER_TOKEN_ENV, token)
         self.proc: subprocess.Popen[str] | None = None
 
     def start(self, robots: Sequence[str], first: int, n: int, seconds: float, until: float) -> None:

@@ -18,8 +18,6 @@ Example
 >>> app.add_middleware(ServerTiming)
 >>> TestClient(app).get("/").headers["server-timing"].startswith("app;dur=")
 True
->>> server_ms("app;dur=12.5"), server_ms(None)
-(12.5, None)
 >>> server_timings("app;dur=12.5, store-wait;dur=0.0, store-held;dur=3.1")
 {'app': 12.5, 'store-wait': 0.0, 'store-held': 3.1}
 """
@@ -33,13 +31,14 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.store.write_lock import LOCK_TIMES
 
-__all__ = ["ServerTiming", "server_ms", "server_timings"]
+__all__ = ["ServerTiming", "server_timings"]
 
 _DUR = re.compile(r"(?:^|,)\s*([A-Za-z0-9_-]+);dur=([0-9.]+)")
 
 
 class ServerTiming:
-    """Pure ASGI middleware: ``Server-Timing: app;dur=<ms>`` on each HTTP response."""
+    """Pure ASGI middleware: ``Server-Timing: app;dur=<ms>, store-wait;dur=<ms>, store-held;dur=<ms>``
+    on each HTTP response."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -69,8 +68,3 @@ class ServerTiming:
 def server_timings(header: str | None) -> dict[str, float]:
     """Every ``name;dur=ms`` of a ``Server-Timing`` header value (empty without one)."""
     return {m.group(1): float(m.group(2)) for m in _DUR.finditer(header or "")}
-
-
-def server_ms(header: str | None) -> float | None:
-    """The app's milliseconds from a ``Server-Timing`` header value; None when it has none."""
-    return server_timings(header).get("app")
