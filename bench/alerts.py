@@ -308,7 +308,8 @@ class _Run:
         (:mod:`bench.approver`: this process's poller and flood would queue the timer behind them);
         latency per request, and each one's time, robot, milliseconds, the service's own milliseconds
         (its ``Server-Timing``; what is left is the network, the server's parsing and the scheduling of
-        both processes) and of those the milliseconds its store write waited for the lock and held it."""
+        both processes) and of those the milliseconds its store write waited for the lock, held it and
+        committed."""
         robots = [r for r in self.robots if self.baselines.get(r) is not None]
         robots = [r for r in robots if r not in self.geometry_robots()] or robots
         rows = []
@@ -515,6 +516,7 @@ def run_once(opts: Options, index: int) -> dict[str, Any]:
         "exit_code": code,
         "window_gone": r.service.tail(n=1 << 30).count("WindowGone"),
         "write_waits": r.service.write_waits(),
+        "slow_holds": r.service.slow_holds(),
     }
     shutil.rmtree(data_dir, ignore_errors=True)
     return out

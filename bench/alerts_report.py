@@ -357,13 +357,33 @@ def _write_waits_line(r: Mapping[str, Any]) -> str:
     )
 
 
+def _slow_holds_line(r: Mapping[str, Any]) -> str:
+    """The service's holds of the store's write lock over 100 ms: how many, the approvals among them,
+    and the longest with its commit's share, its thread's CPU and the WAL it committed onto ("" for a
+    run recorded before they were kept)."""
+    holds = r.get("slow_holds")
+    if holds is None:
+        return ""
+    if not holds:
+        return "No write held the store's lock over 100 ms."
+    approvals = sum("approve_baseline" in (h.get("writer") or "") for h in holds)
+    top = max(holds, key=lambda h: h.get("held_ms") or 0)
+    held, commit, cpu = (fmt(top.get(k), ".0f") for k in ("held_ms", "commit_ms", "cpu_ms"))
+    wal = fmt((top.get("wal_bytes") or 0) / 2**20, ".1f")
+    return (
+        f"Writes that held the store's lock over 100 ms: {len(holds)} ({approvals} approvals); the longest "
+        f"{held} ms, {top.get('writer')}: commit {commit} ms, thread CPU {cpu} ms, WAL {wal} MiB when it "
+        "committed."
+    )
+
+
 def _run_lines(r: Mapping[str, Any]) -> list[str]:
     lines = [
         f"## Run {r['run']}",
         "",
         f"Load average {fmt(r['load_before'], '.2f')} at the start, {fmt(r['load_after'], '.2f')} at the "
         f"end; {r['polls']} alert polls ({r['poll_errors']} failed); `WindowGone` in the service's log: "
-        f"{r.get('window_gone', '—')}. {_write_waits_line(r)}",
+        f"{r.get('window_gone', '—')}. {_write_waits_line(r)} {_slow_holds_line(r)}".rstrip(),
         "",
         "Baseline: "
         + ", ".join(_baseline_item(r, k, v) for k, v in r["baselines"].items())

@@ -150,19 +150,33 @@ class Service:
         except OSError:
             return ""
 
+    def _logged(self, msg: str, keys: tuple[str, ...], most: int) -> list[dict[str, Any]]:
+        """The fields ``keys`` (and the message) of the service's JSON log lines whose message starts
+        with ``msg``, in order, at most ``most``."""
+        out: list[dict[str, Any]] = []
+        for line in self.tail(n=1 << 30).splitlines():
+            if f'"{msg}' not in line:
+                continue
+            with contextlib.suppress(ValueError):
+                rec = json.loads(line)
+                out.append({k: rec.get(k) for k in ("ts", "msg", *keys)})
+        return out[:most]
+
     def write_waits(self, most: int = 200) -> list[dict[str, Any]]:
         """The service's logged waits for the store's write lock (over 100 ms each,
         :mod:`service.store.write_lock`), in order, at most ``most``: who waited, behind whom, how long;
         a slow approval shows as one whose writer is ``approve_baseline``."""
-        out: list[dict[str, Any]] = []
-        for line in self.tail(n=1 << 30).splitlines():
-            if '"store write waited' not in line:
-                continue
-            with contextlib.suppress(ValueError):
-                rec = json.loads(line)
-                keep = {k: rec.get(k) for k in ("ts", "writer", "waited_ms", "held_ms")}
-                out.append(keep | {"behind": rec["msg"].partition(" behind ")[2]})
-        return out[:most]
+        out = self._logged("store write waited", ("writer", "waited_ms", "held_ms"), most)
+        return [w | {"behind": str(w.pop("msg")).partition(" behind ")[2]} for w in out]
+
+    def slow_holds(self, most: int = 200) -> list[dict[str, Any]]:
+        """The service's logged holds of the store's write lock over 100 ms, in order, at most ``most``:
+        the writer, how long it held the lock, its commits' share, its thread's CPU and the WAL's bytes
+        when it committed (a commit that found the WAL past SQLite's checkpoint size ran a checkpoint)."""
+        keys = ("writer", "held_ms", "commit_ms", "cpu_ms", "wal_bytes")
+        return [
+            {k: v for k, v in h.items() if k != "msg"} for h in self._logged("store write held", keys, most)
+        ]
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
@@ -337,8 +351,8 @@ class RetrainFlood(_Loop):
 
 def timed(call: Callable[[], httpx.Response]) -> tuple[float, str, dict[str, float]]:
     """(seconds, status, the service's own milliseconds from its ``Server-Timing``: ``app``, and its
-    store writes' ``store-wait`` and ``store-held``) of one request; the status is the exception's
-    name, and the service's times empty, when there was no answer."""
+    store writes' ``store-wait``, ``store-held`` and ``store-commit``) of one request; the status is the
+    exception's name, and the service's times empty, when there was no answer."""
     t = time.perf_counter()
     try:
         r = call()

@@ -9,7 +9,8 @@ prints ``ready`` once imported, starts on a line from stdin, sends approval ``k`
 seconds / n`` after that (none past the monotonic ``--until``, the bench's deadline: the clock is the
 machine's, shared by both processes), and ends with one JSON line: per approval, its monotonic start,
 robot, milliseconds, the service's own milliseconds (``Server-Timing``), status and the wall time of its
-answer, then the milliseconds its store writes waited for the store's write lock and held it. The token,
+answer, then the milliseconds its store writes waited for the store's write lock, held it and, of
+the hold, committed. The token,
 when there is one, comes in the environment (``bench.alerts_service.APPROVER_TOKEN_ENV``), not on the
 command line.
 """
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             path = f"/api/v1/robots/{robot}/baseline"
             t = time.monotonic()
             took, status, own = timed(lambda path=path: api.post(path))
-            store = [own.get("store-wait"), own.get("store-held")]
+            store = [own.get(k) for k in ("store-wait", "store-held", "store-commit")]
             rows.append([t, robot, round(took * 1e3, 1), own.get("app"), status, time.time(), *store])
     finally:
         api.close()

@@ -10,7 +10,8 @@ or after the write retries ran out (``dropped_write_failed``)) come out as
 ``bodyhealth_ingest_events_total{event=...}``; the queue between readers and the store writer as a
 gauge, and whether the store writer's newest write failed as ``bodyhealth_store_write_failing`` (1/0).
 Writes that waited over 100 ms for the store's write lock (:mod:`service.store.write_lock`) are counted
-as ``bodyhealth_store_write_slow_waits_total``, with the longest wait as a gauge, once
+as ``bodyhealth_store_write_slow_waits_total``, with the longest wait as a gauge, and writes that held
+it over 100 ms as ``bodyhealth_store_write_slow_holds_total``, with the longest hold, once
 :meth:`Metrics.bind_write_lock` names the lock: a slow operator request is then visible on a dashboard
 of the scrapes, not only in the log.
 
@@ -58,6 +59,8 @@ class _LockCounts(Protocol):
 
     slow_waits: int
     longest_wait_s: float
+    slow_holds: int
+    longest_hold_s: float
 
 
 class _WriteLockCollector(Collector):
@@ -74,6 +77,16 @@ class _WriteLockCollector(Collector):
             "bodyhealth_store_write_longest_wait_seconds",
             "the longest wait of a write for the store's write lock since the service started",
             value=float(self._lock.longest_wait_s),
+        )
+        yield CounterMetricFamily(
+            "bodyhealth_store_write_slow_holds",
+            "writes that held the store's write lock longer than 100 ms (the log says their commit's share)",
+            value=float(self._lock.slow_holds),
+        )
+        yield GaugeMetricFamily(
+            "bodyhealth_store_write_longest_hold_seconds",
+            "the longest a write held the store's write lock since the service started",
+            value=float(self._lock.longest_hold_s),
         )
 
 

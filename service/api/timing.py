@@ -1,13 +1,15 @@
 """``Server-Timing`` on every answer: how long the app took, so a slow request can be told apart from
 a slow network or a slow client, and how much of it the request's store writes waited for the store's
-write lock and held it (``store-wait``, ``store-held``; :data:`service.store.write_lock.LOCK_TIMES`).
+write lock, held it and committed (``store-wait``, ``store-held``, ``store-commit``, of the hold;
+:data:`service.store.write_lock.LOCK_TIMES`).
 
 A client's latency holds its own scheduling as well as the service's; on a loaded machine the two
 are of the same size, and only the service's own clock separates them. The header (W3C Server
 Timing) is shown by browsers' developer tools, and ``bodyhealth bench alerts`` keeps it beside each
 approval's round trip. It counts from the request reaching the app (after the server parsed it) to
 the response's start: the middlewares, the route and its wait for a worker thread. A slow write
-that waited is queued behind another writer; one that held the lock long ran slowly itself.
+that waited is queued behind another writer; one that held the lock long ran slowly itself, in its
+statements or in its commit.
 
 Example
 -------
@@ -37,8 +39,8 @@ _DUR = re.compile(r"(?:^|,)\s*([A-Za-z0-9_-]+);dur=([0-9.]+)")
 
 
 class ServerTiming:
-    """Pure ASGI middleware: ``Server-Timing: app;dur=<ms>, store-wait;dur=<ms>, store-held;dur=<ms>``
-    on each HTTP response."""
+    """Pure ASGI middleware: ``Server-Timing: app;dur=<ms>, store-wait;dur=<ms>, store-held;dur=<ms>,
+    store-commit;dur=<ms>`` on each HTTP response."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -48,14 +50,17 @@ class ServerTiming:
             await self.app(scope, receive, send)
             return
         start = time.perf_counter()
-        lock = [0.0, 0.0]  # this request's store writes: seconds waited for the lock, seconds held
+        lock = [0.0, 0.0, 0.0]  # this request's store writes: seconds waited, held, committing
         token = LOCK_TIMES.set(lock)
 
         async def timed_send(msg: Message) -> None:
             if msg["type"] == "http.response.start":
                 ms = (time.perf_counter() - start) * 1e3
-                wait, held = 1e3 * lock[0], 1e3 * lock[1]
-                value = f"app;dur={ms:.1f}, store-wait;dur={wait:.1f}, store-held;dur={held:.1f}"
+                wait, held, commit = (1e3 * x for x in lock)
+                value = (
+                    f"app;dur={ms:.1f}, store-wait;dur={wait:.1f}, store-held;dur={held:.1f}, "
+                    f"store-commit;dur={commit:.1f}"
+                )
                 msg = {**msg, "headers": [*(msg.get("headers") or []), (b"server-timing", value.encode())]}
             await send(msg)
 

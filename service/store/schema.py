@@ -215,9 +215,13 @@ class StoreBase:
         Without it they meet in SQLite's own lock, whose busy handler sleeps in steps of up to 100 ms
         before it tries again: under ingest load an operator's approval waited there for hundreds of
         milliseconds behind frame commits that took tens. A long wait is logged with the writer it
-        waited behind (:mod:`service.store.write_lock`)."""
-        with self._write_lock, self._session() as s, s.begin():
-            yield s
+        waited behind (:mod:`service.store.write_lock`); so is a long hold, with its commit's share
+        and the WAL's size when the commit began (the lock logs both)."""
+        with self._write_lock as lock, self._session() as s:
+            with s.begin():
+                yield s
+                wal, t0 = self.wal_bytes(), time.monotonic()
+            lock.committed(time.monotonic() - t0, wal)
 
     # ----------------------------------------------------------------------------- plumbing
     @property

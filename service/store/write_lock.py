@@ -6,9 +6,17 @@ operator's request that waits here waits behind a frame commit, a worker's write
 checkpoint; which one is what a slow approval needs explained. So a wait longer than ``slow_s`` is
 logged (INFO, ``store write waited``) with the holder (its thread and the store method it was in) and
 how long it had held the lock when the wait began, and counted (:attr:`WriteLock.slow_waits`,
-:attr:`WriteLock.longest_wait_s`). A unit of work that wants its own share (an API request:
-:mod:`service.api.timing`) sets :data:`LOCK_TIMES` to a fresh ``[0.0, 0.0]``; each outermost write in
-its context then adds the seconds it waited for the lock and the seconds it held it.
+:attr:`WriteLock.longest_wait_s`).
+
+A writer that holds the lock longer than ``slow_s`` is logged too (INFO, ``store write held``), with
+what tells its causes apart: how much of the hold was its commits (the store reports each,
+:meth:`WriteLock.committed`), how much CPU its thread spent (little CPU in a long hold: it waited, for
+the disk or for the interpreter lock) and the size of the SQLite WAL when it committed (SQLite runs a
+checkpoint inside the commit that finds the WAL past ``wal_autocheckpoint`` pages).
+
+A unit of work that wants its own share (an API request: :mod:`service.api.timing`) sets
+:data:`LOCK_TIMES` to a fresh ``[0.0, 0.0, 0.0]``; each outermost write in its context then adds the
+seconds it waited for the lock, the seconds it held it and the seconds of those it spent committing.
 
 Example
 -------
@@ -17,8 +25,8 @@ Example
 ...     with lock:  # re-entrant, as the store's methods nest
 ...         lock.holder is not None
 True
->>> lock.holder is None, lock.slow_waits
-(True, 0)
+>>> lock.holder is None, lock.slow_waits, lock.slow_holds
+(True, 0, 0)
 """
 
 from __future__ import annotations
@@ -39,8 +47,9 @@ log = logging.getLogger(__name__)
 #: is 200 ms, so a wait of half of it is worth naming.
 SLOW_WAIT_S = 0.1
 
-#: [seconds waited for the lock, seconds held] added up over the writes of the context that set it (a
-#: list, so that the threads a request's context is copied into add to the same one); None: not kept.
+#: [seconds waited for the lock, seconds held, seconds of those committing] added up over the writes of
+#: the context that set it (a list, so that the threads a request's context is copied into add to the
+#: same one); None: not kept.
 LOCK_TIMES: ContextVar[list[float] | None] = ContextVar("store_write_lock_times", default=None)
 
 #: Frames of these names are the lock's own plumbing, not the writer to name.
@@ -57,7 +66,8 @@ def _writer(frame: FrameType | None) -> str:
 
 
 class WriteLock:
-    """A re-entrant lock that remembers its holder, and logs and counts waits over ``slow_s`` seconds."""
+    """A re-entrant lock that remembers its holder, and logs and counts waits and holds over ``slow_s``
+    seconds."""
 
     def __init__(self, slow_s: float = SLOW_WAIT_S) -> None:
         self._lock = threading.RLock()
@@ -67,8 +77,15 @@ class WriteLock:
         #: for the log only.
         self.holder: str | None = None
         self._since = 0.0
+        # The hold now (owner only): its thread's CPU clock when taken, its commits' seconds, the
+        # largest WAL (bytes) a commit of it began with.
+        self._cpu_since = 0.0
+        self._commit_s = 0.0
+        self._wal_bytes = 0
         self.slow_waits = 0
         self.longest_wait_s = 0.0
+        self.slow_holds = 0
+        self.longest_hold_s = 0.0
 
     def __enter__(self) -> WriteLock:
         if self._lock.acquire(blocking=False):
@@ -98,18 +115,48 @@ class WriteLock:
         if self._depth == 0:
             self.holder = f"{threading.current_thread().name}: {_writer(frame)}"
             self._since = time.monotonic()
+            self._cpu_since = time.thread_time()
+            self._commit_s, self._wal_bytes = 0.0, 0
             times = LOCK_TIMES.get()
             if times is not None:
                 times[0] += waited
         self._depth += 1
+
+    def committed(self, seconds: float, wal_bytes: int = 0) -> None:
+        """Called by the holder after each commit: how long it took and the WAL's size when it began."""
+        self._commit_s += seconds
+        self._wal_bytes = max(self._wal_bytes, wal_bytes)
 
     def __exit__(
         self, kind: type[BaseException] | None, err: BaseException | None, tb: TracebackType | None
     ) -> None:
         self._depth -= 1
         if self._depth == 0:
-            self.holder = None
+            held = time.monotonic() - self._since
             times = LOCK_TIMES.get()
             if times is not None:
-                times[1] += time.monotonic() - self._since
+                times[1] += held
+                times[2] += self._commit_s
+            self.longest_hold_s = max(self.longest_hold_s, held)
+            if held > self.slow_s:
+                self._log_hold(held)
+            self.holder = None
         self._lock.release()
+
+    def _log_hold(self, held: float) -> None:
+        self.slow_holds += 1
+        cpu = time.thread_time() - self._cpu_since
+        log.info(
+            "store write held the lock %.0f ms in %s (commit %.0f ms, thread CPU %.0f ms)",
+            1e3 * held,
+            self.holder,
+            1e3 * self._commit_s,
+            1e3 * cpu,
+            extra={
+                "writer": self.holder,
+                "held_ms": round(1e3 * held, 1),
+                "commit_ms": round(1e3 * self._commit_s, 1),
+                "cpu_ms": round(1e3 * cpu, 1),
+                "wal_bytes": self._wal_bytes,
+            },
+        )

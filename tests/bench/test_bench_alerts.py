@@ -169,6 +169,22 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
             {"writer": "worker: cycle", "waited_ms": 120.4, "held_ms": 5.0, "behind": "ingest: write_many"},
             {"writer": "api: approve_baseline", "waited_ms": 180.6, "held_ms": 1, "behind": "worker: prune"},
         ],
+        "slow_holds": [
+            {
+                "writer": "ingest: write_many",
+                "held_ms": 140.0,
+                "commit_ms": 2.0,
+                "cpu_ms": 30.0,
+                "wal_bytes": 0,
+            },
+            {
+                "writer": "api: approve_baseline",
+                "held_ms": 889.2,
+                "commit_ms": 870.1,
+                "cpu_ms": 3.0,
+                "wal_bytes": 17 * 2**20,
+            },
+        ],
     }
     data = {
         "command": "bodyhealth bench alerts",
@@ -190,6 +206,10 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     assert (
         "Writes that waited over 100 ms for the store's lock: 2 (1 approvals); the longest 181 ms, "
         "api: approve_baseline behind worker: prune." in md
+    )
+    assert (
+        "Writes that held the store's lock over 100 ms: 2 (1 approvals); the longest 889 ms, api: "
+        "approve_baseline: commit 870 ms, thread CPU 3 ms, WAL 17.0 MiB when it committed." in md
     )
 
 
@@ -236,6 +256,7 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert run["exit_code"] == 0 and run["busy_running_at_end"] == 0
     # the service's slow waits for the store's write lock, read back from its log
     assert all(w["waited_ms"] > 100 and w["writer"] and w["behind"] is not None for w in run["write_waits"])
+    assert all(h["held_ms"] > 100 and h["held_ms"] >= h["commit_ms"] >= 0 for h in run["slow_holds"])
     # the service runs on this environment's settings (the suite's network schedule among them), and
     # the results say which
     env = {k: v for k, v in os.environ.items() if k.startswith("BODYHEALTH_") and "TOKEN" not in k}
@@ -252,10 +273,10 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
     assert sum(run["approvals"]["quiet"]["statuses"].values()) == 1
     assert run["approvals"]["quiet"]["statuses"].get("200") == 1
     # timed by a client process of its own, the service's own time within the round trip, and its
-    # store write's wait for the lock and hold of it within that
-    ((_, robot, client_ms, app_ms, wait_ms, held_ms),) = run["approvals"]["quiet"]["each"]
+    # store write's wait for the lock and hold of it within that, its commit within the hold
+    ((_, robot, client_ms, app_ms, wait_ms, held_ms, commit_ms),) = run["approvals"]["quiet"]["each"]
     assert robot in run["baselines"] and 0 < app_ms <= client_ms
-    assert held_ms > 0 and wait_ms + held_ms <= app_ms
+    assert held_ms > 0 and wait_ms + held_ms <= app_ms and 0 <= commit_ms <= held_ms
     md = (tmp_path / "alerts.md").read_text()
     assert "Approvals are sent and timed by a client process of its own." in md
     # SIGTERM mid healthy phase: a clean exit, the same data served again, the flood answered after it
@@ -273,7 +294,7 @@ def test_harness_measures_the_demo_service(tmp_path: Path) -> None:
 HOLD_AFTER_ASKED_S = 0.005
 
 
-def test_write_waits_are_read_back_from_the_services_json_log(tmp_path: Path) -> None:
+def test_write_waits_and_holds_are_read_back_from_the_services_json_log(tmp_path: Path) -> None:
     # the lines the store's write lock logs, in the service's JSON format, among other lines
     import logging
     import threading
@@ -325,3 +346,9 @@ def test_write_waits_are_read_back_from_the_services_json_log(tmp_path: Path) ->
     assert w["behind"].startswith("ingest: ") and w["behind"].endswith(".hold")
     assert w["writer"].startswith("MainThread: ")
     assert w["waited_ms"] >= 1e3 * HOLD_AFTER_ASKED_S and w["held_ms"] >= 0 and w["ts"] is not None
+    # every hold is over the 0 ms limit: the holder's first (it let go once the writer waited)
+    first, second = svc.slow_holds()
+    assert first["writer"] == w["behind"] and second["writer"] == w["writer"]
+    assert first["held_ms"] >= 1e3 * HOLD_AFTER_ASKED_S and first["held_ms"] >= first["cpu_ms"] >= 0
+    assert first["commit_ms"] == 0 and first["wal_bytes"] == 0  # no store: nothing committed
+    assert set(first) == {"ts", "writer", "held_ms", "commit_ms", "cpu_ms", "wal_bytes"}

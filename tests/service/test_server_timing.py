@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from sqlalchemy import event
 
 from service.api import create_app
 from service.api.timing import ServerTiming, server_timings
@@ -92,3 +94,30 @@ def test_a_requests_store_writes_say_how_long_they_waited_for_the_lock_and_held_
     assert queued["store-wait"] >= 1e3 * HOLD_S and queued["store-held"] >= 1e3 * HOLD_S
     assert queued["store-wait"] + queued["store-held"] <= queued["app"]
     assert LOCK_TIMES.get() is None  # nothing is kept outside a request
+
+
+def test_a_requests_commits_are_their_share_of_its_hold(tmp_path: Path) -> None:
+    """``store-commit`` times the store's commits and nothing else: a commit slowed by 40 ms (as one
+    that waits for the disk) shows in it and in the hold; a route's own time holding no lock does not."""
+    store, app = open_store(f"sqlite:///{tmp_path / 'commit.db'}"), FastAPI()
+
+    @app.post("/write")
+    def write() -> dict[str, bool]:
+        store.mark_simulated("r", "ur5e")
+        time.sleep(HOLD_S)  # after the write: in the app's time only
+        return {"ok": True}
+
+    app.add_middleware(ServerTiming)
+    client = TestClient(app)
+
+    def slow_commit(_conn: object) -> None:
+        time.sleep(HOLD_S)
+
+    quick = server_timings(client.post("/write").headers["server-timing"])
+    event.listen(store.engine, "commit", slow_commit)
+    slow = server_timings(client.post("/write").headers["server-timing"])
+    event.remove(store.engine, "commit", slow_commit)
+    for t in (quick, slow):  # the route's sleep after its write is the app's and not the hold's
+        assert t["store-commit"] <= t["store-held"] and t["store-held"] + 1e3 * HOLD_S <= t["app"] + 0.1
+    assert 1e3 * HOLD_S <= slow["store-commit"] and quick["store-commit"] < 1e3 * HOLD_S
+    store.close()

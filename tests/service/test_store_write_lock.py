@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from pathlib import Path
 
 import pytest
+from sqlalchemy import event
 
 from service.store import open_store
 from service.store.write_lock import WriteLock
@@ -75,10 +77,45 @@ def test_the_slow_waits_are_on_the_metrics_of_the_service(tmp_path: Path) -> Non
         assert daemon.worker is not None and daemon.store is not None
         lock = daemon.store.write_lock
         lock.slow_waits, lock.longest_wait_s = 3, 0.25  # as three waits, the longest 250 ms, leave them
+        lock.slow_holds, lock.longest_hold_s = 2, 0.5
         text = daemon.worker.metrics.render().decode()
     finally:
         daemon.stop()
     assert "bodyhealth_store_write_slow_waits_total 3.0" in text
     assert "bodyhealth_store_write_longest_wait_seconds 0.25" in text
+    assert "bodyhealth_store_write_slow_holds_total 2.0" in text
+    assert "bodyhealth_store_write_longest_hold_seconds 0.5" in text
     # a registry without a lock bound has neither
     assert "slow_waits" not in Metrics().render().decode()
+
+
+#: How long the slowed commits below take at least.
+COMMIT_S = 0.05
+
+
+def test_a_long_hold_is_logged_with_its_commits_share_its_cpu_and_the_wal(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A write whose commit is slow (here: the commit sleeps, as one that waits for the disk) is logged
+    once, with the commit's share of the hold, its thread's CPU (a sleep spends none) and the WAL's size
+    when the commit began; a quick write is not."""
+    store = open_store(f"sqlite:///{tmp_path / 'hold.db'}")
+    lock = store.write_lock
+    store.mark_simulated("r1", "ur5e")  # the WAL now holds a transaction
+    assert lock.slow_holds == 0 and 0 < lock.longest_hold_s < lock.slow_s
+
+    def slow_commit(_conn: object) -> None:
+        time.sleep(COMMIT_S)
+
+    lock.slow_s = COMMIT_S / 2
+    event.listen(store.engine, "commit", slow_commit)
+    with caplog.at_level(logging.INFO, logger="service.store.write_lock"):
+        store.mark_simulated("r2", "ur5e")
+    event.remove(store.engine, "commit", slow_commit)
+    (rec,) = [r for r in caplog.records if r.msg.startswith("store write held")]
+    assert rec.writer.startswith("MainThread: ") and rec.writer.endswith("mark_simulated")
+    assert 1e3 * COMMIT_S <= rec.commit_ms <= rec.held_ms
+    assert rec.cpu_ms < 1e3 * COMMIT_S  # the sleep took no CPU: a long hold that waited says so
+    assert 0 < rec.wal_bytes < store.wal_bytes()  # its size when the commit began, which then grew it
+    assert lock.slow_holds == 1 and lock.longest_hold_s >= COMMIT_S
+    store.close()
