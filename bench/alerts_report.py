@@ -359,7 +359,8 @@ def _write_waits_line(r: Mapping[str, Any]) -> str:
 
 def _slow_holds_line(r: Mapping[str, Any]) -> str:
     """The service's holds of the store's write lock over 100 ms: how many, the approvals among them,
-    and the longest with its commit's share, its thread's CPU and the WAL it committed onto ("" for a
+    and the longest with its commit's share, its thread's and its process's CPU and the WAL it committed
+    onto ("" for a
     run recorded before they were kept)."""
     holds = r.get("slow_holds")
     if holds is None:
@@ -368,12 +369,14 @@ def _slow_holds_line(r: Mapping[str, Any]) -> str:
         return "No write held the store's lock over 100 ms."
     approvals = sum("approve_baseline" in (h.get("writer") or "") for h in holds)
     top = max(holds, key=lambda h: h.get("held_ms") or 0)
-    held, commit, cpu = (fmt(top.get(k), ".0f") for k in ("held_ms", "commit_ms", "cpu_ms"))
+    held, commit, cpu, pcpu = (
+        fmt(top.get(k), ".0f") for k in ("held_ms", "commit_ms", "cpu_ms", "process_cpu_ms")
+    )
     wal = fmt((top.get("wal_bytes") or 0) / 2**20, ".1f")
     return (
         f"Writes that held the store's lock over 100 ms: {len(holds)} ({approvals} approvals); the longest "
-        f"{held} ms, {top.get('writer')}: commit {commit} ms, thread CPU {cpu} ms, WAL {wal} MiB when it "
-        "committed."
+        f"{held} ms, {top.get('writer')}: commit {commit} ms, CPU {cpu} ms (the process's {pcpu} ms), WAL "
+        f"{wal} MiB when it committed."
     )
 
 

@@ -171,9 +171,10 @@ class Service:
 
     def slow_holds(self, most: int = 200) -> list[dict[str, Any]]:
         """The service's logged holds of the store's write lock over 100 ms, in order, at most ``most``:
-        the writer, how long it held the lock, its commits' share, its thread's CPU and the WAL's bytes
-        when it committed (a commit that found the WAL past SQLite's checkpoint size ran a checkpoint)."""
-        keys = ("writer", "held_ms", "commit_ms", "cpu_ms", "wal_bytes")
+        the writer, how long it held the lock, its commits' share, its thread's and its process's CPU and
+        the WAL's bytes when it committed (a commit that found the WAL past SQLite's checkpoint size ran
+        a checkpoint)."""
+        keys = ("writer", "held_ms", "commit_ms", "cpu_ms", "process_cpu_ms", "wal_bytes")
         return [
             {k: v for k, v in h.items() if k != "msg"} for h in self._logged("store write held", keys, most)
         ]

@@ -95,7 +95,8 @@ class FramesMixin(RobotsMixin):
                 self._known.clear()
                 self._after_write(err)
                 raise
-            self._after_write(None)
+        # After the lock is given back: the WAL's checkpoint copies it while other writers go on.
+        self._after_write(None)
         return sum(c.n for c in chunks)
 
     def _write_chunks(self, chunks: list[PendingChunk]) -> None:

@@ -271,27 +271,40 @@ class StoreBase:
         wal_checkpoint(TRUNCATE)``); True when it was done. False, leaving everything as it was, when
         readers held an older snapshot for :attr:`wal_checkpoint_wait_seconds` or the database file
         had no room to take the WAL's pages (a full disk). Nothing to do (True) without an SQLite file.
+
+        The copying is done first by a passive checkpoint, outside the write lock: it writes the
+        WAL's pages into the database file and syncs it while other writers go on (SQLite lets one
+        checkpoint run beside the writer). Under the lock the truncating checkpoint then has only the
+        frames committed meanwhile to copy. Done under the lock, the whole copy and its sync held every
+        other writer, an operator's approval among them, for 100-500 ms on a loaded machine
+        (docs/alert-latency.md).
         """
         if self._wal is None:
             return True
+        self._checkpoint("PASSIVE")
         with self._write_lock:
-            try:
-                with self.engine.connect() as conn:
-                    wait_ms = int(1000 * self.wal_checkpoint_wait_seconds)
-                    conn.exec_driver_sql(f"PRAGMA busy_timeout={wait_ms}")
-                    try:
-                        busy = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").scalar()
-                    finally:
-                        conn.exec_driver_sql(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
-            except SQLAlchemyError as err:
-                log.info("WAL checkpoint failed: %s", getattr(err, "orig", err))
-                return False
-            if busy:
+            busy = self._checkpoint("TRUNCATE")
+            if busy is None or busy:
                 return False
             self._wal_owed = False
             self.wal_truncations += 1
             self.wal_truncated_at = time.monotonic()
             return True
+
+    def _checkpoint(self, mode: str) -> int | None:
+        """``PRAGMA wal_checkpoint(mode)``'s first column (1: it could not finish for readers or a
+        writer), waiting at most :attr:`wal_checkpoint_wait_seconds` for them; None when it failed."""
+        try:
+            with self.engine.connect() as conn:
+                wait_ms = int(1000 * self.wal_checkpoint_wait_seconds)
+                conn.exec_driver_sql(f"PRAGMA busy_timeout={wait_ms}")
+                try:
+                    return int(conn.exec_driver_sql(f"PRAGMA wal_checkpoint({mode})").scalar() or 0)
+                finally:
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        except SQLAlchemyError as err:
+            log.info("WAL checkpoint (%s) failed: %s", mode.lower(), getattr(err, "orig", err))
+            return None
 
     def _before_write(self) -> None:
         """Before a frame write: after a failure for lack of space, first give the WAL's room back."""

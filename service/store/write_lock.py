@@ -11,8 +11,10 @@ how long it had held the lock when the wait began, and counted (:attr:`WriteLock
 A writer that holds the lock longer than ``slow_s`` is logged too (INFO, ``store write held``), with
 what tells its causes apart: how much of the hold was its commits (the store reports each,
 :meth:`WriteLock.committed`), how much CPU its thread spent (little CPU in a long hold: it waited, for
-the disk or for the interpreter lock) and the size of the SQLite WAL when it committed (SQLite runs a
-checkpoint inside the commit that finds the WAL past ``wal_autocheckpoint`` pages).
+the disk or for the interpreter lock), how much the whole process spent meanwhile (much: its other
+threads had the interpreter; little: the machine ran other processes) and the size of the SQLite WAL
+when it committed (SQLite runs a checkpoint inside the commit that finds the WAL past
+``wal_autocheckpoint`` pages).
 
 A unit of work that wants its own share (an API request: :mod:`service.api.timing`) sets
 :data:`LOCK_TIMES` to a fresh ``[0.0, 0.0, 0.0]``; each outermost write in its context then adds the
@@ -79,7 +81,7 @@ class WriteLock:
         self._since = 0.0
         # The hold now (owner only): its thread's CPU clock when taken, its commits' seconds, the
         # largest WAL (bytes) a commit of it began with.
-        self._cpu_since = 0.0
+        self._cpu_since = self._process_cpu_since = 0.0
         self._commit_s = 0.0
         self._wal_bytes = 0
         self.slow_waits = 0
@@ -115,7 +117,7 @@ class WriteLock:
         if self._depth == 0:
             self.holder = f"{threading.current_thread().name}: {_writer(frame)}"
             self._since = time.monotonic()
-            self._cpu_since = time.thread_time()
+            self._cpu_since, self._process_cpu_since = time.thread_time(), time.process_time()
             self._commit_s, self._wal_bytes = 0.0, 0
             times = LOCK_TIMES.get()
             if times is not None:
@@ -146,17 +148,20 @@ class WriteLock:
     def _log_hold(self, held: float) -> None:
         self.slow_holds += 1
         cpu = time.thread_time() - self._cpu_since
+        process_cpu = time.process_time() - self._process_cpu_since
         log.info(
-            "store write held the lock %.0f ms in %s (commit %.0f ms, thread CPU %.0f ms)",
+            "store write held the lock %.0f ms in %s (commit %.0f ms, CPU %.0f ms, the process's %.0f ms)",
             1e3 * held,
             self.holder,
             1e3 * self._commit_s,
             1e3 * cpu,
+            1e3 * process_cpu,
             extra={
                 "writer": self.holder,
                 "held_ms": round(1e3 * held, 1),
                 "commit_ms": round(1e3 * self._commit_s, 1),
                 "cpu_ms": round(1e3 * cpu, 1),
+                "process_cpu_ms": round(1e3 * process_cpu, 1),
                 "wal_bytes": self._wal_bytes,
             },
         )

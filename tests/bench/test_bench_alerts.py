@@ -182,6 +182,7 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
                 "held_ms": 889.2,
                 "commit_ms": 870.1,
                 "cpu_ms": 3.0,
+                "process_cpu_ms": 40.2,
                 "wal_bytes": 17 * 2**20,
             },
         ],
@@ -209,7 +210,8 @@ def test_report_names_a_miss_and_a_damage_that_cannot_be_injected() -> None:
     )
     assert (
         "Writes that held the store's lock over 100 ms: 2 (1 approvals); the longest 889 ms, api: "
-        "approve_baseline: commit 870 ms, thread CPU 3 ms, WAL 17.0 MiB when it committed." in md
+        "approve_baseline: commit 870 ms, CPU 3 ms (the process's 40 ms), WAL 17.0 MiB when it committed."
+        in md
     )
 
 
@@ -351,4 +353,5 @@ def test_write_waits_and_holds_are_read_back_from_the_services_json_log(tmp_path
     assert first["writer"] == w["behind"] and second["writer"] == w["writer"]
     assert first["held_ms"] >= 1e3 * HOLD_AFTER_ASKED_S and first["held_ms"] >= first["cpu_ms"] >= 0
     assert first["commit_ms"] == 0 and first["wal_bytes"] == 0  # no store: nothing committed
-    assert set(first) == {"ts", "writer", "held_ms", "commit_ms", "cpu_ms", "wal_bytes"}
+    assert first["process_cpu_ms"] >= first["cpu_ms"]
+    assert set(first) == {"ts", "writer", "held_ms", "commit_ms", "cpu_ms", "process_cpu_ms", "wal_bytes"}

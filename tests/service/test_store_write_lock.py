@@ -116,6 +116,28 @@ def test_a_long_hold_is_logged_with_its_commits_share_its_cpu_and_the_wal(
     assert rec.writer.startswith("MainThread: ") and rec.writer.endswith("mark_simulated")
     assert 1e3 * COMMIT_S <= rec.commit_ms <= rec.held_ms
     assert rec.cpu_ms < 1e3 * COMMIT_S  # the sleep took no CPU: a long hold that waited says so
+    assert rec.process_cpu_ms >= rec.cpu_ms
     assert 0 < rec.wal_bytes < store.wal_bytes()  # its size when the commit began, which then grew it
     assert lock.slow_holds == 1 and lock.longest_hold_s >= COMMIT_S
+    store.close()
+
+
+def test_the_wal_is_copied_outside_the_write_lock_and_truncated_under_it(tmp_path: Path) -> None:
+    """The checkpoint's copy and sync (a passive checkpoint) run without the write lock, so other
+    writers go on meanwhile; only the truncation, left with the frames committed since, holds it."""
+    store = open_store(f"sqlite:///{tmp_path / 'wal.db'}")
+    for k in range(5):
+        store.mark_simulated(f"r{k}", "ur5e")
+    assert store.wal_bytes() > 0
+    seen: list[tuple[str, bool]] = []
+    checkpoint = store._checkpoint
+
+    def spy(mode: str) -> int | None:
+        seen.append((mode, store.write_lock.holder is not None))
+        return checkpoint(mode)
+
+    store._checkpoint = spy  # type: ignore[method-assign]
+    assert store.truncate_wal() and store.wal_bytes() == 0 and store.wal_truncations == 1
+    assert seen == [("PASSIVE", False), ("TRUNCATE", True)]
+    assert [store.robot(f"r{k}") is not None for k in range(5)] == [True] * 5  # nothing lost
     store.close()
