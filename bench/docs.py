@@ -134,6 +134,7 @@ FIGURES: tuple[Figure, ...] = (
             "alerts-approvals",
             "alerts-approvals5",
             "alerts-store-lock",
+            "alerts-passive-checkpoint",
         )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
