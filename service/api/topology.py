@@ -215,17 +215,20 @@ def _too_soon(robot: str, limiter: RetrainLimiter, wait: float) -> HTTPException
     responses=responses(409, 413, 415, s409="no topology learned for this robot yet"),
 )
 def approve_baseline(
-    info: RobotInfo = Depends(get_robot),
+    robot: RobotName,
     store: Store = Depends(get_store),
     worker: MonitorControl | None = Depends(get_worker),
 ) -> TopologyOut:
+    # The robot's name is all it needs (not its parts, which get_robot reads): on a loaded machine
+    # each store read and each hop to a worker thread is time an operator waits for.
+    name = known_robot(store, robot)
     try:
         # The worker also forgets what it tracked against the old baseline; without one the store
         # alone approves (and resolves the open alerts, in the same transaction).
         if worker is not None:
-            base = worker.approve_baseline(info.name)
+            base = worker.approve_baseline(name)
         else:
-            base = store.approve_baseline(info.name, source="operator")
+            base = store.approve_baseline(name, source="operator")
     except LookupError as err:
         raise HTTPException(status_code=409, detail=str(err)) from None
     return TopologyOut.of(base)
