@@ -11,7 +11,7 @@ injections, restart and alerts share one axis.
 from __future__ import annotations
 
 import statistics
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -341,43 +341,50 @@ def markdown(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _write_waits_line(r: Mapping[str, Any]) -> str:
-    """The service's waits for the store's write lock over 100 ms: how many, the approvals among them
-    and the longest, with the writer it waited behind ("" for a run recorded before they were kept)."""
-    waits = r.get("write_waits")
-    if waits is None:
+def _lock_log_line(
+    r: Mapping[str, Any], key: str, what: str, ms: str, describe: Callable[[Mapping[str, Any]], str]
+) -> str:
+    """One line on the service's logged ``key`` (``write_waits`` or ``slow_holds``: writes that
+    ``what``): how many, the approvals among them, and the longest by ``ms``, which
+    ``describe`` says more of ("" for a run recorded before they were kept)."""
+    logged = r.get(key)
+    if logged is None:
         return ""
-    if not waits:
-        return "No write waited over 100 ms for the store's lock."
-    approvals = sum("approve_baseline" in (w.get("writer") or "") for w in waits)
-    top = max(waits, key=lambda w: w.get("waited_ms") or 0)
+    if not logged:
+        return f"No write {what}."
+    approvals = sum("approve_baseline" in (x.get("writer") or "") for x in logged)
+    top = max(logged, key=lambda x: x.get(ms) or 0)
     return (
-        f"Writes that waited over 100 ms for the store's lock: {len(waits)} ({approvals} approvals); the "
-        f"longest {fmt(top.get('waited_ms'), '.0f')} ms, {top.get('writer')} behind {top.get('behind')}."
+        f"Writes that {what}: {len(logged)} ({approvals} approvals); the longest "
+        f"{fmt(top.get(ms), '.0f')} ms, {describe(top)}."
+    )
+
+
+def _write_waits_line(r: Mapping[str, Any]) -> str:
+    """The service's waits for the store's write lock over 100 ms, the longest with the writer it
+    waited behind."""
+    return _lock_log_line(
+        r,
+        "write_waits",
+        "waited over 100 ms for the store's lock",
+        "waited_ms",
+        lambda w: f"{w.get('writer')} behind {w.get('behind')}",
     )
 
 
 def _slow_holds_line(r: Mapping[str, Any]) -> str:
-    """The service's holds of the store's write lock over 100 ms: how many, the approvals among them,
-    and the longest with its commit's share, its thread's and its process's CPU and the WAL it committed
-    onto ("" for a
-    run recorded before they were kept)."""
-    holds = r.get("slow_holds")
-    if holds is None:
-        return ""
-    if not holds:
-        return "No write held the store's lock over 100 ms."
-    approvals = sum("approve_baseline" in (h.get("writer") or "") for h in holds)
-    top = max(holds, key=lambda h: h.get("held_ms") or 0)
-    held, commit, cpu, pcpu = (
-        fmt(top.get(k), ".0f") for k in ("held_ms", "commit_ms", "cpu_ms", "process_cpu_ms")
-    )
-    wal = fmt((top.get("wal_bytes") or 0) / 2**20, ".1f")
-    return (
-        f"Writes that held the store's lock over 100 ms: {len(holds)} ({approvals} approvals); the longest "
-        f"{held} ms, {top.get('writer')}: commit {commit} ms, CPU {cpu} ms (the process's {pcpu} ms), WAL "
-        f"{wal} MiB when it committed."
-    )
+    """The service's holds of the store's write lock over 100 ms, the longest with its commit's share,
+    its thread's and its process's CPU and the WAL it committed onto."""
+
+    def describe(h: Mapping[str, Any]) -> str:
+        commit, cpu, pcpu = (fmt(h.get(k), ".0f") for k in ("commit_ms", "cpu_ms", "process_cpu_ms"))
+        wal = fmt((h.get("wal_bytes") or 0) / 2**20, ".1f")
+        return (
+            f"{h.get('writer')}: commit {commit} ms, CPU {cpu} ms (the process's {pcpu} ms), WAL {wal} MiB "
+            "when it committed"
+        )
+
+    return _lock_log_line(r, "slow_holds", "held the store's lock over 100 ms", "held_ms", describe)
 
 
 def _run_lines(r: Mapping[str, Any]) -> list[str]:
