@@ -151,22 +151,22 @@ class Service:
             return ""
 
     def _logged(self, msg: str, keys: tuple[str, ...], most: int) -> list[dict[str, Any]]:
-        """The fields ``keys`` (and the message) of the service's JSON log lines whose message starts
-        with ``msg``, in order, at most ``most``."""
+        """The fields ``ts`` and ``keys`` of the service's JSON log lines whose message starts with
+        ``msg``, in order, at most ``most``."""
         out: list[dict[str, Any]] = []
         for line in self.tail(n=1 << 30).splitlines():
             if f'"{msg}' not in line:
                 continue
             with contextlib.suppress(ValueError):
                 rec = json.loads(line)
-                out.append({k: rec.get(k) for k in ("ts", "msg", *keys)})
+                out.append({k: rec.get(k) for k in ("ts", *keys)})
         return out[:most]
 
     def write_waits(self, most: int = 200) -> list[dict[str, Any]]:
         """The service's logged waits for the store's write lock (over 100 ms each,
         :mod:`service.store.write_lock`), in order, at most ``most``: who waited, behind whom, how long;
         a slow approval shows as one whose writer is ``approve_baseline``."""
-        out = self._logged("store write waited", ("writer", "waited_ms", "held_ms"), most)
+        out = self._logged("store write waited", ("writer", "waited_ms", "held_ms", "msg"), most)
         return [w | {"behind": str(w.pop("msg")).partition(" behind ")[2]} for w in out]
 
     def slow_holds(self, most: int = 200) -> list[dict[str, Any]]:
@@ -175,9 +175,7 @@ class Service:
         the WAL's bytes when it committed (a commit that found the WAL past SQLite's checkpoint size ran
         a checkpoint)."""
         keys = ("writer", "held_ms", "commit_ms", "cpu_ms", "process_cpu_ms", "wal_bytes")
-        return [
-            {k: v for k, v in h.items() if k != "msg"} for h in self._logged("store write held", keys, most)
-        ]
+        return self._logged("store write held", keys, most)
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None

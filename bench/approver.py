@@ -10,9 +10,8 @@ seconds / n`` after that (none past the monotonic ``--until``, the bench's deadl
 machine's, shared by both processes), and ends with one JSON line: per approval, its monotonic start,
 robot, milliseconds, the service's own milliseconds (``Server-Timing``), status and the wall time of its
 answer, then the milliseconds its store writes waited for the store's write lock, held it and, of
-the hold, committed. The token,
-when there is one, comes in the environment (``bench.alerts_service.APPROVER_TOKEN_ENV``), not on the
-command line.
+the hold, committed. The token, when there is one, comes in the environment
+(``bench.alerts_service.APPROVER_TOKEN_ENV``), not on the command line.
 """
 
 from __future__ import annotations

@@ -79,8 +79,8 @@ class WriteLock:
         #: for the log only.
         self.holder: str | None = None
         self._since = 0.0
-        # The hold now (owner only): its thread's CPU clock when taken, its commits' seconds, the
-        # largest WAL (bytes) a commit of it began with.
+        # The hold now (owner only): its thread's and its process's CPU clocks when taken, its commits'
+        # seconds, the largest WAL (bytes) a commit of it began with.
         self._cpu_since = self._process_cpu_since = 0.0
         self._commit_s = 0.0
         self._wal_bytes = 0
