@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import logging
 import signal
+import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,7 @@ from service.settings import Settings
 from service.store import Store
 from service.worker import Estimator, Worker
 
-__all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage"]
+__all__ = ["DEMO_ROBOTS", "Daemon", "demo_spec", "farm_damage", "switch_interval"]
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +211,6 @@ class Daemon:
 
     def serve(self, announce: bool = True) -> int:
         """Run until SIGTERM/SIGINT; returns the exit code (0 on a clean stop)."""
-        import uvicorn
 
         def on_signal(sig: int, frame: object) -> None:
             self._stop.set()
@@ -218,41 +219,68 @@ class Daemon:
         # after its shutdown, which then lands here instead of killing the process before the drain.
         previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
         code = 0
-        try:
-            app = self.start()
-            config = uvicorn.Config(
-                app,
-                host=self.settings.host,
-                port=self.settings.port,
-                log_config=None,
-                access_log=False,
-                lifespan="off",
-            )
-            server = uvicorn.Server(config)
-            # Bound here, before the address is announced, so that the announced port is the one held
-            # (port 0: the system picks a free one, which a caller reads from the announcement, with
-            # no window in which another process can take it).
-            sock = config.bind_socket()
-            if announce:
-                host = "127.0.0.1" if self.settings.host in ("0.0.0.0", "::") else self.settings.host
-                if ":" in host:
-                    host = f"[{host}]"
-                print(
-                    f"bodyhealth: dashboard at http://{host}:{sock.getsockname()[1]}/  (API docs at /docs)",
-                    flush=True,
-                )
-            if not self._stop.is_set():
-                server.run(sockets=[sock])
-            sock.close()
-        except SystemExit as err:  # uvicorn exits this way when it cannot bind the port
-            code = int(err.code or 1)
-        finally:
-            t0 = time.monotonic()
-            self.stop()
-            log.info("shutdown took %.2f s", time.monotonic() - t0)
-            for sig, h in previous.items():
-                signal.signal(sig, h)
+        with switch_interval(self.settings.interpreter_switch_ms):
+            try:
+                self._serve_http(announce)
+            except SystemExit as err:  # uvicorn exits this way when it cannot bind the port
+                code = int(err.code or 1)
+            finally:
+                t0 = time.monotonic()
+                self.stop()
+                log.info("shutdown took %.2f s", time.monotonic() - t0)
+                for sig, h in previous.items():
+                    signal.signal(sig, h)
         return code
+
+    def _serve_http(self, announce: bool) -> None:
+        """Start everything, then serve HTTP in this thread until the server stops."""
+        import uvicorn
+
+        app = self.start()
+        config = uvicorn.Config(
+            app,
+            host=self.settings.host,
+            port=self.settings.port,
+            log_config=None,
+            access_log=False,
+            lifespan="off",
+        )
+        server = uvicorn.Server(config)
+        # Bound here, before the address is announced, so that the announced port is the one held
+        # (port 0: the system picks a free one, which a caller reads from the announcement, with
+        # no window in which another process can take it).
+        sock = config.bind_socket()
+        if announce:
+            host = "127.0.0.1" if self.settings.host in ("0.0.0.0", "::") else self.settings.host
+            if ":" in host:
+                host = f"[{host}]"
+            print(
+                f"bodyhealth: dashboard at http://{host}:{sock.getsockname()[1]}/  (API docs at /docs)",
+                flush=True,
+            )
+        if not self._stop.is_set():
+            server.run(sockets=[sock])
+        sock.close()
+
+
+@contextmanager
+def switch_interval(ms: float) -> Iterator[None]:
+    """Let a thread keep the interpreter at most ``ms`` while another waits for it, then restore the
+    interval before. A request thread gives the interpreter up at every socket and database call and
+    waits up to the interval to get it back while the farm, ingest and worker threads compute, so at
+    Python's 5 ms a short request spends most of its time waiting (docs/alert-latency.md).
+
+    >>> import sys
+    >>> with switch_interval(2.0):
+    ...     round(sys.getswitchinterval(), 6)
+    0.002
+    """
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(ms / 1e3)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(before)
 
 
 def _timed(fn: Any, name: str, steps: dict[str, float]) -> None:

@@ -273,6 +273,15 @@ class Settings(BaseSettings):
         "(the bound for writers in other processes); 0 = render every request",
     )
     log_json: bool = True
+    interpreter_switch_ms: float = Field(
+        1.0,
+        gt=0,
+        le=100,
+        description="how long a thread of the service's interpreter may keep it while another waits "
+        "(sys.setswitchinterval). A request gives the interpreter up at every socket and database "
+        "call and waits up to this long to get it back while the farm, ingest or worker threads "
+        "compute (docs/alert-latency.md); Python's default is 5 ms",
+    )
 
     # --------------------------------------------------------------- security
     api_token: SecretStr | None = Field(
