@@ -135,6 +135,8 @@ FIGURES: tuple[Figure, ...] = (
             "alerts-approvals5",
             "alerts-store-lock",
             "alerts-passive-checkpoint",
+            "alerts-switch-interval",
+            "alerts-switch-5ms",
         )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),

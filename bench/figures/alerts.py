@@ -30,8 +30,11 @@ def figure(b: BenchFiles, name: str = "alerts") -> str:
     false = s.get("false_alerts", {}).get("max")
     restarts = [f"{r['restart']['t_s']:.0f} s" for r in runs if r.get("restart")]
     when = f", restarted at {', '.join(restarts)}" if restarts else ""
+    # service settings the bench's environment set, named after the command
+    env = " ".join(f"{k}={v}" for k, v in sorted(d.get("settings_from_environment", {}).items()))
+    command = f"`{d['command']}`" + (f" with `{env}`" if env else "")
     return (
-        f"`{d['command']}` on {d['machine']}, {len(runs)} run{'s' if len(runs) != 1 else ''}{when}, "
+        f"{command} on {d['machine']}, {len(runs)} run{'s' if len(runs) != 1 else ''}{when}, "
         f"load average {min(loads):.1f} to {max(loads):.1f}: seconds {timed}; false alerts {false}; "
         f"baseline approvals {approvals}."
     )
