@@ -22,6 +22,7 @@ __all__ = [
     "AlertKey",
     "Injection",
     "classify",
+    "command_text",
     "damage_latency",
     "first_seen",
     "key_str",
@@ -294,6 +295,13 @@ def _cell(m: Mapping[str, Any], spec: str) -> str:
     return fmt(m.get("max"), spec) + (f" ({m['missed']} missed)" if m.get("missed") else "")
 
 
+def command_text(data: Mapping[str, Any]) -> str:
+    """The run's command in backticks, followed by the service settings its environment set (a run at
+    another setting than the defaults says so wherever its command is quoted)."""
+    env = " ".join(f"{k}={v}" for k, v in sorted(data.get("settings_from_environment", {}).items()))
+    return f"`{data['command']}`" + (f" with `{env}`" if env else "")
+
+
 def markdown(data: Mapping[str, Any]) -> str:
     """The report ``docs/bench/alerts.md``: targets and summary first, then each run."""
     o = data["options"]
@@ -301,7 +309,7 @@ def markdown(data: Mapping[str, Any]) -> str:
     lines = [
         "# Benchmark: alerts in time on a busy machine",
         "",
-        f"`{data['command']}`",
+        command_text(data),
         "",
         f"Machine: {data['machine']}; {o['busy']} busy-loop processes pinned one per core beside the "
         f"service for the whole run; load average {fmt(data['load_before'], '.2f')} before the first "

@@ -268,7 +268,7 @@ def switch_interval(ms: float) -> Iterator[None]:
     """Let a thread keep the interpreter at most ``ms`` while another waits for it, then restore the
     interval before. A request thread gives the interpreter up at every socket and database call and
     waits up to the interval to get it back while the farm, ingest and worker threads compute, so at
-    Python's 5 ms a short request spends most of its time waiting (docs/alert-latency.md).
+    Python's 5 ms a short request can spend most of its time waiting (docs/alert-latency.md).
 
     >>> import sys
     >>> with switch_interval(2.0):

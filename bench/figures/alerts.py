@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bench.alerts_report import command_text
 from bench.figures.files import BenchFiles
 
 __all__ = ["figure"]
@@ -30,11 +31,8 @@ def figure(b: BenchFiles, name: str = "alerts") -> str:
     false = s.get("false_alerts", {}).get("max")
     restarts = [f"{r['restart']['t_s']:.0f} s" for r in runs if r.get("restart")]
     when = f", restarted at {', '.join(restarts)}" if restarts else ""
-    # service settings the bench's environment set, named after the command
-    env = " ".join(f"{k}={v}" for k, v in sorted(d.get("settings_from_environment", {}).items()))
-    command = f"`{d['command']}`" + (f" with `{env}`" if env else "")
     return (
-        f"{command} on {d['machine']}, {len(runs)} run{'s' if len(runs) != 1 else ''}{when}, "
+        f"{command_text(d)} on {d['machine']}, {len(runs)} run{'s' if len(runs) != 1 else ''}{when}, "
         f"load average {min(loads):.1f} to {max(loads):.1f}: seconds {timed}; false alerts {false}; "
         f"baseline approvals {approvals}."
     )

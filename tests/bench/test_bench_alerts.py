@@ -355,3 +355,14 @@ def test_write_waits_and_holds_are_read_back_from_the_services_json_log(tmp_path
     assert first["commit_ms"] == 0 and first["wal_bytes"] == 0  # no store: nothing committed
     assert first["process_cpu_ms"] >= first["cpu_ms"]
     assert set(first) == {"ts", "writer", "held_ms", "commit_ms", "cpu_ms", "process_cpu_ms", "wal_bytes"}
+
+
+def test_a_run_at_a_setting_from_the_environment_names_it_after_its_command() -> None:
+    from bench.alerts_report import command_text
+
+    data = {"command": "bodyhealth bench alerts --runs 1", "settings_from_environment": {}}
+    assert command_text(data) == "`bodyhealth bench alerts --runs 1`"
+    data["settings_from_environment"] = {"BODYHEALTH_Z": "2", "BODYHEALTH_INTERPRETER_SWITCH_MS": "5"}
+    assert command_text(data) == (
+        "`bodyhealth bench alerts --runs 1` with `BODYHEALTH_INTERPRETER_SWITCH_MS=5 BODYHEALTH_Z=2`"
+    )
