@@ -137,6 +137,7 @@ FIGURES: tuple[Figure, ...] = (
             "alerts-passive-checkpoint",
             "alerts-switch-interval",
             "alerts-switch-5ms",
+            "alerts-damages-1ms",
         )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
