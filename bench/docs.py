@@ -138,6 +138,7 @@ FIGURES: tuple[Figure, ...] = (
             "alerts-switch-interval",
             "alerts-switch-5ms",
             "alerts-damages-1ms",
+            "alerts-1ms",
         )
     ),
     _f("docs/excitation.md", "excitation", "excitation.json", excitation.figure),
