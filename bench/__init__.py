@@ -62,16 +62,28 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 RESULTS_DIR = REPO_ROOT / "docs" / "bench"
 
 
-def machine_note() -> str:
-    """One line naming the machine a result was measured on (benchmarks print it with every table)."""
+def machine_note(cpuinfo: str = "/proc/cpuinfo") -> str:
+    """One line naming the machine a result was measured on (benchmarks print it with every table).
+
+    The CPU's family and model numbers follow its name: a hypervisor often shows only "AMD EPYC" for
+    CPUs of different speeds, so the name alone does not say which figures can be set side by side.
+    """
     import os
 
+    fields: dict[str, str] = {}
     try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            model = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), "")
+        with open(cpuinfo, encoding="utf-8") as fh:
+            for ln in fh:
+                if not ln.strip():
+                    break  # the first processor's block names them all
+                key, _, value = ln.partition(":")
+                fields.setdefault(key.strip(), value.strip())
     except OSError:
-        model = platform.processor()
-    return f"{os.cpu_count()} cores, {model or platform.machine()}, Python {platform.python_version()}"
+        fields = {"model name": platform.processor()}
+    name = fields.get("model name") or platform.machine()
+    if fields.get("cpu family") and fields.get("model"):
+        name += f" (family {fields['cpu family']}, model {fields['model']})"
+    return f"{os.cpu_count()} cores, {name}, Python {platform.python_version()}"
 
 
 def map_jobs(
