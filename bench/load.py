@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import re
 import subprocess
@@ -31,6 +32,7 @@ import httpx
 from bench import REPO_ROOT, RESULTS_DIR, machine_note
 from bench.read_mix import READ_MIX, READY
 from bodyschema.progress import progress
+from service.api.timing import server_timings
 from sim2real.figures import save_figure
 
 __all__ = ["TARGET_P99_MS", "TARGET_RPS", "add_arguments", "read_mix", "run"]
@@ -75,6 +77,10 @@ class Row:
     frames_dropped: int
     #: sensor-network retrains that finished on the training cluster during the run
     network_retrains: int = 0
+    #: the service's own time (its ``Server-Timing`` app duration) at the 50th and 99th percentile,
+    #: beside the round trip: the threads client reads it (None for locust rows)
+    app_p50_ms: float | None = None
+    app_p99_ms: float | None = None
 
 
 def _free_port() -> int:
@@ -164,7 +170,9 @@ def read_mix(
     library's ``http.client``), each asking the read mix (:data:`bench.read_mix.READ_MIX`) at
     ``rps / users`` requests per second from a random phase, for ``seconds`` or until ``stop`` is set
     (``ready`` False leaves ``/readyz`` out, for an app without a worker); the same summary fields as
-    locust's CSV (ms)."""
+    locust's CSV (ms), and ``App 50%`` and ``App 99%``: the service's own time of the same requests,
+    from their ``Server-Timing`` (``nan`` when it sends none), to tell time inside the service from
+    time queued before or after it."""
     import http.client
     import random
     from urllib.parse import urlsplit
@@ -173,6 +181,7 @@ def read_mix(
 
     where = urlsplit(host)
     lat: list[float] = []
+    app: list[float] = []
     fails = [0]
     lock = threading.Lock()
     start = time.perf_counter() + 1.0
@@ -185,12 +194,15 @@ def read_mix(
             conn.request("GET", path)
             resp = conn.getresponse()
             body = resp.read()
+            own.append(server_timings(resp.getheader("server-timing")).get("app", float("nan")))
             if resp.status != 200:
                 with lock:
                     fails[0] += 1
             return body
 
+        own: list[float] = []
         names = [r["name"] for r in json.loads(get("/api/v1/robots"))] or ["none"]
+        own.clear()
         paths = [p for w, p, _ in READ_MIX if ready or p != READY for _ in range(w)]
         period = users / rps
         t_next, end, mine = start + rng.uniform(0.0, period), start + seconds, []
@@ -203,6 +215,7 @@ def read_mix(
             t_next += period
         with lock:
             lat.extend(mine)
+            app.extend(own)
         conn.close()
 
     threads = [threading.Thread(target=user, args=(k,)) for k in range(users)]
@@ -213,6 +226,8 @@ def read_mix(
     took = min(seconds, max(1e-9, time.perf_counter() - start))
     ms = np.array(lat) * 1000.0
     pct = {f"{q}%": f"{np.percentile(ms, q):.1f}" for q in (50, 95, 99)}
+    own_ms = np.array(app) if app and not np.isnan(app).any() else np.full(1, np.nan)
+    pct |= {f"App {q}%": f"{np.percentile(own_ms, q):.1f}" for q in (50, 99)}
     return {
         "Requests/s": f"{ms.size / took:.2f}",
         "Request Count": str(ms.size),
@@ -288,6 +303,8 @@ def run(args: argparse.Namespace) -> Path:
                             frames_stored_per_s=stored / (t1 - t0),
                             frames_dropped=int(dropped),
                             network_retrains=int(trained),
+                            app_p50_ms=_finite(agg.get("App 50%")),
+                            app_p99_ms=_finite(agg.get("App 99%")),
                         )
                     )
         finally:
@@ -299,6 +316,16 @@ def run(args: argparse.Namespace) -> Path:
             err.close()
     _write(out, rows, args, load)
     return out / "load.md"
+
+
+def _finite(value: str | None) -> float | None:
+    """A summary field as a number, None when absent or not a number (no ``Server-Timing``)."""
+    x = float("nan") if value is None else float(value)
+    return None if math.isnan(x) else x
+
+
+def _ms(x: float | None) -> str:
+    return "—" if x is None else f"{x:g} ms"
 
 
 _CLIENT_NOTE = {"locust": "", "threads": " (threads)"}
@@ -336,16 +363,16 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
         "they yield the CPU to the API).",
         "",
         "| offered rps | users | achieved rps | requests | failures | p50 | p95 | p99 | max "
-        "| service CPU s/s | frames stored/s | frames dropped | network retrains |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| service's own p50 / p99 | service CPU s/s | frames stored/s | frames dropped | network retrains |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
             f"| {r.offered_rps:g} | {r.users}{_CLIENT_NOTE[r.client]} | {r.achieved_rps:.1f} | {r.requests} "
             f"| {r.failures} "
             f"| {r.p50_ms:g} ms | {r.p95_ms:g} ms | {r.p99_ms:g} ms | {r.max_ms:.0f} ms "
-            f"| {r.service_cpu_per_s:.2f} | {r.frames_stored_per_s:.0f} | {r.frames_dropped} "
-            f"| {r.network_retrains} |"
+            f"| {_ms(r.app_p50_ms)} / {_ms(r.app_p99_ms)} | {r.service_cpu_per_s:.2f} "
+            f"| {r.frames_stored_per_s:.0f} | {r.frames_dropped} | {r.network_retrains} |"
         )
     lines += [
         "",
@@ -353,7 +380,9 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
         f"rate from {DASHBOARD_USER_RPS:g} requests/s users (dashboards polling), through locust and "
         "through threads with one keep-alive connection each (`http.client`, the same read mix): the "
         "difference is what locust's own client adds, many gevent users in one process on the machine "
-        "it measures.",
+        "it measures. The threads client also reads each answer's `Server-Timing`: the service's own "
+        "time, from the request reaching its application to the answer leaving it; the rest of a round "
+        "trip is spent queued for the event loop, the interpreter or a core, or in the client.",
         "",
         "![API latency against request rate](load.png)",
         "",

@@ -4,6 +4,8 @@ JSON and plot written and values that can only come from a real run."""
 from __future__ import annotations
 
 import json
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -41,3 +43,43 @@ def test_bench_load_measures_latency_while_the_farm_ingests(tmp_path: Path) -> N
     # the farm kept ingesting meanwhile: three robots at 100 Hz, nothing dropped
     assert row["frames_stored_per_s"] > 50 and row["frames_dropped"] == 0
     assert row["service_cpu_per_s"] > 0
+
+
+def _server(timing: str | None) -> ThreadingHTTPServer:
+    """A keep-alive HTTP server on a free port answering every GET with one robot, and with
+    ``Server-Timing: timing`` when given."""
+
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def do_GET(self) -> None:
+            body = b'[{"name": "r"}]'
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            if timing is not None:
+                self.send_header("Server-Timing", timing)
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    srv = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    return srv
+
+
+@pytest.mark.parametrize(("timing", "own"), [("app;dur=2.5, store-wait;dur=0.0", "2.5"), (None, "nan")])
+def test_the_threads_client_reads_the_services_own_time(timing: str | None, own: str) -> None:
+    srv = _server(timing)
+    try:
+        agg = bench.read_mix(f"http://127.0.0.1:{srv.server_port}", 40.0, 2, 1.0)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    # 2 users at 20 rps each for 1 s: about 40 requests, every one answered
+    assert 30 <= int(agg["Request Count"]) <= 42 and agg["Failure Count"] == "0"
+    assert (agg["App 50%"], agg["App 99%"]) == (own, own)
+    assert bench._finite(agg["App 99%"]) == (None if timing is None else 2.5)
+    assert 0 < float(agg["50%"]) <= float(agg["99%"])
