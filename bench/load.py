@@ -190,28 +190,28 @@ def read_mix(
         rng = random.Random(seed)
         conn = http.client.HTTPConnection(where.hostname, where.port, timeout=10)
 
-        def get(path: str) -> bytes:
+        def get(path: str) -> tuple[bytes, str | None]:
+            """The answer's body and its ``Server-Timing`` header (read after the round trip's clock
+            stops)."""
             conn.request("GET", path)
             resp = conn.getresponse()
             body = resp.read()
-            own.append(server_timings(resp.getheader("server-timing")).get("app", float("nan")))
             if resp.status != 200:
                 with lock:
                     fails[0] += 1
-            return body
+            return body, resp.getheader("server-timing")
 
-        own: list[float] = []
-        names = [r["name"] for r in json.loads(get("/api/v1/robots"))] or ["none"]
-        own.clear()
+        names = [r["name"] for r in json.loads(get("/api/v1/robots")[0])] or ["none"]
         paths = [p for w, p, _ in READ_MIX if ready or p != READY for _ in range(w)]
         period = users / rps
-        t_next, end, mine = start + rng.uniform(0.0, period), start + seconds, []
+        t_next, end, mine, own = start + rng.uniform(0.0, period), start + seconds, [], []
         while t_next < end and not (stop is not None and stop.is_set()):
             time.sleep(max(0.0, t_next - time.perf_counter()))
             path = rng.choice(paths).format(robot=rng.choice(names))
             t0 = time.perf_counter()
-            get(path)
+            timing = get(path)[1]
             mine.append(time.perf_counter() - t0)
+            own.append(server_timings(timing).get("app", float("nan")))
             t_next += period
         with lock:
             lat.extend(mine)
