@@ -72,6 +72,26 @@ def default_estimator(
     )
 
 
+#: Seconds a terminated child is given to end before it is killed (it has no handler to run).
+_END_S = 5.0
+
+
+def _unblock_result_reader(pool: ProcessPoolExecutor) -> None:
+    """Close this process's write end of ``pool``'s result pipe, once its children are gone.
+
+    A child ended while it sends its answer leaves part of a message in the pipe, and the pool's
+    manager thread waits for the rest for ever: ``shutdown`` then never returns (a SIGTERM that did not
+    stop the service, its estimating child a zombie). With the children gone this process holds the
+    pipe's only write end, so closing it turns that wait into end-of-file, which the manager takes for
+    a broken pool. The pool's attributes are private; CPython 3.11 to 3.13 name them so, and where they
+    are missing there is nothing to close."""
+    queue = getattr(pool, "_result_queue", None)
+    writer = getattr(queue, "_writer", None)
+    if writer is not None:
+        with contextlib.suppress(OSError):
+            writer.close()
+
+
 class EstimatorProcess:
     """An :data:`~service.worker.Estimator` that runs :func:`default_estimator` in a child process
     (module doc), with the IMUs' stated filter delay ``imu_delay`` (s) and the networks' held-out test
@@ -129,9 +149,16 @@ class EstimatorProcess:
             return
         # ProcessPoolExecutor ends busy children only from Python 3.14 (terminate_workers); until then
         # its process table is the one handle on them.
-        for proc in list(getattr(pool, "_processes", {}).values()):
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for proc in procs:
             with contextlib.suppress(OSError):
                 proc.terminate()
+        for proc in procs:
+            proc.join(_END_S)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(_END_S)
+        _unblock_result_reader(pool)
         pool.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> EstimatorProcess:

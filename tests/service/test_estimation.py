@@ -22,7 +22,7 @@ from bodyschema.health import signal_health
 from service.estimation import EstimatorProcess
 from service.retrain import lower_priority
 from simulators.kinematic_tree import random_robot_recording
-from tests.waits import cpu_bound
+from tests.waits import cpu_bound, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -90,6 +90,52 @@ def test_abort_ends_an_estimate_in_flight_and_starts_no_other_child() -> None:
         with pytest.raises(BrokenProcessPool, match="stopped"):
             est.run(os.getpid)
         assert est._pool is None
+
+
+def _stall_mid_answer() -> None:
+    """In the child: the first bytes of an answer on the result pipe, then nothing, as a child ended
+    while it sends a large answer leaves the pipe (a 4-byte length, then part of the body)."""
+    import gc
+    import struct
+    from multiprocessing.queues import SimpleQueue
+
+    (results,) = [o for o in gc.get_objects() if isinstance(o, SimpleQueue)]
+    os.write(results._writer.fileno(), struct.pack("!i", 1 << 20) + b"x" * 100)
+    time.sleep(600.0)
+
+
+def test_abort_ends_a_child_stopped_halfway_through_its_answer() -> None:
+    """The pool's manager thread, halfway through reading an answer when the child ends, would wait
+    for the rest for ever, and the service's stop with it: abort still returns, and the caller gets
+    BrokenProcessPool."""
+    est = EstimatorProcess()
+    est.run(os.getpid)
+    errors: list[BaseException] = []
+
+    def call() -> None:
+        try:
+            est.run(_stall_mid_answer)
+        except BaseException as err:
+            errors.append(err)
+
+    caller = threading.Thread(target=call, daemon=True)
+    caller.start()
+
+    def reading_halfway() -> bool:  # the pool's manager thread waits for the rest of the answer
+        return any(
+            f.f_code.co_name == "_recv" and f.f_code.co_filename.endswith("connection.py")
+            for f in sys._current_frames().values()
+        )
+
+    # the child imports this module to find the function, then writes
+    wait_until(reading_halfway, cpu_bound(60.0), "the half-written answer")
+    stopper = threading.Thread(target=est.abort, daemon=True)
+    stopper.start()
+    # the child's end and the pool's shutdown; a child that ignores SIGTERM is given 5 s before SIGKILL
+    stopper.join(cpu_bound(15.0))
+    caller.join(cpu_bound(5.0))
+    assert not stopper.is_alive(), "abort hung on the half-read answer"
+    assert not caller.is_alive() and len(errors) == 1 and isinstance(errors[0], BrokenProcessPool)
 
 
 def test_the_childs_blas_runs_on_one_thread() -> None:
