@@ -53,6 +53,7 @@ Example
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import asdict, dataclass, fields, replace
@@ -186,6 +187,15 @@ def resolve_sensing(spec: str | SensingOptions | None) -> SensingOptions:
     raise ValueError(f"unknown sensing {spec!r}: not a preset ({', '.join(PRESETS)}) nor a JSON object")
 
 
+@functools.lru_cache(maxsize=32)
+def _taps(n: int, bandwidth: float, rate: float) -> np.ndarray:
+    """The filter's taps, designed once per setting: a stream filters every chunk with the same ones,
+    and their design cost as much as the filtering (read-only, as the cache hands out one array)."""
+    h = firwin(n, bandwidth, fs=rate)
+    h.setflags(write=False)
+    return h
+
+
 def dlpf_filter(x: np.ndarray, rate: float, bandwidth: float) -> np.ndarray:
     """Zero-phase low-pass of ``x`` (T, ...) sampled at ``rate`` with its cut-off at ``bandwidth`` Hz.
 
@@ -196,7 +206,7 @@ def dlpf_filter(x: np.ndarray, rate: float, bandwidth: float) -> np.ndarray:
     if bandwidth >= rate / 2:
         return x
     half = max(2, math.ceil(2.0 * rate / bandwidth))
-    h = firwin(2 * half + 1, bandwidth, fs=rate)
+    h = _taps(2 * half + 1, bandwidth, rate)
     T = x.shape[0]
     pad = min(half, T - 1)
     xp = np.concatenate([x[pad:0:-1], x, x[-2 : -pad - 2 : -1]], axis=0)
