@@ -35,7 +35,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from types import TracebackType
 from typing import Any, TypeVar
@@ -92,6 +92,30 @@ def _unblock_result_reader(pool: ProcessPoolExecutor) -> None:
             writer.close()
 
 
+#: How often a caller waiting for an answer checks that the child is still there, s.
+_POLL_S = 1.0
+
+
+def _answer(pool: ProcessPoolExecutor, future: Future[T]) -> T:
+    """``future``'s result. A child that died on its own (the OOM killer, say) breaks the pool, and
+    the call raises ``BrokenProcessPool``; but one that died halfway through sending its answer leaves
+    the pool's reader waiting for the rest (:func:`_unblock_result_reader`), and the caller with it.
+    So while it waits, the caller checks once a second that a child is alive; once none is, it
+    gives the pool one more second to notice, then unblocks the reader itself."""
+    gone_since: float | None = None
+    while True:
+        try:
+            return future.result(timeout=_POLL_S)
+        except TimeoutError:
+            pass
+        if any(p.is_alive() for p in list((getattr(pool, "_processes", None) or {}).values())):
+            gone_since = None
+        elif gone_since is None:
+            gone_since = time.monotonic()
+        elif time.monotonic() - gone_since >= _POLL_S:
+            _unblock_result_reader(pool)
+
+
 class EstimatorProcess:
     """An :data:`~service.worker.Estimator` that runs :func:`default_estimator` in a child process
     (module doc), with the IMUs' stated filter delay ``imu_delay`` (s) and the networks' held-out test
@@ -112,7 +136,7 @@ class EstimatorProcess:
         worker's other CPU-bound steps go this way too (:data:`service.worker.Compute`)."""
         pool = self._ensure()
         try:
-            return pool.submit(fn, *args, **kwargs).result()
+            return _answer(pool, pool.submit(fn, *args, **kwargs))
         except BrokenProcessPool:
             with self._lock:  # the child died: the next call starts another
                 if self._pool is pool:

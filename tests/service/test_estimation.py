@@ -92,16 +92,53 @@ def test_abort_ends_an_estimate_in_flight_and_starts_no_other_child() -> None:
         assert est._pool is None
 
 
-def _stall_mid_answer() -> None:
-    """In the child: the first bytes of an answer on the result pipe, then nothing, as a child ended
-    while it sends a large answer leaves the pipe (a 4-byte length, then part of the body)."""
+def _half_an_answer() -> None:
+    """In the child: the first bytes of an answer on the result pipe, as a child ended while it sends
+    a large answer leaves the pipe (a 4-byte length, then part of the body)."""
     import gc
     import struct
     from multiprocessing.queues import SimpleQueue
 
     (results,) = [o for o in gc.get_objects() if isinstance(o, SimpleQueue)]
     os.write(results._writer.fileno(), struct.pack("!i", 1 << 20) + b"x" * 100)
+
+
+def _stall_mid_answer() -> None:
+    """Half an answer, then nothing: the child is ended from outside."""
+    _half_an_answer()
     time.sleep(600.0)
+
+
+def _die_mid_answer() -> None:
+    """Half an answer, then the child ends on its own."""
+    _half_an_answer()
+    os._exit(3)
+
+
+def test_a_child_that_dies_halfway_through_its_answer_fails_the_call() -> None:
+    """Nobody ends this child: it dies while it sends. The caller notices that no child is alive and
+    gets BrokenProcessPool within two of its one-second checks, where it would have waited for ever;
+    the next call gets a new child."""
+    est = EstimatorProcess()
+    try:
+        first = est.run(os.getpid)
+        errors: list[BaseException] = []
+
+        def call() -> None:
+            try:
+                est.run(_die_mid_answer)
+            except BaseException as err:
+                errors.append(err)
+
+        caller = threading.Thread(target=call, daemon=True)
+        caller.start()
+        # the child imports this module to find the function (seconds on a loaded machine), then dies
+        caller.join(cpu_bound(60.0))
+        assert not caller.is_alive(), "the call hung on the half-read answer"
+        assert len(errors) == 1 and isinstance(errors[0], BrokenProcessPool)
+        assert est.run(os.getpid) != first
+    finally:
+        est.abort()  # not close(): a pool left waiting on half an answer would hold a close for ever
 
 
 def test_abort_ends_a_child_stopped_halfway_through_its_answer() -> None:
