@@ -13,6 +13,7 @@ import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -43,6 +44,22 @@ def _child(est: EstimatorProcess) -> int:
     return int(pid)
 
 
+def _call_in_thread(est: EstimatorProcess, fn: Any, *args: Any) -> tuple[threading.Thread, list]:
+    """``est.run(fn, *args)`` on a daemon thread of its own, started; the errors it raised go in the
+    list."""
+    errors: list[BaseException] = []
+
+    def call() -> None:
+        try:
+            est.run(fn, *args)
+        except BaseException as err:
+            errors.append(err)
+
+    th = threading.Thread(target=call, daemon=True)
+    th.start()
+    return th, errors
+
+
 def test_the_child_answers_as_the_thread_and_is_replaced_when_it_dies() -> None:
     rec = random_robot_recording(np.random.default_rng(5), n_joints=6, seconds=10.0)
     here = estimate_topology(rec, "fast", imu_delay=4.8e-3)
@@ -69,16 +86,7 @@ def test_abort_ends_an_estimate_in_flight_and_starts_no_other_child() -> None:
     raises at once, and the child is gone."""
     with EstimatorProcess() as est:
         first = est.run(os.getpid)
-        errors: list[BaseException] = []
-
-        def call() -> None:
-            try:
-                est.run(time.sleep, 60.0)
-            except BaseException as err:
-                errors.append(err)
-
-        th = threading.Thread(target=call)
-        th.start()
+        th, errors = _call_in_thread(est, time.sleep, 60.0)
         time.sleep(0.5)  # the sleep is in the child now
         t0 = time.monotonic()
         est.abort()
@@ -122,16 +130,7 @@ def test_a_child_that_dies_halfway_through_its_answer_fails_the_call() -> None:
     est = EstimatorProcess()
     try:
         first = est.run(os.getpid)
-        errors: list[BaseException] = []
-
-        def call() -> None:
-            try:
-                est.run(_die_mid_answer)
-            except BaseException as err:
-                errors.append(err)
-
-        caller = threading.Thread(target=call, daemon=True)
-        caller.start()
+        caller, errors = _call_in_thread(est, _die_mid_answer)
         # the child imports this module to find the function (seconds on a loaded machine), then dies
         caller.join(cpu_bound(60.0))
         assert not caller.is_alive(), "the call hung on the half-read answer"
@@ -147,16 +146,7 @@ def test_abort_ends_a_child_stopped_halfway_through_its_answer() -> None:
     BrokenProcessPool."""
     est = EstimatorProcess()
     est.run(os.getpid)
-    errors: list[BaseException] = []
-
-    def call() -> None:
-        try:
-            est.run(_stall_mid_answer)
-        except BaseException as err:
-            errors.append(err)
-
-    caller = threading.Thread(target=call, daemon=True)
-    caller.start()
+    caller, errors = _call_in_thread(est, _stall_mid_answer)
 
     def reading_halfway() -> bool:  # the pool's manager thread waits for the rest of the answer
         return any(
