@@ -76,6 +76,13 @@ def default_estimator(
 _END_S = 5.0
 
 
+def _children(pool: ProcessPoolExecutor) -> list[Any]:
+    """``pool``'s child processes. ProcessPoolExecutor ends busy children only from Python 3.14
+    (terminate_workers), and tells whether they live not at all; until then its private process table
+    is the one handle on them (empty once the pool is shut down)."""
+    return list((getattr(pool, "_processes", None) or {}).values())
+
+
 def _unblock_result_reader(pool: ProcessPoolExecutor) -> None:
     """Close this process's write end of ``pool``'s result pipe, once its children are gone.
 
@@ -108,7 +115,7 @@ def _answer(pool: ProcessPoolExecutor, future: Future[T]) -> T:
             return future.result(timeout=_POLL_S)
         except TimeoutError:
             pass
-        if any(p.is_alive() for p in list((getattr(pool, "_processes", None) or {}).values())):
+        if any(p.is_alive() for p in _children(pool)):
             gone_since = None
         elif gone_since is None:
             gone_since = time.monotonic()
@@ -171,9 +178,7 @@ class EstimatorProcess:
             pool, self._pool = self._pool, None
         if pool is None:
             return
-        # ProcessPoolExecutor ends busy children only from Python 3.14 (terminate_workers); until then
-        # its process table is the one handle on them.
-        procs = list((getattr(pool, "_processes", None) or {}).values())
+        procs = _children(pool)
         for proc in procs:
             with contextlib.suppress(OSError):
                 proc.terminate()
