@@ -121,13 +121,13 @@ def map_jobs(
     return out
 
 
-def fmt(x: float | None, spec: str = ".2f") -> str:
-    """A table cell: ``x`` formatted by ``spec``, or a dash where there is none.
+def fmt(x: float | None, spec: str = ".2f", unit: str = "") -> str:
+    """A table cell: ``x`` formatted by ``spec`` and followed by ``unit``, or a dash where there is none.
 
-    >>> fmt(1.234), fmt(None), fmt(0.5, ".0%")
-    ('1.23', '—', '50%')
+    >>> fmt(1.234), fmt(None), fmt(0.5, ".0%"), fmt(2.5, "g", " ms"), fmt(None, "g", " ms")
+    ('1.23', '—', '50%', '2.5 ms', '—')
     """
-    return "—" if x is None else format(x, spec)
+    return "—" if x is None else format(x, spec) + unit
 
 
 def write_results(

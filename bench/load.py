@@ -29,7 +29,7 @@ from pathlib import Path
 
 import httpx
 
-from bench import REPO_ROOT, RESULTS_DIR, machine_note
+from bench import REPO_ROOT, RESULTS_DIR, fmt, machine_note
 from bench.read_mix import READ_MIX, READY
 from bodyschema.progress import progress
 from service.api.timing import server_timings
@@ -324,10 +324,6 @@ def _finite(value: str | None) -> float | None:
     return None if math.isnan(x) else x
 
 
-def _ms(x: float | None) -> str:
-    return "—" if x is None else f"{x:g} ms"
-
-
 _CLIENT_NOTE = {"locust": "", "threads": " (threads)"}
 
 
@@ -371,7 +367,8 @@ def _write(out: Path, rows: list[Row], args: argparse.Namespace, load: float) ->
             f"| {r.offered_rps:g} | {r.users}{_CLIENT_NOTE[r.client]} | {r.achieved_rps:.1f} | {r.requests} "
             f"| {r.failures} "
             f"| {r.p50_ms:g} ms | {r.p95_ms:g} ms | {r.p99_ms:g} ms | {r.max_ms:.0f} ms "
-            f"| {_ms(r.app_p50_ms)} / {_ms(r.app_p99_ms)} | {r.service_cpu_per_s:.2f} "
+            f"| {fmt(r.app_p50_ms, 'g', ' ms')} / {fmt(r.app_p99_ms, 'g', ' ms')} "
+            f"| {r.service_cpu_per_s:.2f} "
             f"| {r.frames_stored_per_s:.0f} | {r.frames_dropped} | {r.network_retrains} |"
         )
     lines += [

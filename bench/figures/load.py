@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from bench import fmt
 from bench.figures.files import BenchFiles
 
 __all__ = ["readme"]
@@ -14,10 +15,6 @@ def readme(b: BenchFiles) -> str:
     def who(r: dict) -> str:
         kind = "threads" if r.get("client") == "threads" else "locust users"
         return f"{r.get('users', '?')} {kind}"
-
-    def own(r: dict) -> str:
-        # the service's own time (Server-Timing), read by the threads client only
-        return "—" if r.get("app_p99_ms") is None else f"{r['app_p99_ms']:g} ms"
 
     verdicts = [
         ("met" if r["p99_ms"] <= d["target_p99_ms"] and not r["failures"] else "missed")
@@ -39,7 +36,8 @@ def readme(b: BenchFiles) -> str:
     for r in d["rows"]:
         lines.append(
             f"| {r['offered_rps']:g} | {who(r)} | {r['achieved_rps']:.1f} | {r['p50_ms']:g} ms "
-            f"| {r['p95_ms']:g} ms | {r['p99_ms']:g} ms | {own(r)} | {r['failures']} "
+            f"| {r['p95_ms']:g} ms | {r['p99_ms']:g} ms | {fmt(r.get('app_p99_ms'), 'g', ' ms')} "
+            f"| {r['failures']} "
             f"| {r['service_cpu_per_s']:.2f} "
             f"| {r['frames_stored_per_s']:.0f} | {r.get('network_retrains', 0)} |"
         )
