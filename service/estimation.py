@@ -7,7 +7,8 @@ tail of docs/bench/load.md. In a child process it costs the service only the pic
 and of the answer. The worker's other CPU-bound steps (signal health, impact removal, fingerprints) run
 there too (:meth:`EstimatorProcess.run`): in the worker thread they held the lock for a tenth of the
 service's time, long enough to triple the API's latency tail. The child is started on the first estimate
-(:mod:`service.children`: ``spawn``, and it ends with its parent) and serves one estimate at a time, in order.
+(:mod:`service.children`: a fork of the fork server, and it ends with the service) and serves one
+estimate at a time, in order.
 
 A child that dies is replaced at the next call; the call it died in raises, the worker logs it for that
 robot, and the next cycle tries again. The network methods come here only when the service runs
@@ -42,20 +43,20 @@ from typing import Any, TypeVar
 
 from bodyschema.recording import Recording
 from bodyschema.topology import Topology
-from service.children import SPAWN, exit_with_parent
+from service.children import CHILDREN, exit_with_service
 
 __all__ = ["EstimatorProcess", "default_estimator"]
 
 T = TypeVar("T")
 
 
-def _start_child(parent: int) -> None:
+def _start_child(service: int) -> None:
     """The child's setup: it ends with the service, and its fits run BLAS on one thread. They are tall
     and thin least squares; on more threads they spin against the service and the training workers
     for the same cores (:func:`bodyschema.threads.set_blas_threads`)."""
     from bodyschema.threads import set_blas_threads
 
-    exit_with_parent(parent)
+    exit_with_service(service)
     set_blas_threads(1)
 
 
@@ -157,7 +158,7 @@ class EstimatorProcess:
                 raise BrokenProcessPool("the estimator was stopped")
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=SPAWN, initializer=_start_child, initargs=(os.getpid(),)
+                    max_workers=1, mp_context=CHILDREN, initializer=_start_child, initargs=(os.getpid(),)
                 )
             return self._pool
 
@@ -171,8 +172,8 @@ class EstimatorProcess:
     def abort(self) -> None:
         """End the child now, an estimate in flight with it: its caller gets ``BrokenProcessPool``, and
         so does every later call. A stopping service uses it so that SIGTERM is not held by a long
-        estimate, nor by a new child (seconds to spawn and import on a loaded machine) for the next step
-        of the robot the worker is finishing."""
+        estimate, nor by a new child (its fork server may still be importing on a loaded machine) for
+        the next step of the robot the worker is finishing."""
         with self._lock:
             self._aborted = True
             pool, self._pool = self._pool, None

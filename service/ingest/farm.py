@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from service.children import SPAWN, exit_with_parent
+from service.children import CHILDREN, exit_with_service
 from service.frames import FrameBatch
 from service.ingest.base import Source
 from service.ingest.replay import recording_batch
@@ -189,8 +189,8 @@ class FarmProcess:
     """
 
     def __init__(self, **farm_kwargs: Any) -> None:
-        self._conn, child = SPAWN.Pipe()
-        self._proc = SPAWN.Process(
+        self._conn, child = CHILDREN.Pipe()
+        self._proc = CHILDREN.Process(
             target=_serve_farm, args=(child, farm_kwargs, os.getpid()), name="farm", daemon=True
         )
         self._proc.start()
@@ -236,8 +236,8 @@ class FarmProcess:
             self._conn.close()
 
 
-def _serve_farm(conn: Any, farm_kwargs: dict[str, Any], parent: int) -> None:
-    """The child's loop: build the farm, then answer calls until told to stop or the parent is gone."""
+def _serve_farm(conn: Any, farm_kwargs: dict[str, Any], service: int) -> None:
+    """The child's loop: build the farm, then answer calls until told to stop or the service is gone."""
     from simulators.farm import Farm
 
     try:
@@ -245,7 +245,7 @@ def _serve_farm(conn: Any, farm_kwargs: dict[str, Any], parent: int) -> None:
     except Exception as err:  # a bad spec: said to the parent, which raises it
         conn.send((False, err))
         return
-    exit_with_parent(parent)
+    exit_with_service(service)
     while True:
         try:
             msg = conn.recv()
