@@ -13,7 +13,10 @@ from __future__ import annotations
 import platform
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
 
 __all__ = [
     "BENCHMARKS",
@@ -23,6 +26,7 @@ __all__ = [
     "fmt",
     "machine_note",
     "map_jobs",
+    "process_pool",
     "write_results",
 ]
 
@@ -86,6 +90,17 @@ def machine_note(cpuinfo: str = "/proc/cpuinfo") -> str:
     return f"{os.cpu_count()} cores, {name}, Python {platform.python_version()}"
 
 
+def process_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes for a bench's runs: forks of the service's fork server
+    (:mod:`service.children`), never of the bench itself, which may hold threads, MuJoCo state or
+    PyTorch's thread pools that a fork would copy half set up."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from service.children import CHILDREN
+
+    return ProcessPoolExecutor(max_workers=workers, mp_context=CHILDREN)
+
+
 def map_jobs(
     fn: Callable[..., Any],
     jobs: Sequence[tuple],
@@ -94,18 +109,15 @@ def map_jobs(
     unit: str,
     on_result: Callable[[Any], None] | None = None,
 ) -> list[Any]:
-    """``[fn(*job) for job in jobs]`` in order, on ``workers`` spawned processes when more than one,
-    with a progress bar (spawned: the parent may hold threads and MuJoCo state a fork would copy).
-    ``on_result`` sees each result as it arrives, so a long bench can save what it has done."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
+    """``[fn(*job) for job in jobs]`` in order, on ``workers`` processes (:func:`process_pool`) when
+    more than one, with a progress bar. ``on_result`` sees each result as it arrives, so a long bench
+    can save what it has done."""
     from bodyschema.progress import progress
 
     out: list[Any] = []
     bar = progress(total=len(jobs), desc=desc, unit=unit)
     if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        with process_pool(workers) as pool:
             for res in pool.map(fn, *zip(*jobs, strict=True)):
                 out.append(res)
                 if on_result is not None:

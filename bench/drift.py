@@ -315,12 +315,10 @@ def _service(args: argparse.Namespace) -> dict:
     jobs = max(1, min(args.jobs, len(robots)))
     if jobs == 1:
         return _service_robots(args, robots)
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from bench import process_pool
 
-    # spawn: a forked child would inherit torch's and BLAS's thread pools half set up
     plain = argparse.Namespace(**{k: v for k, v in vars(args).items() if not callable(v)})
-    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with process_pool(jobs) as pool:
         parts = list(pool.map(_service_robots, [plain] * len(robots), [{k: v} for k, v in robots.items()]))
     out = dict(parts[0])
     for key in ("cycles", "interval_s", "kinematics_interval_cycles", "network_interval_cycles"):

@@ -315,7 +315,7 @@ def _client(host: str, rps: float, users: int, stop: Any, out: Any) -> None:
 
 def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Namespace, workers: int) -> dict:
     """One round with ingest and API load running beside it."""
-    from service.children import SPAWN
+    from service.children import CHILDREN
 
     training = _training(args.seed + 1)
     fleet = [(n, recs[i % len(recs)]) for i, n in enumerate(names)]
@@ -324,9 +324,9 @@ def _measured(store: Any, names: list[str], recs: list[Any], args: argparse.Name
     api = _Api(store)
     # the load generator in a process of its own: its threads would otherwise wait on the service's
     # interpreter lock, and their waits would count as the API's latency
-    stop, out = SPAWN.Event(), SPAWN.Queue()
+    stop, out = CHILDREN.Event(), CHILDREN.Queue()
     users = max(1, round(args.api_rps / 10.0))
-    client = SPAWN.Process(
+    client = CHILDREN.Process(
         target=_client,
         args=(f"http://127.0.0.1:{api.port}", args.api_rps, users, stop, out),
         name="bench-fleet-client",

@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note, write_results
+from bench import RESULTS_DIR, machine_note, process_pool, write_results
 from bodyschema.progress import progress
 from sim2real.figures import save_figure
 from simulators.sensing import PRESETS, SensingOptions
@@ -281,7 +280,7 @@ def run(args: argparse.Namespace) -> Path:
         for i in range(args.robots)
     ]
     rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+    with process_pool(max(1, args.jobs)) as pool:
         for part in progress(
             pool.map(_robot_task, jobs), total=len(jobs), desc="bench realism", unit="robot"
         ):
@@ -297,7 +296,7 @@ def run(args: argparse.Namespace) -> Path:
             for name in CATALOG
             for seed in range(args.catalog_seeds)
         ]
-        with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        with process_pool(max(1, args.jobs)) as pool:
             runs = pool.map(_catalog_task, cjobs)
             catalog = list(progress(runs, total=len(cjobs), desc="catalog, robot preset", unit="run"))
     out = Path(args.out)

@@ -285,9 +285,9 @@ def _fast_prefix_exact(rec: Any, key: str, d: float, store: _Store) -> Any:
 
 def _train(args: argparse.Namespace, jobs: list[tuple[str, int, list[str]]], store: _Store) -> None:
     """Run the network trainings (side by side with ``--jobs`` > 1) and keep their results."""
-    from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-    from multiprocessing import get_context
+    from concurrent.futures import Future, as_completed
 
+    from bench import process_pool
     from bodyschema.progress import progress
 
     bar = progress(total=len(jobs), desc="bench topology: networks", unit="run")
@@ -298,8 +298,7 @@ def _train(args: argparse.Namespace, jobs: list[tuple[str, int, list[str]]], sto
         bar.update(1)
 
     if args.jobs > 1 and len(jobs) > 1:
-        # spawn, not fork: the parent has torch and OpenMP state a forked child must not inherit
-        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
+        with process_pool(args.jobs) as pool:
             futures: dict[Future[dict[str, Any]], tuple[str, int]] = {
                 pool.submit(_network_job, robot, args.seconds, seed, todo, args.epochs): (robot, seed)
                 for robot, seed, todo in jobs

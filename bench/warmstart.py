@@ -18,14 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench import RESULTS_DIR, machine_note
+from bench import RESULTS_DIR, machine_note, process_pool
 from bodyschema.progress import progress
 
 __all__ = ["TARGET_RATIO", "add_arguments", "run"]
@@ -148,7 +146,7 @@ def run(args: argparse.Namespace) -> Path:
         {"robot": r, "window": args.window, "seed": args.seed, "damage": d} for r in robots for d in damages
     ]
     rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
+    with process_pool(args.jobs) as pool:
         bar = progress(total=len(jobs), desc="warm start", unit="robot")
         for row in pool.map(_robot, jobs):
             rows.append(row)
